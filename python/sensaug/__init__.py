@@ -1,4 +1,8 @@
-"""sensaug: human-robot sensory augmentation (partner identification and goal integration)."""
-from sensaug import _core
+"""sensaug: human-robot sensory augmentation (partner identification and goal integration).
 
-__all__ = ["_core"]
+The numerics run in the compiled core (`sensaug._core`, Rust); this package is
+the Python API for scripting experiments around it.
+"""
+from sensaug._core import Plant
+
+__all__ = ["Plant"]

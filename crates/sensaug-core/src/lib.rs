@@ -15,4 +15,6 @@
 
 pub mod plant;
 pub mod riccati;
+pub mod rng;
+pub mod target;
 pub mod ukf;

@@ -1,1 +1,231 @@
-//! Placeholder.
+//! The shared 1-DoF handle (eq.dynamics): `M xdd + C xd = u + u_h + eps`.
+//!
+//! One joint, stepped by the exact zero-order-hold (ZOH) solution over the
+//! loop period: the summed torque is held constant for `dt`, and the linear
+//! part is integrated in closed form, so the discrete plant is exact for the
+//! linear model at any `dt`, not a first-order approximation.
+//!
+//! Units are the caller's, consistently: rad, rad/s, N m and kg m^2 for the
+//! Hi5 wrist; m, m/s, N and kg for the paper's simulation.
+//!
+//! Optional Coulomb friction is a torque of magnitude `coulomb` opposing the
+//! motion (or, at rest, opposing the applied torque up to `coulomb`: stiction),
+//! held constant over a step like the input. Viscous friction is the paper's
+//! `C` (`damping`). `FrictionCompensation` is the controller-side term the
+//! paper's Hi5 experiment adds to cancel both.
+
+use libm::{exp, expm1, fabs, tanh};
+
+/// Physical parameters of the handle and the loop period.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlantParams {
+    /// Inertia `M` (kg m^2 for a revolute joint, kg for a linear one). Must be > 0.
+    pub mass: f64,
+    /// Viscous damping `C` (N m s/rad). Must be >= 0.
+    pub damping: f64,
+    /// Coulomb friction torque magnitude (N m). Must be >= 0; 0 disables it.
+    pub coulomb: f64,
+    /// Loop period `dt` (s). Must be > 0.
+    pub dt_s: f64,
+}
+
+impl PlantParams {
+    /// The Hi5 wrist interface of the paper's experiment: `M = 0.0035 kg m^2`,
+    /// `C = 0` (after friction compensation), 1 kHz.
+    pub const HI5: PlantParams = PlantParams {
+        mass: 0.0035,
+        damping: 0.0,
+        coulomb: 0.0,
+        dt_s: 1e-3,
+    };
+
+    /// Checks every field; the error names the first one that is wrong.
+    pub fn validate(&self) -> Result<(), PlantError> {
+        if !(self.mass.is_finite() && self.mass > 0.0) {
+            return Err(PlantError::InvalidParam("mass"));
+        }
+        if !(self.damping.is_finite() && self.damping >= 0.0) {
+            return Err(PlantError::InvalidParam("damping"));
+        }
+        if !(self.coulomb.is_finite() && self.coulomb >= 0.0) {
+            return Err(PlantError::InvalidParam("coulomb"));
+        }
+        if !(self.dt_s.is_finite() && self.dt_s > 0.0) {
+            return Err(PlantError::InvalidParam("dt_s"));
+        }
+        Ok(())
+    }
+}
+
+/// Why a plant could not be built or stepped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PlantError {
+    /// The named parameter is non-finite or out of range (see [`PlantParams`]).
+    InvalidParam(&'static str),
+    /// The torque given to [`Plant::step`] is NaN or infinite; the state is unchanged.
+    NonFiniteTorque,
+}
+
+/// Position and velocity of the handle.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PlantState {
+    /// Position `x` (rad or m).
+    pub x: f64,
+    /// Velocity `xd` (rad/s or m/s).
+    pub v: f64,
+}
+
+/// Exact ZOH coefficients of `M xdd + C xd = f`, precomputed once.
+///
+/// With `s = C dt / M`:
+/// `v' = e^{-s} v + dt phi1(s) f/M` and
+/// `x' = x + dt phi1(s) v + dt^2 phi2(s) f/M`, where
+/// `phi1(s) = (1 - e^{-s})/s` and `phi2(s) = (s - 1 + e^{-s})/s^2`
+/// (`phi1(0) = 1`, `phi2(0) = 1/2`: the double integrator).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Zoh {
+    /// `e^{-s}`: velocity decay over one step.
+    pub decay: f64,
+    /// `dt phi1(s)`: position gain of the velocity, and velocity gain of `f/M`.
+    pub dt_phi1: f64,
+    /// `dt^2 phi2(s)`: position gain of `f/M`.
+    pub dt2_phi2: f64,
+}
+
+impl Zoh {
+    /// Coefficients for inertia `mass`, damping `damping` and period `dt_s`.
+    pub fn new(mass: f64, damping: f64, dt_s: f64) -> Self {
+        let s = damping * dt_s / mass;
+        Zoh {
+            decay: exp(-s),
+            dt_phi1: dt_s * phi1(s),
+            dt2_phi2: dt_s * dt_s * phi2(s),
+        }
+    }
+}
+
+/// `phi1(s) = (1 - e^{-s})/s`, via `expm1` to keep precision for small `s`.
+fn phi1(s: f64) -> f64 {
+    if s == 0.0 {
+        1.0
+    } else {
+        -expm1(-s) / s
+    }
+}
+
+/// `phi2(s) = (s - 1 + e^{-s})/s^2`; a Taylor series below `s = 1e-3`, where
+/// the direct form cancels catastrophically (series error < s^4/720 < 1e-15).
+fn phi2(s: f64) -> f64 {
+    if fabs(s) < 1e-3 {
+        0.5 - s / 6.0 + s * s / 24.0 - s * s * s / 120.0
+    } else {
+        (s + expm1(-s)) / (s * s)
+    }
+}
+
+/// The handle, stepped at a fixed period.
+#[derive(Clone, Copy, Debug)]
+pub struct Plant {
+    params: PlantParams,
+    zoh: Zoh,
+    state: PlantState,
+}
+
+impl Plant {
+    /// A plant at rest at `x = 0`. Validates `params` (set-up time, not in the tick).
+    pub fn new(params: PlantParams) -> Result<Self, PlantError> {
+        params.validate()?;
+        Ok(Plant {
+            params,
+            zoh: Zoh::new(params.mass, params.damping, params.dt_s),
+            state: PlantState::default(),
+        })
+    }
+
+    /// The parameters this plant was built with.
+    pub fn params(&self) -> &PlantParams {
+        &self.params
+    }
+
+    /// The precomputed ZOH coefficients.
+    pub fn zoh(&self) -> &Zoh {
+        &self.zoh
+    }
+
+    /// Current position and velocity.
+    pub fn state(&self) -> PlantState {
+        self.state
+    }
+
+    /// Places the handle at `state` (e.g. the measured start of a trial).
+    pub fn set_state(&mut self, state: PlantState) {
+        self.state = state;
+    }
+
+    /// The friction torque held over the next step, given the applied torque.
+    ///
+    /// Moving: `-coulomb sign(v)`. At rest: stiction cancels the applied
+    /// torque up to `coulomb`, beyond that it opposes it with `coulomb`.
+    pub fn coulomb_torque(&self, v: f64, applied: f64) -> f64 {
+        let fc = self.params.coulomb;
+        if fc == 0.0 {
+            0.0
+        } else if v != 0.0 {
+            -fc * v.signum()
+        } else if fabs(applied) <= fc {
+            -applied
+        } else {
+            -fc * applied.signum()
+        }
+    }
+
+    /// Advances one period with the summed torque `torque = u + u_h + eps`
+    /// held constant (ZOH). A non-finite torque is rejected and the state is
+    /// left unchanged.
+    ///
+    /// With Coulomb friction, a step in which friction alone would reverse the
+    /// velocity ends at rest instead (friction cannot drive motion).
+    pub fn step(&mut self, torque: f64) -> Result<PlantState, PlantError> {
+        if !torque.is_finite() {
+            return Err(PlantError::NonFiniteTorque);
+        }
+        let PlantState { x, v } = self.state;
+        let friction = self.coulomb_torque(v, torque);
+        let acc = (torque + friction) / self.params.mass;
+        let mut v_next = self.zoh.decay * v + self.zoh.dt_phi1 * acc;
+        let x_next = x + self.zoh.dt_phi1 * v + self.zoh.dt2_phi2 * acc;
+        if friction != 0.0 && v != 0.0 && v_next * v < 0.0 && fabs(torque) <= self.params.coulomb {
+            v_next = 0.0;
+        }
+        self.state = PlantState {
+            x: x_next,
+            v: v_next,
+        };
+        Ok(self.state)
+    }
+}
+
+/// Controller-side friction compensation, as in the paper's Hi5 experiment:
+/// `u_comp = coulomb tanh(v / v_smooth) + viscous v`.
+///
+/// `tanh` replaces `sign` so the command stays continuous through zero
+/// velocity (a hard sign chatters on a noisy velocity estimate).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrictionCompensation {
+    /// Estimated Coulomb torque (N m).
+    pub coulomb: f64,
+    /// Estimated viscous coefficient (N m s/rad).
+    pub viscous: f64,
+    /// Velocity scale of the smoothed sign (rad/s); must be > 0.
+    pub v_smooth: f64,
+}
+
+impl FrictionCompensation {
+    /// The compensating torque at velocity `v`; 0 for a non-finite `v`.
+    pub fn torque(&self, v: f64) -> f64 {
+        if !v.is_finite() {
+            return 0.0;
+        }
+        self.coulomb * tanh(v / self.v_smooth) + self.viscous * v
+    }
+}

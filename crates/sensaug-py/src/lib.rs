@@ -3,11 +3,13 @@
 //! converts the result back.
 use pyo3::prelude::*;
 
+mod plant;
 mod riccati;
 mod ukf;
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    plant::register(m)?;
     riccati::register(m)?;
     ukf::register(m)?;
     Ok(())

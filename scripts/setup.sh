@@ -1,0 +1,14 @@
+#!/usr/bin/env bash
+# Creates .venv (if missing), installs the Python dependencies and builds the
+# extension module into it. Idempotent; every other script starts with it.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PY=${PYTHON:-python3}
+if [ ! -x .venv/bin/python ]; then
+    "$PY" -m venv .venv
+fi
+.venv/bin/python -m pip install -q --upgrade pip
+.venv/bin/python -m pip install -q -r requirements-dev.txt
+# maturin develop installs the package in editable mode with the compiled
+# module built in release mode (the estimators are too slow unoptimised).
+VIRTUAL_ENV="$PWD/.venv" .venv/bin/maturin develop --release -q
