@@ -5,6 +5,9 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use sensaug_core::plant::{Plant as CorePlant, PlantError, PlantParams, PlantState};
 
+/// Two 1-D arrays returned together (positions, velocities).
+type ArrayPair<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>);
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Plant>()
 }
@@ -74,7 +77,7 @@ impl Plant {
         &mut self,
         py: Python<'py>,
         torques: PyReadonlyArray1<'py, f64>,
-    ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>)> {
+    ) -> PyResult<ArrayPair<'py>> {
         let torques = torques.as_slice()?;
         if let Some(k) = torques.iter().position(|t| !t.is_finite()) {
             return Err(PyValueError::new_err(format!(
