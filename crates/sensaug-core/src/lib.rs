@@ -13,8 +13,11 @@
 #![deny(missing_docs)]
 #![allow(non_snake_case)]
 
+pub mod agent;
+pub mod estimator;
 pub mod plant;
 pub mod riccati;
 pub mod rng;
+pub mod scenario;
 pub mod target;
 pub mod ukf;

@@ -1,0 +1,457 @@
+//! The three partner estimators of the paper (section "Estimation of human's
+//! control" and "Goal integration"), each a UKF on the reference discrete
+//! model of `docs/model.md`.
+//!
+//! Written from the robot's side: "own" is the agent running the estimator,
+//! "partner" the agent being identified. The same code serves a human model
+//! that estimates the robot: give it the mirrored state order
+//! (`[x - tau_h, xdot, x - tau]`), its own torque and the targets swapped.
+//!
+//! Per tick the caller runs: `update` with `y_k`, reads the posterior,
+//! computes its command `u_k`, then `predict` with `u_k` and the targets'
+//! increments `tau[k+1] - tau[k]` (0 for a target the agent does not know).
+
+use crate::ukf::{MerweParams, Status, Ukf, UkfError};
+use nalgebra::{SMatrix, SVector, Vector2, Vector3};
+
+/// Extended state (eq.state-extended): `[e, v, e_h, Lhx, Lhv, Lhh]` with
+/// `e = x - tau`, `v = xdot`, `e_h = x - tau_h`.
+pub type Extended = SVector<f64, 6>;
+/// 6x6 covariance of the extended state.
+pub type Cov6 = SMatrix<f64, 6, 6>;
+
+/// Index of `x - tau_h` in [`Extended`].
+pub const E_H: usize = 2;
+/// Index of the first partner gain in [`Extended`].
+pub const GAINS: usize = 3;
+
+/// The estimator's model of the handle; may differ from the true plant.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HandleModel {
+    /// Inertia `M`, > 0.
+    pub mass: f64,
+    /// Viscous damping `C`, >= 0.
+    pub damping: f64,
+    /// Step `dt` (s), > 0.
+    pub dt_s: f64,
+}
+
+impl HandleModel {
+    /// Checks every field; `Err` names the first bad one.
+    pub fn validate(&self) -> Result<(), EstimatorError> {
+        let bad = |name| Err(EstimatorError::InvalidModel(name));
+        if !(self.mass.is_finite() && self.mass > 0.0) {
+            return bad("mass");
+        }
+        if !(self.damping.is_finite() && self.damping >= 0.0) {
+            return bad("damping");
+        }
+        if !(self.dt_s.is_finite() && self.dt_s > 0.0) {
+            return bad("dt_s");
+        }
+        Ok(())
+    }
+
+    /// One step of `M a = f - C v` with the acceleration held:
+    /// `dx = dt v + dt^2 a / 2`, `v' = v + dt a`. Returns `(dx, v')`.
+    /// Exact for `C = 0` (the zero-order hold of the double integrator).
+    pub fn kinematics(&self, v: f64, force: f64) -> (f64, f64) {
+        let a = (force - self.damping * v) / self.mass;
+        let dt = self.dt_s;
+        (dt * v + 0.5 * dt * dt * a, v + dt * a)
+    }
+}
+
+/// Set-up errors of an estimator.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EstimatorError {
+    /// A field of [`HandleModel`] is out of range.
+    InvalidModel(&'static str),
+    /// The underlying UKF rejected its set-up (names the argument).
+    Ukf(UkfError),
+}
+
+impl From<UkfError> for EstimatorError {
+    fn from(e: UkfError) -> Self {
+        EstimatorError::Ukf(e)
+    }
+}
+
+/// Partner torque (eq.LQRhuman) from the extended state:
+/// `u_h = -(Lhx e + Lhv v + Lhh e_h)`.
+pub fn partner_torque(z: &Extended) -> f64 {
+    -(z[GAINS] * z[0] + z[GAINS + 1] * z[1] + z[GAINS + 2] * z[E_H])
+}
+
+/// Discrete process model of the extended state (eq.system-extended,
+/// discretised as in docs/model.md):
+/// `a = (u + u_h - C v)/M`, `dx = dt v + dt^2 a/2`,
+/// `e' = e + dx - dtau`, `v' = v + dt a`, `e_h' = e_h + dx - dtau_h`, `L' = L`.
+pub fn extended_process(
+    model: &HandleModel,
+    z: &Extended,
+    u: f64,
+    dtau: f64,
+    dtau_h: f64,
+) -> Extended {
+    let (dx, v_next) = model.kinematics(z[1], u + partner_torque(z));
+    let mut next = *z;
+    next[0] = z[0] + dx - dtau;
+    next[1] = v_next;
+    next[E_H] = z[E_H] + dx - dtau_h;
+    next
+}
+
+/// Stage-1 measurement (eq.measurement-extended_control): `y1 = [e, v, e_h]`.
+pub fn gain_measurement(z: &Extended) -> Vector3<f64> {
+    Vector3::new(z[0], z[1], z[E_H])
+}
+
+/// Stage-2 measurement (eq.measurement-extended): `y2 = [e, v, Lhx, Lhv, Lhh]`.
+pub fn trajectory_measurement(z: &Extended) -> SVector<f64, 5> {
+    SVector::<f64, 5>::new(z[0], z[1], z[GAINS], z[GAINS + 1], z[GAINS + 2])
+}
+
+/// UKF settings shared by the extended-state estimators.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ExtendedFilterConfig<const M: usize> {
+    /// Initial state.
+    pub x0: Extended,
+    /// Initial covariance (also the reset covariance).
+    pub P0: Cov6,
+    /// Per-step process noise covariance.
+    pub Q: Cov6,
+    /// Per-step measurement noise covariance.
+    pub R: SMatrix<f64, M, M>,
+    /// Sigma-point parameters.
+    pub sigma: MerweParams,
+}
+
+/// Stage 1 (section "Estimation of human's control gain"): the partner's
+/// gains, with both targets known.
+#[derive(Clone, Debug)]
+pub struct GainEstimator {
+    model: HandleModel,
+    ukf: Ukf<6, 3, 13>,
+}
+
+impl GainEstimator {
+    /// Set-up: validates the model and the filter settings.
+    pub fn new(model: HandleModel, cfg: &ExtendedFilterConfig<3>) -> Result<Self, EstimatorError> {
+        model.validate()?;
+        let ukf = Ukf::new(cfg.x0, cfg.P0, cfg.Q, cfg.R, cfg.sigma)?;
+        Ok(GainEstimator { model, ukf })
+    }
+
+    /// Per tick: fuse `y1 = [x - tau, xdot, x - tau_h]`.
+    pub fn update(&mut self, y: &Vector3<f64>) -> Result<Status, UkfError> {
+        self.ukf.update(y, gain_measurement)
+    }
+
+    /// Per tick: propagate with the own torque `u` and both targets'
+    /// increments over the coming step.
+    pub fn predict(&mut self, u: f64, dtau: f64, dtau_h: f64) -> Result<Status, UkfError> {
+        let model = self.model;
+        self.ukf
+            .predict(|z| extended_process(&model, z, u, dtau, dtau_h))
+    }
+
+    /// The estimated partner gains `[Lhx, Lhv, Lhh]`.
+    pub fn gains(&self) -> [f64; 3] {
+        let x = self.ukf.x();
+        [x[GAINS], x[GAINS + 1], x[GAINS + 2]]
+    }
+
+    /// The filter (posterior `x`, `P`, counters).
+    pub fn filter(&self) -> &Ukf<6, 3, 13> {
+        &self.ukf
+    }
+}
+
+/// Stage 2 (section "Estimation of the partner's desired trajectory"): the
+/// partner's target, with the stage-1 gains as pseudo-measurements.
+#[derive(Clone, Debug)]
+pub struct TrajectoryEstimator {
+    model: HandleModel,
+    ukf: Ukf<6, 5, 13>,
+}
+
+impl TrajectoryEstimator {
+    /// Set-up: validates the model and the filter settings.
+    pub fn new(model: HandleModel, cfg: &ExtendedFilterConfig<5>) -> Result<Self, EstimatorError> {
+        model.validate()?;
+        let ukf = Ukf::new(cfg.x0, cfg.P0, cfg.Q, cfg.R, cfg.sigma)?;
+        Ok(TrajectoryEstimator { model, ukf })
+    }
+
+    /// Per tick: fuse `y2 = [x - tau, xdot, Lhx^, Lhv^, Lhh^]`.
+    pub fn update(&mut self, y: &SVector<f64, 5>) -> Result<Status, UkfError> {
+        self.ukf.update(y, trajectory_measurement)
+    }
+
+    /// Per tick: as [`TrajectoryEstimator::update`] with this tick's
+    /// measurement covariance (e.g. a noisier view of the own target).
+    pub fn update_with_r(
+        &mut self,
+        y: &SVector<f64, 5>,
+        R: &SMatrix<f64, 5, 5>,
+    ) -> Result<Status, UkfError> {
+        self.ukf.update_with_r(y, R, trajectory_measurement)
+    }
+
+    /// Phase start: restart from `x0` with covariance `P0`.
+    pub fn reset(&mut self, x0: Extended, P0: Cov6) -> Result<(), UkfError> {
+        self.ukf.reset(x0, P0)
+    }
+
+    /// Per tick: as [`GainEstimator::predict`]; the partner's target is
+    /// unknown, so pass `dtau_h = 0` (its motion is left to the process noise).
+    pub fn predict(&mut self, u: f64, dtau: f64, dtau_h: f64) -> Result<Status, UkfError> {
+        let model = self.model;
+        self.ukf
+            .predict(|z| extended_process(&model, z, u, dtau, dtau_h))
+    }
+
+    /// `tau_h^ = x - (x - tau_h)^`, given the handle position `x`.
+    pub fn partner_target(&self, x: f64) -> f64 {
+        x - self.ukf.x()[E_H]
+    }
+
+    /// Posterior variance of `(x - tau_h)^`: the variance of `tau_h^` for a
+    /// known `x`.
+    pub fn partner_error_variance(&self) -> f64 {
+        self.ukf.P()[(E_H, E_H)]
+    }
+
+    /// The partner torque implied by the posterior (eq.LQRhuman).
+    pub fn partner_torque(&self) -> f64 {
+        partner_torque(self.ukf.x())
+    }
+
+    /// The filter (posterior `x`, `P`, counters).
+    pub fn filter(&self) -> &Ukf<6, 5, 13> {
+        &self.ukf
+    }
+}
+
+/// Discrete process model of the goal-integration state `[e, v]`:
+/// `e' = e + dx - dtau`, `v' = v + dt a` with `a = (u - C v)/M`, where `u`
+/// is all the torque the agent knows of (its own plus the estimated
+/// partner torque).
+pub fn error_process(model: &HandleModel, s: &Vector2<f64>, u: f64, dtau: f64) -> Vector2<f64> {
+    let (dx, v_next) = model.kinematics(s[1], u);
+    Vector2::new(s[0] + dx - dtau, v_next)
+}
+
+/// Own sensing only: `y = [e, v]`.
+pub fn own_measurement(s: &Vector2<f64>) -> Vector2<f64> {
+    *s
+}
+
+/// With the partner channel (section "Goal integration"): `y = [e, v, e]`,
+/// the third entry being `x - tau_h^`, another view of `x - tau` when both
+/// agents track the same target.
+pub fn fused_measurement(s: &Vector2<f64>) -> Vector3<f64> {
+    Vector3::new(s[0], s[1], s[0])
+}
+
+/// Online variance of the partner channel `x - tau_h^`.
+///
+/// The discrepancy `d = (x - tau_h^) - (x - tau)_meas` has variance
+/// `var(channel) + r_own` when the channel error and the own sensor noise
+/// are independent, so `var(channel) = E[d^2] - r_own`. `E[d^2]` is tracked
+/// by an exponentially weighted mean with time constant `window_s`, short
+/// enough to follow the spikes of the stage-2 error at fast target motion.
+/// The result is floored by the stage-2 posterior variance of `x - tau_h`
+/// (the channel is never trusted beyond what stage 2 itself claims).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PartnerVariance {
+    weight: f64,
+    mean_sq: Option<f64>,
+}
+
+impl PartnerVariance {
+    /// `weight = dt / window_s`, clamped to `(0, 1]`.
+    pub fn new(dt_s: f64, window_s: f64) -> Self {
+        let w = dt_s / window_s;
+        let weight = if w.is_finite() && w > 0.0 { w.min(1.0) } else { 1.0 };
+        PartnerVariance {
+            weight,
+            mean_sq: None,
+        }
+    }
+
+    /// Feeds one discrepancy `d` and returns
+    /// `max(E[d^2] - r_own, floor)`.
+    pub fn observe(&mut self, d: f64, r_own: f64, floor: f64) -> f64 {
+        let d2 = d * d;
+        let m = match self.mean_sq {
+            None => d2,
+            Some(m) => m + self.weight * (d2 - m),
+        };
+        self.mean_sq = Some(m);
+        (m - r_own).max(floor)
+    }
+}
+
+/// The outcome of two filters' calls as one: an error wins (the own
+/// filter's first), then a repair, else nominal.
+fn combine(
+    a: Result<Status, UkfError>,
+    b: Result<Status, UkfError>,
+) -> Result<Status, UkfError> {
+    match (a?, b?) {
+        (Status::Nominal, Status::Nominal) => Ok(Status::Nominal),
+        (Status::Nominal, repaired) | (repaired, _) => Ok(repaired),
+    }
+}
+
+/// Variance given to a missing partner channel: its gain is then below 1e-90
+/// of the own channel's, while `S` stays far from overflow when squared.
+const UNINFORMATIVE_VARIANCE: f64 = 1e100;
+
+/// Stage 3 (section "Goal integration"): two filters on `[e, v]` fed the same
+/// data, one with the partner channel and one without, so the benefit of
+/// integration is measured on the same noise realisation. The caller picks
+/// which one drives its control.
+#[derive(Clone, Debug)]
+pub struct GoalIntegrator {
+    model: HandleModel,
+    own: Ukf<2, 2, 5>,
+    fused: Ukf<2, 3, 5>,
+    r_own: SMatrix<f64, 2, 2>,
+    variance: PartnerVariance,
+    last_partner_variance: f64,
+    P0: SMatrix<f64, 2, 2>,
+    window_s: f64,
+}
+
+/// Settings of the [`GoalIntegrator`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GoalIntegratorConfig {
+    /// Initial `[e, v]`.
+    pub x0: Vector2<f64>,
+    /// Initial covariance (also the reset covariance).
+    pub P0: SMatrix<f64, 2, 2>,
+    /// Per-step process noise (absorbs the unknown target motion).
+    pub Q: SMatrix<f64, 2, 2>,
+    /// The agent's own sensor noise covariance on `[e, v]`.
+    pub R_own: SMatrix<f64, 2, 2>,
+    /// Time constant of the partner-channel variance estimate (s).
+    pub partner_window_s: f64,
+    /// Sigma-point parameters.
+    pub sigma: MerweParams,
+}
+
+impl GoalIntegrator {
+    /// Set-up: validates the model and both filters' settings.
+    pub fn new(model: HandleModel, cfg: &GoalIntegratorConfig) -> Result<Self, EstimatorError> {
+        model.validate()?;
+        if !(cfg.partner_window_s.is_finite() && cfg.partner_window_s > 0.0) {
+            return Err(EstimatorError::InvalidModel("partner_window_s"));
+        }
+        let own = Ukf::new(cfg.x0, cfg.P0, cfg.Q, cfg.R_own, cfg.sigma)?;
+        let mut r3 = SMatrix::<f64, 3, 3>::zeros();
+        r3.fixed_view_mut::<2, 2>(0, 0).copy_from(&cfg.R_own);
+        r3[(2, 2)] = cfg.R_own[(0, 0)];
+        let fused = Ukf::new(cfg.x0, cfg.P0, cfg.Q, r3, cfg.sigma)?;
+        Ok(GoalIntegrator {
+            model,
+            own,
+            fused,
+            r_own: cfg.R_own,
+            variance: PartnerVariance::new(model.dt_s, cfg.partner_window_s),
+            last_partner_variance: f64::NAN,
+            P0: cfg.P0,
+            window_s: cfg.partner_window_s,
+        })
+    }
+
+    /// Per tick: fuse the own measurement `[x - tau, xdot]` in both filters
+    /// and, when `partner = Some((x - tau_h^, floor))`, the partner channel
+    /// in the fused one with the online variance ([`PartnerVariance`]).
+    /// Returns the fused filter's status (the own filter's error, if any, wins).
+    pub fn update(
+        &mut self,
+        y_own: &Vector2<f64>,
+        partner: Option<(f64, f64)>,
+    ) -> Result<Status, UkfError> {
+        let own_status = self.own.update(y_own, own_measurement);
+        let fused_status = match partner {
+            Some((e_partner, floor)) if e_partner.is_finite() && floor.is_finite() => {
+                let prior_e = self.fused.x()[0];
+                let prior_var = self.fused.P()[(0, 0)];
+                let var = self
+                    .variance
+                    .observe(e_partner - prior_e, prior_var, floor);
+                self.last_partner_variance = var;
+                let mut r = SMatrix::<f64, 3, 3>::zeros();
+                r.fixed_view_mut::<2, 2>(0, 0).copy_from(&self.r_own);
+                r[(2, 2)] = var;
+                let y = Vector3::new(y_own[0], y_own[1], e_partner);
+                self.fused.update_with_r(&y, &r, fused_measurement)
+            }
+            _ => {
+                // No usable channel this tick: the fused filter degrades to own sensing.
+                let mut r = SMatrix::<f64, 3, 3>::zeros();
+                r.fixed_view_mut::<2, 2>(0, 0).copy_from(&self.r_own);
+                r[(2, 2)] = UNINFORMATIVE_VARIANCE;
+                let y = Vector3::new(y_own[0], y_own[1], y_own[0]);
+                self.fused.update_with_r(&y, &r, fused_measurement)
+            }
+        };
+        combine(own_status, fused_status)
+    }
+
+    /// Per tick: propagate both filters with the known torque `u` (own plus
+    /// estimated partner) and the own target's increment (0 when unknown).
+    pub fn predict(&mut self, u: f64, dtau: f64) -> Result<Status, UkfError> {
+        let model = self.model;
+        let own_status = self.own.predict(|s| error_process(&model, s, u, dtau));
+        let fused_status = self.fused.predict(|s| error_process(&model, s, u, dtau));
+        combine(own_status, fused_status)
+    }
+
+    /// Set-up or phase start: the own sensor noise covariance on `[e, v]`
+    /// (e.g. a phase's injected target-view noise added). Must be finite.
+    pub fn set_own_noise(&mut self, R_own: SMatrix<f64, 2, 2>) -> Result<(), UkfError> {
+        self.own.set_R(R_own)?;
+        self.r_own = R_own;
+        Ok(())
+    }
+
+    /// Phase start: restart both filters from `x0` with the configured `P0`
+    /// and forget the partner-variance history.
+    pub fn reset(&mut self, x0: Vector2<f64>) -> Result<(), UkfError> {
+        let P0 = self.P0;
+        self.own.reset(x0, P0)?;
+        self.fused.reset(x0, P0)?;
+        self.variance = PartnerVariance::new(self.model.dt_s, self.window_s);
+        self.last_partner_variance = f64::NAN;
+        Ok(())
+    }
+
+    /// Posterior `[e, v]` with (`integrated`) or without the partner channel.
+    pub fn estimate(&self, integrated: bool) -> Vector2<f64> {
+        if integrated {
+            *self.fused.x()
+        } else {
+            *self.own.x()
+        }
+    }
+
+    /// The filter using the partner channel.
+    pub fn fused_filter(&self) -> &Ukf<2, 3, 5> {
+        &self.fused
+    }
+
+    /// The filter using own sensing only.
+    pub fn own_filter(&self) -> &Ukf<2, 2, 5> {
+        &self.own
+    }
+
+    /// The partner-channel variance used in the last update (NaN before the first).
+    pub fn partner_variance(&self) -> f64 {
+        self.last_partner_variance
+    }
+}
