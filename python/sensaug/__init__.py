@@ -3,6 +3,8 @@
 The numerics run in the compiled core (`sensaug._core`, Rust); this package is
 the Python API for scripting experiments around it.
 """
+from sensaug import _core
 from sensaug._core import Plant
+from sensaug.ukf import PendulumUKF, UkfStepError
 
-__all__ = ["Plant"]
+__all__ = ["_core", "Plant", "PendulumUKF", "UkfStepError"]

@@ -14,6 +14,7 @@
 #![allow(non_snake_case)]
 
 pub mod agent;
+pub mod demo_model;
 pub mod estimator;
 pub mod plant;
 pub mod riccati;

@@ -1,1 +1,868 @@
-//! Placeholder: being written on a branch.
+//! Unscented Kalman filter with Van der Merwe scaled sigma points.
+//!
+//! This reproduces filterpy 2.0.0's `UnscentedKalmanFilter` with
+//! `MerweScaledSigmaPoints` (rlabbe/filterpy, `filterpy/kalman/UKF.py`,
+//! `sigma_points.py`, `unscented_transform.py`), with additive noise, without
+//! heap allocation and without panics. `docs/ukf.md` lists the equations, the
+//! filterpy behaviours mirrored on purpose, the places where this filter
+//! deliberately differs, and the recovery policy.
+//!
+//! Dimensions: `N` state size, `M` measurement size, `S = 2N + 1` sigma points
+//! (stable Rust cannot write `2 * N + 1` in a type, so `S` is carried and
+//! checked at compile time in [`Ukf::new`]). Sigma points are stored as the
+//! columns of an `N x S` matrix.
+//!
+//! When methods run: [`Ukf::new`] and the setters validate everything once at
+//! set-up; [`Ukf::predict`] / [`Ukf::update`] are the per-tick calls (no
+//! allocation, `O(S N^2)` work, no panics). A per-tick call either commits a
+//! complete, finite new state or returns an error; see [`UkfError`] for what
+//! each error leaves behind.
+
+use nalgebra::{Cholesky, SMatrix, SVector};
+
+/// Van der Merwe's scaled sigma point parameters (filterpy
+/// `MerweScaledSigmaPoints(n, alpha, beta, kappa)`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MerweParams {
+    /// Spread of the sigma points around the mean, `0 < alpha`, typically `1e-3..=1`.
+    pub alpha: f64,
+    /// Prior knowledge of the distribution; 2 is optimal for a Gaussian.
+    pub beta: f64,
+    /// Secondary scaling, often `0` or `3 - N`; `N + kappa` must be positive.
+    pub kappa: f64,
+}
+
+/// Which argument or field a validation error refers to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Arg {
+    /// The initial / reset state `x`.
+    X,
+    /// The initial / reset covariance `P`.
+    P,
+    /// The process noise covariance `Q`.
+    Q,
+    /// The measurement noise covariance `R`.
+    R,
+    /// The covariance that `P` is reset to when it cannot be factored.
+    ResetCovariance,
+    /// The sigma point parameters `alpha`, `beta`, `kappa`.
+    SigmaParams,
+    /// The control sequence given to [`Ukf::run`].
+    Controls,
+    /// The measurement sequence given to [`Ukf::run`].
+    Measurements,
+    /// The state output slice of [`Ukf::run`].
+    XsOut,
+    /// The covariance-diagonal output slice of [`Ukf::run`].
+    PdiagOut,
+}
+
+impl Arg {
+    /// The argument's name as the Python API spells it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Arg::X => "x",
+            Arg::P => "P",
+            Arg::Q => "Q",
+            Arg::R => "R",
+            Arg::ResetCovariance => "P_reset",
+            Arg::SigmaParams => "alpha/beta/kappa",
+            Arg::Controls => "u",
+            Arg::Measurements => "z",
+            Arg::XsOut => "xs_out",
+            Arg::PdiagOut => "pdiag_out",
+        }
+    }
+}
+
+/// Where in a step a Cholesky factorisation was needed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stage {
+    /// Sigma points of the posterior `(x, P)` at the start of `predict`.
+    PredictSigmaPoints,
+    /// Sigma points re-drawn from the prior `(x_prior, P_prior)` at the end of
+    /// `predict` (filterpy's re-draw, used by the following `update`).
+    PredictRedraw,
+    /// Sigma points drawn in `update` when no `predict` preceded it.
+    UpdateSigmaPoints,
+    /// The innovation covariance `S` in `update`.
+    InnovationCovariance,
+}
+
+/// Which half of a step a [`StepError`] came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Phase {
+    /// [`Ukf::predict`].
+    Predict,
+    /// [`Ukf::update`].
+    Update,
+}
+
+/// Errors of the UKF. Set-up errors name the argument; per-step errors say
+/// what the filter state is afterwards.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum UkfError {
+    /// Set-up: an argument contains NaN or +-inf.
+    NonFiniteArgument {
+        /// The offending argument.
+        which: Arg,
+    },
+    /// Set-up: a covariance is not positive definite (its Cholesky factor,
+    /// scaled by `N + lambda`, does not exist).
+    NotPositiveDefinite {
+        /// The offending argument.
+        which: Arg,
+    },
+    /// Set-up: `alpha <= 0`, `N + kappa <= 0` (so `N + lambda <= 0`), or a
+    /// parameter is not finite.
+    InvalidSigmaParams,
+    /// Set-up of a model: a model parameter is out of range.
+    InvalidModelParameter {
+        /// The parameter's name.
+        name: &'static str,
+    },
+    /// Step: the measurement `z` contains NaN or +-inf. State unchanged.
+    NonFiniteMeasurement,
+    /// Step: the process function returned NaN or +-inf. State unchanged.
+    NonFiniteProcess,
+    /// Step: the measurement function returned NaN or +-inf. State unchanged.
+    NonFiniteMeasurementModel,
+    /// Step: all inputs were finite but the new `x` or `P` (or `S`)
+    /// overflowed. State unchanged.
+    NonFiniteResult {
+        /// The half of the step that overflowed.
+        phase: Phase,
+    },
+    /// Step: a Cholesky factorisation failed even after re-symmetrising, so
+    /// `P` was reset to the reset covariance (default: the initial `P0`) and
+    /// [`Recoveries::covariance_resets`] was incremented. The filter is valid.
+    /// In `predict` the step was completed with the reset covariance; after a
+    /// failure of `S` in `update` the measurement was discarded (`x` kept).
+    CovarianceReset {
+        /// Which factorisation failed.
+        stage: Stage,
+    },
+    /// [`Ukf::run`]: an input slice has the wrong length.
+    InputLength {
+        /// The offending input.
+        which: Arg,
+        /// Required length.
+        needed: usize,
+        /// Given length.
+        got: usize,
+    },
+    /// [`Ukf::run`]: an output slice is too short.
+    OutputTooShort {
+        /// The offending output.
+        which: Arg,
+        /// Required length.
+        needed: usize,
+        /// Given length.
+        got: usize,
+    },
+}
+
+/// Outcome of a successful step: never silent about repairs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[must_use]
+pub enum Status {
+    /// Every factorisation succeeded first time.
+    Nominal,
+    /// A factorisation failed, the matrix was re-symmetrised as
+    /// `(A + A') / 2`, and the retry succeeded. Counted in
+    /// [`Recoveries::resymmetrised`].
+    Resymmetrised {
+        /// Which factorisation needed it (the last one if several did).
+        stage: Stage,
+    },
+}
+
+/// Counters of everything unusual, readable with [`Ukf::recoveries`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Recoveries {
+    /// Factorisations that succeeded only after re-symmetrising.
+    pub resymmetrised: u64,
+    /// Times `P` was reset to the reset covariance.
+    pub covariance_resets: u64,
+    /// Calls rejected with the state unchanged (non-finite input or result).
+    pub rejected: u64,
+    /// Completed `predict` calls (including those that reset `P`).
+    pub predicts: u64,
+    /// Completed `update` calls (measurement applied).
+    pub updates: u64,
+}
+
+/// The first failing step of a [`Ukf::run`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StepError {
+    /// Step index `k`.
+    pub step: usize,
+    /// Predict or update.
+    pub phase: Phase,
+    /// The error that call returned.
+    pub error: UkfError,
+}
+
+/// Summary of a [`Ukf::run`]: the trial never stops early; each step error has
+/// already been handled by the filter (state restored or `P` reset).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RunReport {
+    /// Steps run (= number of controls).
+    pub steps: usize,
+    /// Calls that returned `Err` (rejections and covariance resets).
+    pub errors: usize,
+    /// The first of them, if any.
+    pub first_error: Option<StepError>,
+}
+
+/// `lambda = alpha^2 (n + kappa) - n` (Van der Merwe 2004, scaled unscented
+/// transform), computed in filterpy's order.
+pub fn merwe_lambda(n: usize, p: &MerweParams) -> f64 {
+    let n = n as f64;
+    p.alpha * p.alpha * (n + p.kappa) - n
+}
+
+/// Merwe weights: `Wm_0 = lambda / (n + lambda)`,
+/// `Wc_0 = Wm_0 + (1 - alpha^2 + beta)`, `Wm_i = Wc_i = 1 / (2 (n + lambda))`
+/// for `i = 1..2n`. Returns `(Wm, Wc)`.
+pub fn merwe_weights<const S: usize>(
+    n: usize,
+    p: &MerweParams,
+) -> (SVector<f64, S>, SVector<f64, S>) {
+    let lambda = merwe_lambda(n, p);
+    let c = 0.5 / (n as f64 + lambda);
+    let mut Wm = SVector::<f64, S>::repeat(c);
+    let mut Wc = SVector::<f64, S>::repeat(c);
+    if S > 0 {
+        Wm[0] = lambda / (n as f64 + lambda);
+        Wc[0] = lambda / (n as f64 + lambda) + (1.0 - p.alpha * p.alpha + p.beta);
+    }
+    (Wm, Wc)
+}
+
+/// Scaled Cholesky factor: lower `L` with `L L' = c P`, reading only the
+/// upper triangle of `P` (as scipy's `cholesky(c P)` does, whose upper factor
+/// is `U = L'`). `None` if `c P` is not positive definite or anything is not
+/// finite.
+pub fn scaled_cholesky<const N: usize>(
+    P: &SMatrix<f64, N, N>,
+    c: f64,
+) -> Option<SMatrix<f64, N, N>> {
+    // nalgebra reads the lower triangle; the lower triangle of P' is the
+    // upper triangle of P, which is what LAPACK potrf(uplo='U') reads.
+    let A = P.transpose() * c;
+    if !all_finite(&A) {
+        return None;
+    }
+    let L = Cholesky::new(A)?.unpack();
+    all_finite(&L).then_some(L)
+}
+
+/// Merwe sigma points from the factor `L` of `(n + lambda) P`:
+/// `chi_0 = x`, `chi_{1+k} = x + L e_k`, `chi_{1+n+k} = x - L e_k`
+/// (columns of `L` = rows of scipy's upper factor, filterpy's `U[k]`).
+pub fn sigma_points<const N: usize, const S: usize>(
+    x: &SVector<f64, N>,
+    L: &SMatrix<f64, N, N>,
+) -> SMatrix<f64, N, S> {
+    let mut chi = SMatrix::<f64, N, S>::zeros();
+    for i in 0..S {
+        let col = if i == 0 {
+            *x
+        } else if i <= N {
+            x + L.column(i - 1)
+        } else if i <= 2 * N {
+            x - L.column(i - 1 - N)
+        } else {
+            *x
+        };
+        chi.set_column(i, &col);
+    }
+    chi
+}
+
+/// Unscented mean: `x_bar = sum_i Wm_i chi_i`.
+pub fn unscented_mean<const D: usize, const S: usize>(
+    Wm: &SVector<f64, S>,
+    chi: &SMatrix<f64, D, S>,
+) -> SVector<f64, D> {
+    chi * Wm
+}
+
+/// Unscented covariance with additive noise:
+/// `P = sum_i Wc_i (chi_i - x_bar)(chi_i - x_bar)' + Q`.
+pub fn unscented_covariance<const D: usize, const S: usize>(
+    Wc: &SVector<f64, S>,
+    chi: &SMatrix<f64, D, S>,
+    mean: &SVector<f64, D>,
+    noise: &SMatrix<f64, D, D>,
+) -> SMatrix<f64, D, D> {
+    let mut P = SMatrix::<f64, D, D>::zeros();
+    for i in 0..S {
+        let d = chi.column(i) - mean;
+        P += (d * d.transpose()) * Wc[i];
+    }
+    P + noise
+}
+
+/// Cross covariance: `Pxz = sum_i Wc_i (chi_i - x)(Z_i - z_bar)'`, with `x`
+/// the filter's prior mean (filterpy's `cross_variance(self.x, zp, ...)`).
+pub fn cross_covariance<const N: usize, const M: usize, const S: usize>(
+    Wc: &SVector<f64, S>,
+    chi: &SMatrix<f64, N, S>,
+    x: &SVector<f64, N>,
+    Z: &SMatrix<f64, M, S>,
+    z_bar: &SVector<f64, M>,
+) -> SMatrix<f64, N, M> {
+    let mut Pxz = SMatrix::<f64, N, M>::zeros();
+    for i in 0..S {
+        let dx = chi.column(i) - x;
+        let dz = Z.column(i) - z_bar;
+        Pxz += (dx * dz.transpose()) * Wc[i];
+    }
+    Pxz
+}
+
+/// Kalman gain `K = Pxz S^-1`, solved, not inverted: `S K' = Pxz'` with the
+/// Cholesky factor of the symmetric `S`.
+pub fn kalman_gain<const N: usize, const M: usize>(
+    Pxz: &SMatrix<f64, N, M>,
+    chol_S: &Cholesky<f64, nalgebra::Const<M>>,
+) -> SMatrix<f64, N, M> {
+    let mut Kt = Pxz.transpose();
+    chol_S.solve_mut(&mut Kt);
+    Kt.transpose()
+}
+
+/// Posterior mean: `x+ = x- + K y` with innovation `y = z - z_bar`.
+pub fn posterior_mean<const N: usize, const M: usize>(
+    x: &SVector<f64, N>,
+    K: &SMatrix<f64, N, M>,
+    y: &SVector<f64, M>,
+) -> SVector<f64, N> {
+    x + K * y
+}
+
+/// Posterior covariance as filterpy computes it: `P+ = P- - K S K'` (not
+/// symmetrised, not Joseph form).
+pub fn posterior_covariance<const N: usize, const M: usize>(
+    P: &SMatrix<f64, N, N>,
+    K: &SMatrix<f64, N, M>,
+    S: &SMatrix<f64, M, M>,
+) -> SMatrix<f64, N, N> {
+    P - K * (S * K.transpose())
+}
+
+/// Re-symmetrisation used by the recovery policy: `A <- (A + A') / 2`.
+pub fn symmetrise<const D: usize>(A: &SMatrix<f64, D, D>) -> SMatrix<f64, D, D> {
+    (A + A.transpose()) * 0.5
+}
+
+/// `true` if every entry is finite.
+pub fn all_finite<const R: usize, const C: usize>(A: &SMatrix<f64, R, C>) -> bool {
+    A.iter().all(|v| v.is_finite())
+}
+
+/// Recovery bookkeeping of one call, committed only with the new state.
+#[derive(Default)]
+struct Pending {
+    resymmetrised: u64,
+    resets: u64,
+    last_resym: Option<Stage>,
+    last_reset: Option<Stage>,
+}
+
+/// Unscented Kalman filter: `N` states, `M` measurements, `S = 2N + 1` sigma
+/// points. Process and measurement functions are passed per call, so a known
+/// control input is simply captured by the closure.
+#[derive(Clone, Debug)]
+pub struct Ukf<const N: usize, const M: usize, const S: usize> {
+    x: SVector<f64, N>,
+    P: SMatrix<f64, N, N>,
+    Q: SMatrix<f64, N, N>,
+    R: SMatrix<f64, M, M>,
+    P_reset: SMatrix<f64, N, N>,
+    L_reset: SMatrix<f64, N, N>,
+    params: MerweParams,
+    c: f64,
+    Wm: SVector<f64, S>,
+    Wc: SVector<f64, S>,
+    sigmas_f: SMatrix<f64, N, S>,
+    sigmas_fresh: bool,
+    x_prior: SVector<f64, N>,
+    P_prior: SMatrix<f64, N, N>,
+    x_post: SVector<f64, N>,
+    P_post: SMatrix<f64, N, N>,
+    y: SVector<f64, M>,
+    S_innov: SMatrix<f64, M, M>,
+    K: SMatrix<f64, N, M>,
+    recoveries: Recoveries,
+}
+
+impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
+    /// Set-up: validates everything once. `P0` must be positive definite
+    /// (after scaling by `N + lambda`) and is also the reset covariance.
+    /// `Q` and `R` must be finite (their definiteness is not required, as in
+    /// filterpy; an indefinite sum shows up as a recovery later).
+    pub fn new(
+        x0: SVector<f64, N>,
+        P0: SMatrix<f64, N, N>,
+        Q: SMatrix<f64, N, N>,
+        R: SMatrix<f64, M, M>,
+        params: MerweParams,
+    ) -> Result<Self, UkfError> {
+        const { assert!(S == 2 * N + 1, "S must equal 2 * N + 1") };
+        const { assert!(N >= 1 && M >= 1, "N and M must be at least 1") };
+        let finite =
+            params.alpha.is_finite() && params.beta.is_finite() && params.kappa.is_finite();
+        if !finite || params.alpha <= 0.0 || (N as f64 + params.kappa) <= 0.0 {
+            return Err(UkfError::InvalidSigmaParams);
+        }
+        let c = merwe_lambda(N, &params) + N as f64;
+        if !(c > 0.0 && c.is_finite()) {
+            return Err(UkfError::InvalidSigmaParams);
+        }
+        if !all_finite(&x0) {
+            return Err(UkfError::NonFiniteArgument { which: Arg::X });
+        }
+        if !all_finite(&Q) {
+            return Err(UkfError::NonFiniteArgument { which: Arg::Q });
+        }
+        if !all_finite(&R) {
+            return Err(UkfError::NonFiniteArgument { which: Arg::R });
+        }
+        let L0 = Self::check_covariance(&P0, c, Arg::P)?;
+        let (Wm, Wc) = merwe_weights::<S>(N, &params);
+        Ok(Self {
+            x: x0,
+            P: P0,
+            Q,
+            R,
+            P_reset: P0,
+            L_reset: L0,
+            params,
+            c,
+            Wm,
+            Wc,
+            // filterpy starts sigmas_f as zeros; we mark them stale instead
+            // (see `update`).
+            sigmas_f: SMatrix::zeros(),
+            sigmas_fresh: false,
+            x_prior: x0,
+            P_prior: P0,
+            x_post: x0,
+            P_post: P0,
+            y: SVector::zeros(),
+            S_innov: SMatrix::zeros(),
+            K: SMatrix::zeros(),
+            recoveries: Recoveries::default(),
+        })
+    }
+
+    fn check_covariance(
+        P: &SMatrix<f64, N, N>,
+        c: f64,
+        which: Arg,
+    ) -> Result<SMatrix<f64, N, N>, UkfError> {
+        if !all_finite(P) {
+            return Err(UkfError::NonFiniteArgument { which });
+        }
+        scaled_cholesky(P, c).ok_or(UkfError::NotPositiveDefinite { which })
+    }
+
+    /// Set-up: replace `x` and `P` (posterior, prior and post copies too) and
+    /// mark the sigma points stale. Counters are kept. Validated like `new`.
+    pub fn reset(&mut self, x: SVector<f64, N>, P: SMatrix<f64, N, N>) -> Result<(), UkfError> {
+        if !all_finite(&x) {
+            return Err(UkfError::NonFiniteArgument { which: Arg::X });
+        }
+        Self::check_covariance(&P, self.c, Arg::P)?;
+        self.x = x;
+        self.P = P;
+        self.x_prior = x;
+        self.P_prior = P;
+        self.x_post = x;
+        self.P_post = P;
+        self.sigmas_fresh = false;
+        Ok(())
+    }
+
+    /// Set-up: the covariance `P` is reset to when it cannot be factored
+    /// (default: the initial `P0`). Must be positive definite.
+    pub fn set_reset_covariance(&mut self, P: SMatrix<f64, N, N>) -> Result<(), UkfError> {
+        self.L_reset = Self::check_covariance(&P, self.c, Arg::ResetCovariance)?;
+        self.P_reset = P;
+        Ok(())
+    }
+
+    /// Set-up: replace the default process noise `Q` (must be finite).
+    pub fn set_Q(&mut self, Q: SMatrix<f64, N, N>) -> Result<(), UkfError> {
+        if !all_finite(&Q) {
+            return Err(UkfError::NonFiniteArgument { which: Arg::Q });
+        }
+        self.Q = Q;
+        Ok(())
+    }
+
+    /// Set-up: replace the default measurement noise `R` (must be finite).
+    pub fn set_R(&mut self, R: SMatrix<f64, M, M>) -> Result<(), UkfError> {
+        if !all_finite(&R) {
+            return Err(UkfError::NonFiniteArgument { which: Arg::R });
+        }
+        self.R = R;
+        Ok(())
+    }
+
+    /// Sigma points of `(x, P)`, repairing `P` in place if needed: plain
+    /// factorisation; else re-symmetrise `P` and retry; else `P <- P_reset`
+    /// (whose factor was computed at set-up, so this cannot fail).
+    fn draw(
+        &self,
+        x: &SVector<f64, N>,
+        P: &mut SMatrix<f64, N, N>,
+        stage: Stage,
+        pending: &mut Pending,
+    ) -> SMatrix<f64, N, S> {
+        if let Some(L) = scaled_cholesky(P, self.c) {
+            return sigma_points(x, &L);
+        }
+        *P = symmetrise(P);
+        if let Some(L) = scaled_cholesky(P, self.c) {
+            pending.resymmetrised += 1;
+            pending.last_resym = Some(stage);
+            return sigma_points(x, &L);
+        }
+        *P = self.P_reset;
+        pending.resets += 1;
+        pending.last_reset = Some(stage);
+        sigma_points(x, &self.L_reset)
+    }
+
+    /// Count a rejected call; the state is untouched.
+    fn reject(&mut self, e: UkfError) -> Result<Status, UkfError> {
+        self.recoveries.rejected = self.recoveries.rejected.saturating_add(1);
+        Err(e)
+    }
+
+    /// Commit the call's recovery counters and turn them into the result.
+    fn finish(&mut self, pending: Pending) -> Result<Status, UkfError> {
+        let r = &mut self.recoveries;
+        r.resymmetrised = r.resymmetrised.saturating_add(pending.resymmetrised);
+        r.covariance_resets = r.covariance_resets.saturating_add(pending.resets);
+        if let Some(stage) = pending.last_reset {
+            Err(UkfError::CovarianceReset { stage })
+        } else if let Some(stage) = pending.last_resym {
+            Ok(Status::Resymmetrised { stage })
+        } else {
+            Ok(Status::Nominal)
+        }
+    }
+
+    /// Per tick: predict with the default `Q`. See [`Ukf::predict_with_q`].
+    pub fn predict(
+        &mut self,
+        f: impl FnMut(&SVector<f64, N>) -> SVector<f64, N>,
+    ) -> Result<Status, UkfError> {
+        let Q = self.Q;
+        self.predict_with_q(&Q, f)
+    }
+
+    /// Per tick: unscented predict with a per-call process noise `Q`.
+    ///
+    /// `chi = sigma(x, P)`, `chi_f,i = f(chi_i)`, `x- = sum Wm chi_f`,
+    /// `P- = sum Wc (chi_f - x-)(chi_f - x-)' + Q`; then, as filterpy does,
+    /// the sigma points used by the next `update` are re-drawn from
+    /// `(x-, P-)`. Non-finite `Q`, `f` output or result: `Err`, state
+    /// unchanged. Factorisation trouble: see [`UkfError::CovarianceReset`].
+    pub fn predict_with_q(
+        &mut self,
+        Q: &SMatrix<f64, N, N>,
+        mut f: impl FnMut(&SVector<f64, N>) -> SVector<f64, N>,
+    ) -> Result<Status, UkfError> {
+        if !all_finite(Q) {
+            return self.reject(UkfError::NonFiniteArgument { which: Arg::Q });
+        }
+        let mut pending = Pending::default();
+        let mut P = self.P;
+        let chi = self.draw(&self.x, &mut P, Stage::PredictSigmaPoints, &mut pending);
+        // chi_f,i = f(chi_i)
+        let mut chi_f = SMatrix::<f64, N, S>::zeros();
+        for i in 0..S {
+            let xi: SVector<f64, N> = chi.column(i).into_owned();
+            let fi = f(&xi);
+            if !all_finite(&fi) {
+                return self.reject(UkfError::NonFiniteProcess);
+            }
+            chi_f.set_column(i, &fi);
+        }
+        // x- = sum_i Wm_i chi_f,i
+        let x_prior = unscented_mean(&self.Wm, &chi_f);
+        // P- = sum_i Wc_i (chi_f,i - x-)(chi_f,i - x-)' + Q
+        let mut P_prior = unscented_covariance(&self.Wc, &chi_f, &x_prior, Q);
+        if !all_finite(&x_prior) || !all_finite(&P_prior) {
+            return self.reject(UkfError::NonFiniteResult {
+                phase: Phase::Predict,
+            });
+        }
+        // filterpy quirk mirrored: re-draw sigma points from (x-, P-) now.
+        let sigmas = self.draw(&x_prior, &mut P_prior, Stage::PredictRedraw, &mut pending);
+        self.x = x_prior;
+        self.P = P_prior;
+        self.x_prior = x_prior;
+        self.P_prior = P_prior;
+        self.sigmas_f = sigmas;
+        self.sigmas_fresh = true;
+        self.recoveries.predicts = self.recoveries.predicts.saturating_add(1);
+        self.finish(pending)
+    }
+
+    /// Per tick: update with the default `R`. See [`Ukf::update_with_r`].
+    pub fn update(
+        &mut self,
+        z: &SVector<f64, M>,
+        h: impl FnMut(&SVector<f64, N>) -> SVector<f64, M>,
+    ) -> Result<Status, UkfError> {
+        let R = self.R;
+        self.update_with_r(z, &R, h)
+    }
+
+    /// Per tick: unscented update with a per-call measurement noise `R`
+    /// (e.g. time-varying).
+    ///
+    /// Uses the sigma points re-drawn at the end of the last `predict`; if no
+    /// `predict` preceded this call (first call, a second update in a row, or
+    /// after `reset`), draws them from the current `(x, P)` (filterpy would
+    /// use zeros or stale points; `docs/ukf.md`).
+    /// `Z_i = h(chi_i)`, `z_bar = sum Wm Z`, `S = sum Wc (Z - z_bar)(Z - z_bar)' + R`,
+    /// `Pxz = sum Wc (chi - x)(Z - z_bar)'`, `K = Pxz S^-1` (Cholesky solve),
+    /// `y = z - z_bar`, `x+ = x + K y`, `P+ = P - K S K'`.
+    /// Non-finite `z`, `R`, `h` output or result: `Err`, state unchanged. If
+    /// `S` cannot be factored even after re-symmetrising, the measurement is
+    /// discarded, `P` is reset and `Err(CovarianceReset)` is returned.
+    pub fn update_with_r(
+        &mut self,
+        z: &SVector<f64, M>,
+        R: &SMatrix<f64, M, M>,
+        mut h: impl FnMut(&SVector<f64, N>) -> SVector<f64, M>,
+    ) -> Result<Status, UkfError> {
+        if !all_finite(z) {
+            return self.reject(UkfError::NonFiniteMeasurement);
+        }
+        if !all_finite(R) {
+            return self.reject(UkfError::NonFiniteArgument { which: Arg::R });
+        }
+        let mut pending = Pending::default();
+        let mut P = self.P;
+        let chi = if self.sigmas_fresh {
+            self.sigmas_f
+        } else {
+            self.draw(&self.x, &mut P, Stage::UpdateSigmaPoints, &mut pending)
+        };
+        // Z_i = h(chi_i)
+        let mut Z = SMatrix::<f64, M, S>::zeros();
+        for i in 0..S {
+            let xi: SVector<f64, N> = chi.column(i).into_owned();
+            let zi = h(&xi);
+            if !all_finite(&zi) {
+                return self.reject(UkfError::NonFiniteMeasurementModel);
+            }
+            Z.set_column(i, &zi);
+        }
+        // z_bar = sum_i Wm_i Z_i
+        let z_bar = unscented_mean(&self.Wm, &Z);
+        // S = sum_i Wc_i (Z_i - z_bar)(Z_i - z_bar)' + R
+        let mut S_innov = unscented_covariance(&self.Wc, &Z, &z_bar, R);
+        // Pxz = sum_i Wc_i (chi_i - x)(Z_i - z_bar)'
+        let Pxz = cross_covariance(&self.Wc, &chi, &self.x, &Z, &z_bar);
+        if !all_finite(&z_bar) || !all_finite(&S_innov) || !all_finite(&Pxz) {
+            return self.reject(UkfError::NonFiniteResult {
+                phase: Phase::Update,
+            });
+        }
+        let chol_S = match Cholesky::new(S_innov) {
+            Some(ch) => ch,
+            None => {
+                S_innov = symmetrise(&S_innov);
+                match Cholesky::new(S_innov) {
+                    Some(ch) => {
+                        pending.resymmetrised += 1;
+                        pending.last_resym = Some(Stage::InnovationCovariance);
+                        ch
+                    }
+                    None => {
+                        // S = H P H' + R is not positive definite: P (or R)
+                        // is broken. Drop the measurement, reset P.
+                        pending.resets += 1;
+                        pending.last_reset = Some(Stage::InnovationCovariance);
+                        self.P = self.P_reset;
+                        self.x_post = self.x;
+                        self.P_post = self.P;
+                        self.sigmas_fresh = false;
+                        return self.finish(pending);
+                    }
+                }
+            }
+        };
+        // K = Pxz S^-1
+        let K = kalman_gain(&Pxz, &chol_S);
+        // y = z - z_bar
+        let y = z - z_bar;
+        // x+ = x- + K y
+        let x_new = posterior_mean(&self.x, &K, &y);
+        // P+ = P- - K S K'
+        let P_new = posterior_covariance(&P, &K, &S_innov);
+        if !all_finite(&K) || !all_finite(&x_new) || !all_finite(&P_new) {
+            return self.reject(UkfError::NonFiniteResult {
+                phase: Phase::Update,
+            });
+        }
+        self.x = x_new;
+        self.P = P_new;
+        self.x_post = x_new;
+        self.P_post = P_new;
+        self.y = y;
+        self.S_innov = S_innov;
+        self.K = K;
+        self.sigmas_fresh = false;
+        self.recoveries.updates = self.recoveries.updates.saturating_add(1);
+        self.finish(pending)
+    }
+
+    /// Replay a whole trial, allocation-free: for each step `k`,
+    /// `predict(|x| f(x, u[k]))` then `update(z[k], h)` (filterpy's
+    /// `batch_filter` order), then writes the posterior `x` into
+    /// `xs_out[k N..(k+1) N]` and `diag(P)` into `pdiag_out[k N..]`.
+    ///
+    /// `z` is row-major `T x M` (`T = u.len()`). Step errors do not stop the
+    /// trial (each was already handled by the filter); they are counted in
+    /// the report and in [`Ukf::recoveries`]. Slice length errors are
+    /// reported before anything runs.
+    pub fn run(
+        &mut self,
+        u: &[f64],
+        z: &[f64],
+        xs_out: &mut [f64],
+        pdiag_out: &mut [f64],
+        mut f: impl FnMut(&SVector<f64, N>, f64) -> SVector<f64, N>,
+        mut h: impl FnMut(&SVector<f64, N>) -> SVector<f64, M>,
+    ) -> Result<RunReport, UkfError> {
+        let T = u.len();
+        let needed_z = T.saturating_mul(M);
+        if z.len() != needed_z {
+            return Err(UkfError::InputLength {
+                which: Arg::Measurements,
+                needed: needed_z,
+                got: z.len(),
+            });
+        }
+        let needed_x = T.saturating_mul(N);
+        if xs_out.len() < needed_x {
+            return Err(UkfError::OutputTooShort {
+                which: Arg::XsOut,
+                needed: needed_x,
+                got: xs_out.len(),
+            });
+        }
+        if pdiag_out.len() < needed_x {
+            return Err(UkfError::OutputTooShort {
+                which: Arg::PdiagOut,
+                needed: needed_x,
+                got: pdiag_out.len(),
+            });
+        }
+        let mut report = RunReport {
+            steps: T,
+            errors: 0,
+            first_error: None,
+        };
+        let note = |report: &mut RunReport, step: usize, phase: Phase, error: UkfError| {
+            report.errors += 1;
+            if report.first_error.is_none() {
+                report.first_error = Some(StepError { step, phase, error });
+            }
+        };
+        for (k, (&uk, zk)) in u.iter().zip(z.chunks_exact(M)).enumerate() {
+            if let Err(e) = self.predict(|x| f(x, uk)) {
+                note(&mut report, k, Phase::Predict, e);
+            }
+            let zk = SVector::<f64, M>::from_iterator(zk.iter().copied());
+            if let Err(e) = self.update(&zk, &mut h) {
+                note(&mut report, k, Phase::Update, e);
+            }
+            for i in 0..N {
+                xs_out[k * N + i] = self.x[i];
+                pdiag_out[k * N + i] = self.P[(i, i)];
+            }
+        }
+        Ok(report)
+    }
+
+    /// State estimate `x` (posterior after `update`, prior after `predict`).
+    pub fn x(&self) -> &SVector<f64, N> {
+        &self.x
+    }
+    /// State covariance `P`.
+    pub fn P(&self) -> &SMatrix<f64, N, N> {
+        &self.P
+    }
+    /// Prior mean of the last `predict`.
+    pub fn x_prior(&self) -> &SVector<f64, N> {
+        &self.x_prior
+    }
+    /// Prior covariance of the last `predict`.
+    pub fn P_prior(&self) -> &SMatrix<f64, N, N> {
+        &self.P_prior
+    }
+    /// Posterior mean of the last `update`.
+    pub fn x_post(&self) -> &SVector<f64, N> {
+        &self.x_post
+    }
+    /// Posterior covariance of the last `update`.
+    pub fn P_post(&self) -> &SMatrix<f64, N, N> {
+        &self.P_post
+    }
+    /// Default process noise `Q`.
+    pub fn Q(&self) -> &SMatrix<f64, N, N> {
+        &self.Q
+    }
+    /// Default measurement noise `R`.
+    pub fn R(&self) -> &SMatrix<f64, M, M> {
+        &self.R
+    }
+    /// Last innovation `y = z - z_bar` (zeros before the first update).
+    pub fn y(&self) -> &SVector<f64, M> {
+        &self.y
+    }
+    /// Last innovation covariance `S` (zeros before the first update).
+    pub fn S(&self) -> &SMatrix<f64, M, M> {
+        &self.S_innov
+    }
+    /// Last Kalman gain `K` (zeros before the first update).
+    pub fn K(&self) -> &SMatrix<f64, N, M> {
+        &self.K
+    }
+    /// Mean weights `Wm`.
+    pub fn Wm(&self) -> &SVector<f64, S> {
+        &self.Wm
+    }
+    /// Covariance weights `Wc`.
+    pub fn Wc(&self) -> &SVector<f64, S> {
+        &self.Wc
+    }
+    /// Sigma points (columns) re-drawn at the end of the last `predict`.
+    pub fn sigmas_f(&self) -> &SMatrix<f64, N, S> {
+        &self.sigmas_f
+    }
+    /// The sigma point parameters.
+    pub fn params(&self) -> &MerweParams {
+        &self.params
+    }
+    /// The covariance `P` is reset to on an unrecoverable factorisation.
+    pub fn reset_covariance(&self) -> &SMatrix<f64, N, N> {
+        &self.P_reset
+    }
+    /// Recovery and step counters.
+    pub fn recoveries(&self) -> Recoveries {
+        self.recoveries
+    }
+}

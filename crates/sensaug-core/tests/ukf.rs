@@ -1,0 +1,499 @@
+//! UKF properties: linear-model equivalence with a closed-form Kalman filter,
+//! weights, sigma point moments, every error variant, the recovery policy,
+//! and "no state change" on rejected calls.
+#![allow(non_snake_case)]
+
+use nalgebra::{Matrix2, SMatrix, SVector, Vector1, Vector2};
+use sensaug_core::demo_model::{DemoUkf, Pendulum};
+use sensaug_core::ukf::{
+    merwe_weights, scaled_cholesky, sigma_points, unscented_covariance, unscented_mean, Arg,
+    MerweParams, Phase, Stage, Status, Ukf, UkfError,
+};
+
+type Lin = Ukf<2, 1, 5>;
+
+const DT: f64 = 0.01;
+
+fn F() -> Matrix2<f64> {
+    Matrix2::new(1.0, DT, -0.2 * DT, 1.0 - 0.05 * DT)
+}
+fn B() -> Vector2<f64> {
+    Vector2::new(0.0, DT)
+}
+fn H() -> SMatrix<f64, 1, 2> {
+    SMatrix::<f64, 1, 2>::new(1.0, 0.5)
+}
+fn Q() -> Matrix2<f64> {
+    Matrix2::new(1e-4, 2e-5, 2e-5, 3e-4)
+}
+fn R() -> SMatrix<f64, 1, 1> {
+    SMatrix::<f64, 1, 1>::new(0.04)
+}
+fn P0() -> Matrix2<f64> {
+    Matrix2::new(0.5, 0.1, 0.1, 0.3)
+}
+fn x0() -> Vector2<f64> {
+    Vector2::new(0.2, -0.1)
+}
+fn params(alpha: f64, beta: f64, kappa: f64) -> MerweParams {
+    MerweParams { alpha, beta, kappa }
+}
+fn lin(p: MerweParams) -> Lin {
+    Lin::new(x0(), P0(), Q(), R(), p).expect("valid linear filter")
+}
+
+/// Deterministic pseudo-measurements (no RNG dependency).
+fn z_at(k: usize) -> f64 {
+    let t = k as f64 * DT;
+    libm::sin(3.0 * t) + 0.1 * libm::cos(17.0 * t + 0.3)
+}
+fn u_at(k: usize) -> f64 {
+    libm::cos(2.0 * k as f64 * DT)
+}
+
+fn max_abs<const R: usize, const C: usize>(A: &SMatrix<f64, R, C>) -> f64 {
+    A.iter().fold(0.0, |m, v| m.max(v.abs()))
+}
+
+#[test]
+fn weights_sum_exactly() {
+    for p in [
+        params(1.0, 2.0, 0.0),
+        params(0.1, 2.0, 1.0),
+        params(1e-3, 2.0, 0.0),
+        params(0.5, 0.0, -1.0),
+    ] {
+        let (Wm, Wc) = merwe_weights::<7>(3, &p);
+        let sm: f64 = Wm.iter().sum();
+        let sc: f64 = Wc.iter().sum();
+        // Wm sums to 1; Wc sums to 1 + (1 - alpha^2 + beta). Relative to the
+        // largest weight (|Wm_0| ~ 1/alpha^2 for small alpha).
+        let scale = Wm.iter().fold(1.0f64, |m, v| m.max(v.abs()));
+        assert!(
+            (sm - 1.0).abs() <= 4.0 * f64::EPSILON * scale,
+            "sum Wm = {sm}, scale {scale}"
+        );
+        let want = 2.0 - p.alpha * p.alpha + p.beta;
+        assert!(
+            (sc - want).abs() <= 4.0 * f64::EPSILON * scale.max(want.abs()),
+            "sum Wc = {sc}, want {want}"
+        );
+    }
+}
+
+#[test]
+fn sigma_points_reconstruct_mean_and_covariance() {
+    let x = SVector::<f64, 3>::new(0.3, -1.2, 4.0);
+    let P = SMatrix::<f64, 3, 3>::new(2.0, 0.3, -0.1, 0.3, 1.0, 0.2, -0.1, 0.2, 0.5);
+    for p in [
+        params(1.0, 2.0, 0.0),
+        params(0.3, 2.0, 0.0),
+        params(0.5, 0.0, 2.0),
+    ] {
+        let (Wm, Wc) = merwe_weights::<7>(3, &p);
+        let c = sensaug_core::ukf::merwe_lambda(3, &p) + 3.0;
+        let L = scaled_cholesky(&P, c).expect("P is positive definite");
+        let chi = sigma_points::<3, 7>(&x, &L);
+        let mean = unscented_mean(&Wm, &chi);
+        let zero = SMatrix::<f64, 3, 3>::zeros();
+        let cov = unscented_covariance(&Wc, &chi, &x, &zero);
+        let dm = max_abs(&(mean - x));
+        let dP = max_abs(&(cov - P));
+        assert!(dm <= 1e-13 / (p.alpha * p.alpha), "mean off by {dm}");
+        assert!(dP <= 1e-14, "covariance off by {dP}");
+    }
+}
+
+/// Closed-form linear Kalman filter, one predict + update.
+fn kf_step(x: &mut Vector2<f64>, P: &mut Matrix2<f64>, u: f64, z: f64) {
+    // x- = F x + B u ; P- = F P F' + Q
+    *x = F() * *x + B() * u;
+    *P = F() * *P * F().transpose() + Q();
+    // S = H P- H' + R ; K = P- H' S^-1
+    let S = H() * *P * H().transpose() + R();
+    let K = *P * H().transpose() / S[(0, 0)];
+    // x+ = x- + K (z - H x-) ; P+ = P- - K S K'
+    let y = z - (H() * *x)[(0, 0)];
+    *x += K * y;
+    *P -= K * S * K.transpose();
+}
+
+#[test]
+fn equals_linear_kalman_filter() {
+    for p in [
+        params(1.0, 2.0, 0.0),
+        params(0.5, 2.0, 1.0),
+        params(0.1, 2.0, 0.0),
+    ] {
+        let mut ukf = lin(p);
+        let (mut x, mut P) = (x0(), P0());
+        let (mut worst_x, mut worst_P) = (0.0f64, 0.0f64);
+        for k in 0..2000 {
+            let (u, z) = (u_at(k), z_at(k));
+            let st = ukf.predict(|s| F() * s + B() * u).expect("predict");
+            assert_eq!(st, Status::Nominal);
+            let st = ukf.update(&Vector1::new(z), |s| H() * s).expect("update");
+            assert_eq!(st, Status::Nominal);
+            kf_step(&mut x, &mut P, u, z);
+            worst_x = worst_x.max(max_abs(&(ukf.x() - x)) / max_abs(&x).max(1.0));
+            worst_P = worst_P.max(max_abs(&(ukf.P() - P)) / max_abs(&P));
+        }
+        eprintln!(
+            "alpha {}: max rel diff x {worst_x:.2e}, P {worst_P:.2e}",
+            p.alpha
+        );
+        // Cancellation in Wm_0 ~ 1 - n / alpha^2 costs ~1/alpha^2 ulps.
+        let tol = 1e-12 / (p.alpha * p.alpha);
+        assert!(
+            worst_x <= tol && worst_P <= tol,
+            "alpha {}: x rel {worst_x:e}, P rel {worst_P:e}, tol {tol:e}",
+            p.alpha
+        );
+        assert_eq!(ukf.recoveries().predicts, 2000);
+        assert_eq!(ukf.recoveries().updates, 2000);
+    }
+}
+
+#[test]
+fn update_before_predict_draws_from_current_state() {
+    // filterpy would use all-zero sigma points here (K ~ 0); we draw from
+    // (x, P), which on a linear model is the exact Kalman update.
+    let mut ukf = lin(params(1.0, 2.0, 0.0));
+    let (mut x, mut P) = (x0(), P0());
+    let z = 0.7;
+    assert_eq!(
+        ukf.update(&Vector1::new(z), |s| H() * s),
+        Ok(Status::Nominal)
+    );
+    let S = H() * P * H().transpose() + R();
+    let K = P * H().transpose() / S[(0, 0)];
+    x += K * (z - (H() * x)[(0, 0)]);
+    P -= K * S * K.transpose();
+    assert!(max_abs(&(ukf.x() - x)) < 1e-14);
+    assert!(max_abs(&(ukf.P() - P)) < 1e-14);
+    assert!(max_abs(&(ukf.K() - K)) < 1e-14);
+    assert!((ukf.S()[(0, 0)] - S[(0, 0)]).abs() < 1e-14);
+}
+
+#[test]
+fn constructor_errors_name_the_argument() {
+    let p = params(1.0, 2.0, 0.0);
+    let nan = f64::NAN;
+    assert_eq!(
+        Lin::new(x0(), P0(), Q(), R(), params(0.0, 2.0, 0.0)).unwrap_err(),
+        UkfError::InvalidSigmaParams
+    );
+    assert_eq!(
+        Lin::new(x0(), P0(), Q(), R(), params(1.0, 2.0, -2.0)).unwrap_err(),
+        UkfError::InvalidSigmaParams
+    );
+    assert_eq!(
+        Lin::new(x0(), P0(), Q(), R(), params(1.0, nan, 0.0)).unwrap_err(),
+        UkfError::InvalidSigmaParams
+    );
+    assert_eq!(
+        Lin::new(Vector2::new(nan, 0.0), P0(), Q(), R(), p).unwrap_err(),
+        UkfError::NonFiniteArgument { which: Arg::X }
+    );
+    let mut Pbad = P0();
+    Pbad[(1, 0)] = f64::INFINITY;
+    assert_eq!(
+        Lin::new(x0(), Pbad, Q(), R(), p).unwrap_err(),
+        UkfError::NonFiniteArgument { which: Arg::P }
+    );
+    assert_eq!(
+        Lin::new(x0(), Matrix2::new(1.0, 2.0, 2.0, 1.0), Q(), R(), p).unwrap_err(),
+        UkfError::NotPositiveDefinite { which: Arg::P }
+    );
+    assert_eq!(
+        Lin::new(x0(), P0(), Q() * nan, R(), p).unwrap_err(),
+        UkfError::NonFiniteArgument { which: Arg::Q }
+    );
+    assert_eq!(
+        Lin::new(x0(), P0(), Q(), R() * nan, p).unwrap_err(),
+        UkfError::NonFiniteArgument { which: Arg::R }
+    );
+    let mut ukf = lin(p);
+    assert_eq!(
+        ukf.set_reset_covariance(-P0()).unwrap_err(),
+        UkfError::NotPositiveDefinite {
+            which: Arg::ResetCovariance
+        }
+    );
+    assert_eq!(
+        ukf.reset(x0(), -P0()).unwrap_err(),
+        UkfError::NotPositiveDefinite { which: Arg::P }
+    );
+    assert_eq!(
+        ukf.set_Q(Q() * nan).unwrap_err(),
+        UkfError::NonFiniteArgument { which: Arg::Q }
+    );
+    assert_eq!(
+        ukf.set_R(R() * nan).unwrap_err(),
+        UkfError::NonFiniteArgument { which: Arg::R }
+    );
+    let bad = Pendulum {
+        mass_kg: 0.0,
+        ..Pendulum::default()
+    };
+    assert_eq!(
+        bad.validate().unwrap_err(),
+        UkfError::InvalidModelParameter { name: "mass_kg" }
+    );
+}
+
+/// Everything observable about the filter, for "unchanged" checks:
+/// x, P, x_prior, P_prior, sigmas_f, K, y, S.
+type Snapshot = (
+    Vector2<f64>,
+    Matrix2<f64>,
+    Vector2<f64>,
+    Matrix2<f64>,
+    SMatrix<f64, 2, 5>,
+    SMatrix<f64, 2, 1>,
+    Vector1<f64>,
+    SMatrix<f64, 1, 1>,
+);
+
+fn snapshot(u: &Lin) -> Snapshot {
+    (
+        *u.x(),
+        *u.P(),
+        *u.x_prior(),
+        *u.P_prior(),
+        *u.sigmas_f(),
+        *u.K(),
+        *u.y(),
+        *u.S(),
+    )
+}
+
+#[test]
+fn rejected_calls_leave_state_unchanged_and_are_counted() {
+    let mut ukf = lin(params(1.0, 2.0, 0.0));
+    assert_eq!(ukf.predict(|s| F() * s), Ok(Status::Nominal));
+    assert_eq!(
+        ukf.update(&Vector1::new(0.1), |s| H() * s),
+        Ok(Status::Nominal)
+    );
+    assert_eq!(ukf.predict(|s| F() * s), Ok(Status::Nominal));
+    let before = snapshot(&ukf);
+    let nan = f64::NAN;
+
+    assert_eq!(
+        ukf.update(&Vector1::new(nan), |s| H() * s),
+        Err(UkfError::NonFiniteMeasurement)
+    );
+    assert_eq!(
+        ukf.update(&Vector1::new(f64::INFINITY), |s| H() * s),
+        Err(UkfError::NonFiniteMeasurement)
+    );
+    assert_eq!(
+        ukf.update(&Vector1::new(0.1), |_| Vector1::new(nan)),
+        Err(UkfError::NonFiniteMeasurementModel)
+    );
+    assert_eq!(
+        ukf.update_with_r(&Vector1::new(0.1), &(R() * nan), |s| H() * s),
+        Err(UkfError::NonFiniteArgument { which: Arg::R })
+    );
+    // h finite but huge: S overflows.
+    assert_eq!(
+        ukf.update(&Vector1::new(0.1), |s| Vector1::new(1e300 * s[0])),
+        Err(UkfError::NonFiniteResult {
+            phase: Phase::Update
+        })
+    );
+    assert_eq!(snapshot(&ukf), before);
+    assert_eq!(
+        ukf.predict(|_| Vector2::new(nan, 0.0)),
+        Err(UkfError::NonFiniteProcess)
+    );
+    // Only one sigma point goes bad: still rejected.
+    assert_eq!(
+        ukf.predict(|s| if s[0] > ukf_x0_bound() {
+            Vector2::new(f64::INFINITY, 0.0)
+        } else {
+            *s
+        }),
+        Err(UkfError::NonFiniteProcess)
+    );
+    assert_eq!(
+        ukf.predict_with_q(&(Q() * nan), |s| F() * s),
+        Err(UkfError::NonFiniteArgument { which: Arg::Q })
+    );
+    assert_eq!(
+        ukf.predict(|s| s * 1e300),
+        Err(UkfError::NonFiniteResult {
+            phase: Phase::Predict
+        })
+    );
+    assert_eq!(snapshot(&ukf), before);
+
+    let r = ukf.recoveries();
+    assert_eq!(r.rejected, 9);
+    assert_eq!(
+        (r.predicts, r.updates, r.resymmetrised, r.covariance_resets),
+        (2, 1, 0, 0)
+    );
+    // And the filter still works.
+    assert_eq!(
+        ukf.update(&Vector1::new(0.1), |s| H() * s),
+        Ok(Status::Nominal)
+    );
+}
+
+fn ukf_x0_bound() -> f64 {
+    0.5
+}
+
+#[test]
+fn resymmetrisation_is_reported_and_counted() {
+    // A skew-symmetric Q makes P_prior asymmetric: its upper triangle alone
+    // is indefinite, its symmetric part is P_prior's nominal value.
+    let mut ukf = lin(params(1.0, 2.0, 0.0));
+    let skew = Matrix2::new(0.0, 5.0, -5.0, 0.0);
+    let st = ukf
+        .predict_with_q(&(Q() + skew), |s| *s)
+        .expect("recovered predict");
+    assert_eq!(
+        st,
+        Status::Resymmetrised {
+            stage: Stage::PredictRedraw
+        }
+    );
+    assert_eq!(ukf.recoveries().resymmetrised, 1);
+    assert!(
+        max_abs(&(ukf.P() - ukf.P().transpose())) == 0.0,
+        "P was re-symmetrised in place"
+    );
+    assert!(max_abs(&(ukf.P() - (P0() + Q()))) < 1e-15);
+}
+
+#[test]
+fn covariance_reset_in_predict_and_update() {
+    let mut ukf = lin(params(1.0, 2.0, 0.0));
+    let P_reset = Matrix2::new(2.0, 0.0, 0.0, 2.0);
+    ukf.set_reset_covariance(P_reset).expect("PD");
+
+    // Strongly negative Q: P_prior is indefinite, re-draw resets it.
+    assert_eq!(
+        ukf.predict_with_q(&(Matrix2::identity() * -10.0), |s| F() * s),
+        Err(UkfError::CovarianceReset {
+            stage: Stage::PredictRedraw
+        })
+    );
+    assert_eq!(*ukf.P(), P_reset);
+    assert_eq!(*ukf.P_prior(), P_reset);
+    assert!(ukf.x().iter().all(|v| v.is_finite()));
+    assert_eq!(ukf.recoveries().covariance_resets, 1);
+    assert_eq!(ukf.recoveries().predicts, 1, "the predict itself completed");
+
+    // Negative R: S is not positive definite; measurement dropped, P reset.
+    let x_before = *ukf.x();
+    ukf.reset(x_before, P0()).expect("reset");
+    assert_eq!(ukf.predict(|s| F() * s), Ok(Status::Nominal));
+    let x_before = *ukf.x();
+    assert_eq!(
+        ukf.update_with_r(
+            &Vector1::new(3.0),
+            &SMatrix::<f64, 1, 1>::new(-100.0),
+            |s| H() * s
+        ),
+        Err(UkfError::CovarianceReset {
+            stage: Stage::InnovationCovariance
+        })
+    );
+    assert_eq!(*ukf.x(), x_before, "measurement discarded");
+    assert_eq!(*ukf.P(), P_reset);
+    let r = ukf.recoveries();
+    assert_eq!((r.covariance_resets, r.updates, r.rejected), (2, 0, 0));
+    // Next update draws fresh sigma points from (x, P_reset) and works.
+    assert_eq!(
+        ukf.update(&Vector1::new(0.3), |s| H() * s),
+        Ok(Status::Nominal)
+    );
+}
+
+#[test]
+fn run_checks_slices_and_matches_stepping() {
+    let model = Pendulum::default();
+    let make = || -> DemoUkf {
+        model
+            .ukf(
+                SVector::<f64, 3>::new(0.3, 0.0, 0.0),
+                SMatrix::<f64, 3, 3>::from_diagonal(&SVector::<f64, 3>::new(0.1, 0.1, 0.5)),
+                SMatrix::<f64, 3, 3>::from_diagonal(&SVector::<f64, 3>::new(1e-8, 1e-6, 1e-6)),
+                SMatrix::<f64, 2, 2>::identity() * 1e-4,
+                params(0.5, 2.0, 0.0),
+            )
+            .expect("valid")
+    };
+    const T: usize = 200;
+    let u: [f64; T] = core::array::from_fn(u_at);
+    let mut z = [0.0; 2 * T];
+    for k in 0..T {
+        let th = 0.3 * libm::cos(k as f64 * 1e-2);
+        z[2 * k] = 0.5 * libm::sin(th);
+        z[2 * k + 1] = -0.5 * libm::cos(th);
+    }
+    let (mut xs, mut pd) = ([0.0; 3 * T], [0.0; 3 * T]);
+    let mut ukf = make();
+    assert_eq!(
+        model.run(&mut ukf, &u, &z[..2 * T - 1], &mut xs, &mut pd),
+        Err(UkfError::InputLength {
+            which: Arg::Measurements,
+            needed: 2 * T,
+            got: 2 * T - 1
+        })
+    );
+    assert_eq!(
+        model.run(&mut ukf, &u, &z, &mut xs[..3 * T - 1], &mut pd),
+        Err(UkfError::OutputTooShort {
+            which: Arg::XsOut,
+            needed: 3 * T,
+            got: 3 * T - 1
+        })
+    );
+    assert_eq!(
+        model.run(&mut ukf, &u, &z, &mut xs, &mut pd[..2]),
+        Err(UkfError::OutputTooShort {
+            which: Arg::PdiagOut,
+            needed: 3 * T,
+            got: 2
+        })
+    );
+    assert_eq!(ukf.recoveries().predicts, 0, "nothing ran");
+    let report = model.run(&mut ukf, &u, &z, &mut xs, &mut pd).expect("run");
+    assert_eq!(
+        (report.steps, report.errors, report.first_error),
+        (T, 0, None)
+    );
+
+    let mut step = make();
+    for k in 0..T {
+        assert_eq!(step.predict(|x| model.f(x, u[k])), Ok(Status::Nominal));
+        assert_eq!(
+            step.update(&SVector::<f64, 2>::new(z[2 * k], z[2 * k + 1]), |x| {
+                model.h(x)
+            }),
+            Ok(Status::Nominal)
+        );
+        for i in 0..3 {
+            assert_eq!(xs[3 * k + i], step.x()[i]);
+            assert_eq!(pd[3 * k + i], step.P()[(i, i)]);
+        }
+    }
+
+    // A bad measurement mid-trial is rejected, counted, and the trial goes on.
+    z[2 * 50] = f64::NAN;
+    let mut ukf = make();
+    let report = model.run(&mut ukf, &u, &z, &mut xs, &mut pd).expect("run");
+    assert_eq!(report.errors, 1);
+    let first = report.first_error.expect("one error");
+    assert_eq!(
+        (first.step, first.phase, first.error),
+        (50, Phase::Update, UkfError::NonFiniteMeasurement)
+    );
+    assert!(xs.iter().chain(pd.iter()).all(|v| v.is_finite()));
+    assert_eq!(ukf.recoveries().rejected, 1);
+}
