@@ -274,7 +274,11 @@ impl PartnerVariance {
     /// `weight = dt / window_s`, clamped to `(0, 1]`.
     pub fn new(dt_s: f64, window_s: f64) -> Self {
         let w = dt_s / window_s;
-        let weight = if w.is_finite() && w > 0.0 { w.min(1.0) } else { 1.0 };
+        let weight = if w.is_finite() && w > 0.0 {
+            w.min(1.0)
+        } else {
+            1.0
+        };
         PartnerVariance {
             weight,
             mean_sq: None,
@@ -296,10 +300,7 @@ impl PartnerVariance {
 
 /// The outcome of two filters' calls as one: an error wins (the own
 /// filter's first), then a repair, else nominal.
-fn combine(
-    a: Result<Status, UkfError>,
-    b: Result<Status, UkfError>,
-) -> Result<Status, UkfError> {
+fn combine(a: Result<Status, UkfError>, b: Result<Status, UkfError>) -> Result<Status, UkfError> {
     match (a?, b?) {
         (Status::Nominal, Status::Nominal) => Ok(Status::Nominal),
         (Status::Nominal, repaired) | (repaired, _) => Ok(repaired),
@@ -381,9 +382,7 @@ impl GoalIntegrator {
             Some((e_partner, floor)) if e_partner.is_finite() && floor.is_finite() => {
                 let prior_e = self.fused.x()[0];
                 let prior_var = self.fused.P()[(0, 0)];
-                let var = self
-                    .variance
-                    .observe(e_partner - prior_e, prior_var, floor);
+                let var = self.variance.observe(e_partner - prior_e, prior_var, floor);
                 self.last_partner_variance = var;
                 let mut r = SMatrix::<f64, 3, 3>::zeros();
                 r.fixed_view_mut::<2, 2>(0, 0).copy_from(&self.r_own);

@@ -520,7 +520,11 @@ impl<'a> Robot<'a> {
 }
 
 fn diag3(P: &nalgebra::SMatrix<f64, 6, 6>, from: usize) -> [f64; 3] {
-    [P[(from, from)], P[(from + 1, from + 1)], P[(from + 2, from + 2)]]
+    [
+        P[(from, from)],
+        P[(from + 1, from + 1)],
+        P[(from + 2, from + 2)],
+    ]
 }
 
 /// The partner agent of a simulated trial (the virtual human).
@@ -715,7 +719,11 @@ impl Mirror {
             PhaseKind::Trajectory => {
                 let n = self.gain_count.max(1) as f64;
                 let g = if self.gain_count > 0 {
-                    [self.gain_sum[0] / n, self.gain_sum[1] / n, self.gain_sum[2] / n]
+                    [
+                        self.gain_sum[0] / n,
+                        self.gain_sum[1] / n,
+                        self.gain_sum[2] / n,
+                    ]
                 } else {
                     self.stage1.gains()
                 };

@@ -3,12 +3,15 @@
 //! converts the result back.
 use pyo3::prelude::*;
 
+mod convert;
+mod estimators;
 mod plant;
 mod riccati;
 mod ukf;
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    estimators::register(m)?;
     plant::register(m)?;
     riccati::register(m)?;
     ukf::register(m)?;

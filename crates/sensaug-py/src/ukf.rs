@@ -2,132 +2,19 @@
 //! into Rust once per trial; `predict` / `update` step for replaying data.
 #![allow(non_snake_case)]
 
-use nalgebra::{SMatrix, SVector};
-use numpy::ndarray::{Array1, Array2};
-use numpy::{
-    IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
-    PyUntypedArrayMethods,
+use crate::convert::{
+    mat_from, mat_to, phase_name, recoveries_dict, status_str, to_py, vec_from, vec_to,
+    UkfStepError,
 };
-use pyo3::create_exception;
+use nalgebra::SVector;
+use numpy::{
+    PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods,
+};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use sensaug_core::demo_model::{DemoUkf as CoreUkf, Pendulum, M, N};
-use sensaug_core::ukf::{MerweParams, Phase, Stage, Status, UkfError};
-
-create_exception!(
-    _core,
-    UkfStepError,
-    PyRuntimeError,
-    "A UKF predict/update was rejected (state unchanged) or reset P (state valid)."
-);
-
-fn stage_name(s: Stage) -> &'static str {
-    match s {
-        Stage::PredictSigmaPoints => "predict_sigma_points",
-        Stage::PredictRedraw => "predict_redraw",
-        Stage::UpdateSigmaPoints => "update_sigma_points",
-        Stage::InnovationCovariance => "innovation_covariance",
-    }
-}
-
-fn phase_name(p: Phase) -> &'static str {
-    match p {
-        Phase::Predict => "predict",
-        Phase::Update => "update",
-    }
-}
-
-/// Core error -> Python exception whose message names the argument.
-fn to_py(e: UkfError) -> PyErr {
-    match e {
-        UkfError::NonFiniteArgument { which } => {
-            PyValueError::new_err(format!("{}: must be finite (no NaN or inf)", which.name()))
-        }
-        UkfError::NotPositiveDefinite { which } => PyValueError::new_err(format!(
-            "{}: must be symmetric positive definite (Cholesky of (n + lambda) * {} failed)",
-            which.name(),
-            which.name()
-        )),
-        UkfError::InvalidSigmaParams => PyValueError::new_err(
-            "alpha/beta/kappa: need finite values with alpha > 0 and n + kappa > 0",
-        ),
-        UkfError::InvalidModelParameter { name } => PyValueError::new_err(format!(
-            "{name}: out of range (dt_s, length_m, mass_kg > 0; damping_nms >= 0; all finite)"
-        )),
-        UkfError::InputLength { which, needed, got } => PyValueError::new_err(format!(
-            "{}: needs {needed} values, got {got}",
-            which.name()
-        )),
-        UkfError::OutputTooShort { which, needed, got } => PyValueError::new_err(format!(
-            "{}: needs {needed} values, got {got}",
-            which.name()
-        )),
-        UkfError::NonFiniteMeasurement => {
-            UkfStepError::new_err("z: must be finite; update rejected, state unchanged")
-        }
-        UkfError::NonFiniteProcess => UkfStepError::new_err(
-            "process model returned NaN/inf; predict rejected, state unchanged",
-        ),
-        UkfError::NonFiniteMeasurementModel => UkfStepError::new_err(
-            "measurement model returned NaN/inf; update rejected, state unchanged",
-        ),
-        UkfError::NonFiniteResult { phase } => UkfStepError::new_err(format!(
-            "{} overflowed to NaN/inf; rejected, state unchanged",
-            phase_name(phase)
-        )),
-        UkfError::CovarianceReset { stage } => UkfStepError::new_err(format!(
-            "covariance not positive definite at {} even after re-symmetrising; P reset to the reset covariance (filter valid)",
-            stage_name(stage)
-        )),
-    }
-}
-
-fn status_str(s: Status) -> String {
-    match s {
-        Status::Nominal => "nominal".to_owned(),
-        Status::Resymmetrised { stage } => format!("resymmetrised:{}", stage_name(stage)),
-    }
-}
-
-fn vec_from<const D: usize>(
-    a: &PyReadonlyArray1<'_, f64>,
-    name: &str,
-) -> PyResult<SVector<f64, D>> {
-    if a.shape() != [D] {
-        return Err(PyValueError::new_err(format!(
-            "{name}: expected shape ({D},), got {:?}",
-            a.shape()
-        )));
-    }
-    let v = a.as_array();
-    Ok(SVector::<f64, D>::from_fn(|i, _| v[i]))
-}
-
-fn mat_from<const R: usize, const C: usize>(
-    a: &PyReadonlyArray2<'_, f64>,
-    name: &str,
-) -> PyResult<SMatrix<f64, R, C>> {
-    if a.shape() != [R, C] {
-        return Err(PyValueError::new_err(format!(
-            "{name}: expected shape ({R}, {C}), got {:?}",
-            a.shape()
-        )));
-    }
-    let v = a.as_array();
-    Ok(SMatrix::<f64, R, C>::from_fn(|i, j| v[[i, j]]))
-}
-
-fn vec_to<'py, const D: usize>(py: Python<'py>, v: &SVector<f64, D>) -> Bound<'py, PyArray1<f64>> {
-    Array1::from_shape_fn(D, |i| v[i]).into_pyarray(py)
-}
-
-fn mat_to<'py, const R: usize, const C: usize>(
-    py: Python<'py>,
-    m: &SMatrix<f64, R, C>,
-) -> Bound<'py, PyArray2<f64>> {
-    Array2::from_shape_fn((R, C), |(i, j)| m[(i, j)]).into_pyarray(py)
-}
+use sensaug_core::ukf::{MerweParams, UkfError};
 
 /// `(xs, Pdiag)` returned by `DemoUkf.run`.
 type Trajectory<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>);
@@ -356,14 +243,7 @@ impl DemoUkf {
     }
     /// Counters: resymmetrised, covariance_resets, rejected, predicts, updates.
     fn recoveries<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let r = self.ukf.recoveries();
-        let d = PyDict::new(py);
-        d.set_item("resymmetrised", r.resymmetrised)?;
-        d.set_item("covariance_resets", r.covariance_resets)?;
-        d.set_item("rejected", r.rejected)?;
-        d.set_item("predicts", r.predicts)?;
-        d.set_item("updates", r.updates)?;
-        Ok(d)
+        recoveries_dict(py, &self.ukf.recoveries())
     }
 }
 
