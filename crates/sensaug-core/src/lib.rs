@@ -13,6 +13,7 @@
 #![deny(missing_docs)]
 #![allow(non_snake_case)]
 
+pub mod linalg;
 pub mod plant;
 pub mod riccati;
 pub mod ukf;
