@@ -225,7 +225,7 @@ pub fn care<const N: usize, const M: usize>(
 /// CARE `A'X + XA - X B R^-1 B' X + Q = 0` with explicit options.
 ///
 /// Steps: input checks; `G = B R^-1 B'`; Cayley transform
-/// ([`care_sda_initial`]); doubling ([`sda`]); acceptance checks
+/// (`care_sda_initial`); doubling (`sda`); acceptance checks
 /// (relative residual [`care_residual`] `<= RESIDUAL_TOL`,
 /// `A - G X` Hurwitz).
 pub fn care_with<const N: usize, const M: usize>(
