@@ -5,6 +5,27 @@ the Python API for scripting experiments around it.
 """
 from sensaug import _core
 from sensaug._core import Plant
+from sensaug.lqr import (
+    RiccatiConvergenceError,
+    agent_gains,
+    care,
+    dare,
+    lqr,
+    partner_gain_vector,
+    robot_gain_vector,
+)
 from sensaug.ukf import PendulumUKF, UkfStepError
 
-__all__ = ["_core", "Plant", "PendulumUKF", "UkfStepError"]
+__all__ = [
+    "_core",
+    "Plant",
+    "PendulumUKF",
+    "UkfStepError",
+    "RiccatiConvergenceError",
+    "agent_gains",
+    "care",
+    "dare",
+    "lqr",
+    "partner_gain_vector",
+    "robot_gain_vector",
+]

@@ -16,6 +16,7 @@
 pub mod agent;
 pub mod demo_model;
 pub mod estimator;
+pub mod linalg;
 pub mod plant;
 pub mod riccati;
 pub mod rng;

@@ -1,0 +1,120 @@
+//! Small allocation-free linear-algebra helpers on fixed-size matrices.
+//!
+//! nalgebra's own LU needs `Const<N>: DimMin<Const<N>>`, which generic code
+//! over `const N: usize` cannot name without typenum where-clauses, so the
+//! one factorisation the Riccati solvers need is written out here.
+
+use nalgebra::{Complex, SMatrix};
+
+/// LU factorisation with partial (row) pivoting, `P A = L U`.
+///
+/// `L` (unit lower triangle, diagonal not stored) and `U` share one matrix.
+/// Built once, then used for any number of right-hand sides. Runs in
+/// `O(N^3)`; never allocates, never panics.
+#[derive(Clone, Copy, Debug)]
+pub struct Lu<const N: usize> {
+    lu: SMatrix<f64, N, N>,
+    /// `perm[i]` is the row of the original matrix stored in row `i`.
+    perm: [usize; N],
+}
+
+impl<const N: usize> Lu<N> {
+    /// Factorises `a`. Returns `None` when a pivot is exactly zero or
+    /// non-finite (singular matrix or bad input); callers map that to their
+    /// own error.
+    pub fn new(a: &SMatrix<f64, N, N>) -> Option<Self> {
+        let mut lu = *a;
+        let mut perm = [0usize; N];
+        for (i, p) in perm.iter_mut().enumerate() {
+            *p = i;
+        }
+        for k in 0..N {
+            // Pivot: the largest |entry| in column k at or below the diagonal.
+            let mut p = k;
+            let mut best = lu[(k, k)].abs();
+            for i in (k + 1)..N {
+                let v = lu[(i, k)].abs();
+                if v > best {
+                    best = v;
+                    p = i;
+                }
+            }
+            if best == 0.0 || !best.is_finite() {
+                return None;
+            }
+            if p != k {
+                lu.swap_rows(p, k);
+                perm.swap(p, k);
+            }
+            let pivot = lu[(k, k)];
+            for i in (k + 1)..N {
+                // l_ik = a_ik / u_kk ; a_ij -= l_ik u_kj
+                let l = lu[(i, k)] / pivot;
+                lu[(i, k)] = l;
+                for j in (k + 1)..N {
+                    lu[(i, j)] -= l * lu[(k, j)];
+                }
+            }
+        }
+        Some(Self { lu, perm })
+    }
+
+    /// Solves `A X = B` for `X` by forward then back substitution.
+    pub fn solve<const K: usize>(&self, b: &SMatrix<f64, N, K>) -> SMatrix<f64, N, K> {
+        let mut x = SMatrix::<f64, N, K>::zeros();
+        for c in 0..K {
+            // Forward: L y = P b.
+            for i in 0..N {
+                let mut s = b[(self.perm[i], c)];
+                for j in 0..i {
+                    s -= self.lu[(i, j)] * x[(j, c)];
+                }
+                x[(i, c)] = s;
+            }
+            // Back: U x = y.
+            for i in (0..N).rev() {
+                let mut s = x[(i, c)];
+                for j in (i + 1)..N {
+                    s -= self.lu[(i, j)] * x[(j, c)];
+                }
+                x[(i, c)] = s / self.lu[(i, i)];
+            }
+        }
+        x
+    }
+}
+
+/// `(M + M') / 2`: removes the rounding asymmetry of a symmetric iterate.
+pub fn symmetrize<const N: usize>(m: &SMatrix<f64, N, N>) -> SMatrix<f64, N, N> {
+    (m + m.transpose()) * 0.5
+}
+
+/// True when every entry is finite (no NaN, no infinity).
+pub fn all_finite<const R: usize, const C: usize>(m: &SMatrix<f64, R, C>) -> bool {
+    m.iter().all(|v| v.is_finite())
+}
+
+/// True when the Hermitian matrix `h` is positive definite: every pivot of
+/// its `L D L^H` elimination (no pivoting) has a real part `> 0`.
+///
+/// Written out because nalgebra's complex `Cholesky::new` takes the complex
+/// square root of a negative pivot instead of failing. Only the lower
+/// triangle and the real part of the diagonal are trusted.
+pub fn hermitian_positive_definite<const N: usize>(h: &SMatrix<Complex<f64>, N, N>) -> bool {
+    let mut a = *h;
+    for k in 0..N {
+        let d = a[(k, k)].re;
+        if d.is_nan() || d <= 0.0 {
+            return false;
+        }
+        // Schur complement: a_ij -= a_ik conj(a_jk) / d  for i, j > k.
+        for j in (k + 1)..N {
+            let ajk = a[(j, k)].conj();
+            for i in j..N {
+                let v = a[(i, k)] * ajk / d;
+                a[(i, j)] -= v;
+            }
+        }
+    }
+    true
+}
