@@ -134,7 +134,7 @@ impl<'a> Protocol<'a> {
         let mut end = 0u64;
         for (i, p) in phases.iter().enumerate() {
             let ticks = p.duration_s / dt_s;
-            if !(ticks.is_finite() && ticks >= 1.0 && ticks < 1e12) {
+            if !(1.0..1e12).contains(&ticks) {
                 return Err(ScenarioError::InvalidPhase {
                     phase: i,
                     field: "duration_s",
