@@ -606,7 +606,7 @@ pub struct TickRecord {
 }
 
 /// Column names of a [`TickRecord`] seen as a row of `f64`.
-pub const FIELDS: [&str; 27] = [
+pub const FIELDS: [&str; 26] = [
     "t",
     "phase",
     "x",
@@ -633,12 +633,11 @@ pub const FIELDS: [&str; 27] = [
     "Lv_hat",
     "Lh_hat",
     "tau_hat",
-    "_reserved",
 ];
 
 impl TickRecord {
     /// The record as a row in [`FIELDS`] order.
-    pub fn to_row(&self) -> [f64; 27] {
+    pub fn to_row(&self) -> [f64; FIELDS.len()] {
         [
             self.t,
             self.phase,
@@ -666,7 +665,6 @@ impl TickRecord {
             self.L_robot_hat[1],
             self.L_robot_hat[2],
             self.tau_hat,
-            f64::NAN,
         ]
     }
 }

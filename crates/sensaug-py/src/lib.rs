@@ -7,6 +7,7 @@ mod convert;
 mod estimators;
 mod plant;
 mod riccati;
+mod scenario;
 mod ukf;
 
 #[pymodule]
@@ -14,6 +15,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     estimators::register(m)?;
     plant::register(m)?;
     riccati::register(m)?;
+    scenario::register(m)?;
     ukf::register(m)?;
     Ok(())
 }

@@ -1,0 +1,151 @@
+"""Command line: ``python -m sensaug {demo,run,preset}``.
+
+* ``demo`` reproduces the paper's headline numbers on the embedded Hi5 and
+  simulation defaults and prints them as tables (the README's main job).
+* ``run CONFIG.toml`` runs one trial and saves its log (``.npz``).
+* ``preset {hi5,simulation}`` prints a preset as TOML, to edit and ``run``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from sensaug import experiment, presets
+from sensaug.config import ScenarioConfig
+from sensaug.lqr import agent_gains
+
+__all__ = ["main"]
+
+
+def _table(headers: list[str], rows: list[list[str]]) -> str:
+    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(headers)]
+    line = "  ".join(h.rjust(w) for h, w in zip(headers, widths))
+    sep = "  ".join("-" * w for w in widths)
+    body = ["  ".join(c.rjust(w) for c, w in zip(r, widths)) for r in rows]
+    return "\n".join([line, sep, *body])
+
+
+def demo(seeds: int, out: Path | None) -> int:
+    t_start = time.perf_counter()
+    print("sensaug demo: the paper's Hi5 experiment and simulation on the embedded defaults\n")
+
+    hi5 = agent_gains(0.0035, 0.0, 1.0, 0.0)
+    sim = agent_gains(6.0, 0.0, 20000.0, 2.0)
+    print("Agent LQR gains (reduced 2-state CARE, docs/model.md)")
+    print(
+        _table(
+            ["setting", "M", "Q_x", "Q_xdot", "k_pos", "k_vel"],
+            [
+                ["Hi5 robot", "0.0035", "1", "0", f"{hi5[0]:.4f}", f"{hi5[1]:.5f}"],
+                ["simulation", "6", "20000", "2", f"{sim[0]:.4f}", f"{sim[1]:.4f}"],
+            ],
+        )
+    )
+
+    print(f"\nStage 1, Hi5: mean estimated virtual-human gains over the last 8 s ({seeds} seeds each)")
+    rows = []
+    trials = {}
+    for lhh in presets.HI5_LHH_VALUES:
+        est = []
+        for seed in range(seeds):
+            tr = experiment.run(presets.hi5_experiment(lhh, seed=seed))
+            trials[(lhh, seed)] = tr
+            est.append(tr.gain_estimate())
+        est = np.array(est)
+        worst = np.abs(est[:, 2] - lhh).max()
+        rows.append(
+            [
+                f"{lhh:.1f}",
+                f"{est[:, 0].mean():+.4f}",
+                f"{est[:, 1].mean():+.4f}",
+                f"{est[:, 2].mean():.4f}",
+                f"{worst:.4f}",
+            ]
+        )
+    print(_table(["true Lhh", "Lhx^", "Lhv^", "Lhh^", "max |Lhh^-Lhh|"], rows))
+
+    print("\nStage 2, Hi5: partner-trajectory RMSE (after 2 s), % of the 8 deg amplitude")
+    rows = []
+    for lhh in presets.HI5_LHH_VALUES[1:]:
+        r = [trials[(lhh, s)].partner_target_rmse() / 8.0 * 100 for s in range(seeds)]
+        rows.append([f"{lhh:.1f}", f"{np.mean(r):.2f}", f"{np.max(r):.2f}"])
+    print(_table(["Lhh", "mean RMSE %", "max RMSE %"], rows))
+
+    print("\nStage 3, Hi5 (Lhh = 2): RMSE of the robot's (x - tau) estimate, deg, mean over seeds")
+    rows = []
+    for noise in (0.01, 0.1, 0.5, 1.0):
+        res = [experiment.run(presets.hi5_experiment(2.0, seed=s, target_noise_std=noise)).integration_rmse() for s in range(seeds)]
+        own = np.mean([r["own"] for r in res])
+        fused = np.mean([r["integrated"] for r in res])
+        meas = np.mean([r["measured"] for r in res])
+        rows.append([f"{noise:g}", f"{meas:.4f}", f"{own:.4f}", f"{fused:.4f}", f"{own / fused:.2f}x"])
+    print(_table(["target noise std", "measured", "own only", "integrated", "gain"], rows))
+
+    sim_trial = experiment.run(presets.simulation_section())
+    m = sim_trial.phase_mask(0, last_s=8)
+    robot_by_partner = [sim_trial[f][m].mean() for f in ("Lx_hat", "Lv_hat", "Lh_hat")]
+    print("\nSimulation section (M = 6 kg, both agents LQR, each identifying the other)")
+    print(
+        _table(
+            ["who estimates", "true gains", "estimated (last 8 s)"],
+            [
+                ["robot -> partner", _fmt(sim_trial.partner_gains), _fmt(sim_trial.gain_estimate())],
+                ["partner -> robot", _fmt(sim_trial.robot_gains), _fmt(robot_by_partner)],
+            ],
+        )
+    )
+    if out is not None:
+        from sensaug import plots
+
+        out.mkdir(parents=True, exist_ok=True)
+        written = plots.write_trial_plots(trials[(2.0, 0)], out, prefix="hi5_lhh2")
+        written += plots.write_trial_plots(sim_trial, out, prefix="simulation")
+        print(f"\nplots: {', '.join(str(p) for p in written)}")
+    print(f"\ndone in {time.perf_counter() - t_start:.1f} s")
+    return 0
+
+
+def _fmt(v) -> str:
+    return "[" + ", ".join(f"{x:.3f}" for x in v) + "]"
+
+
+def run_config(path: Path, out: Path | None) -> int:
+    cfg = ScenarioConfig.from_toml(path)
+    trial = experiment.run(cfg)
+    out = out or path.with_suffix(".npz")
+    np.savez_compressed(out, data=trial.data, config=cfg.to_toml())
+    print(f"{len(trial)} ticks; summary {trial.summary}; log -> {out}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="sensaug", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+    d = sub.add_parser("demo", help="reproduce the paper's headline numbers")
+    d.add_argument("--seeds", type=int, default=3, help="trials per setting (default 3)")
+    d.add_argument("--plots", type=Path, default=Path("out"), help="folder for plots (default ./out)")
+    d.add_argument("--no-plots", action="store_true", help="do not write plots")
+    r = sub.add_parser("run", help="run one trial from a TOML configuration")
+    r.add_argument("config", type=Path)
+    r.add_argument("--out", type=Path, default=None, help="log file (.npz); default next to the config")
+    p = sub.add_parser("preset", help="print a preset configuration as TOML")
+    p.add_argument("name", choices=["hi5", "simulation"])
+    args = parser.parse_args(argv)
+    try:
+        if args.command == "demo":
+            if args.seeds < 1:
+                parser.error("--seeds: must be >= 1")
+            return demo(args.seeds, None if args.no_plots else args.plots)
+        if args.command == "run":
+            return run_config(args.config, args.out)
+        cfg = presets.hi5_experiment() if args.name == "hi5" else presets.simulation_section()
+        sys.stdout.write(cfg.to_toml())
+        return 0
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2

@@ -1,0 +1,68 @@
+"""Plots of a trial, written as PNG files (matplotlib, headless)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from sensaug.experiment import Trial  # noqa: E402
+
+__all__ = ["write_trial_plots"]
+
+
+def write_trial_plots(trial: Trial, folder: Path, *, prefix: str) -> list[Path]:
+    """One figure per phase kind present: positions and targets, gain
+    estimates, partner-target estimate, goal-integration estimates."""
+    folder = Path(folder)
+    t = trial["t"]
+    written: list[Path] = []
+
+    fig, ax = plt.subplots(figsize=(9, 3.5))
+    ax.plot(t, trial["tau"], lw=0.8, label="robot target tau")
+    ax.plot(t, trial["tau_h"], "--", lw=0.8, label="partner target tau_h")
+    ax.plot(t, trial["x"], lw=1.0, label="handle x")
+    ax.set(xlabel="t (s)", ylabel="position", title=f"{prefix}: trajectories")
+    ax.legend(loc="upper right", fontsize=8)
+    written.append(_save(fig, folder / f"{prefix}_trajectories.png"))
+
+    for i in trial.phases_of("gains"):
+        m = trial.phase_mask(i)
+        fig, ax = plt.subplots(figsize=(9, 3.5))
+        for f, true in zip(("Lhx_hat", "Lhv_hat", "Lhh_hat"), trial.partner_gains):
+            line = ax.plot(t[m], trial[f][m], lw=0.8, label=f)[0]
+            ax.axhline(true, color=line.get_color(), ls=":", lw=1.0)
+        ax.set(xlabel="t (s)", ylabel="gain", title=f"{prefix}: partner gain estimates (dotted: truth)")
+        ax.legend(loc="upper right", fontsize=8)
+        written.append(_save(fig, folder / f"{prefix}_gains_phase{i}.png"))
+
+    for i in trial.phases_of("trajectory"):
+        m = trial.phase_mask(i)
+        fig, ax = plt.subplots(figsize=(9, 3.5))
+        ax.plot(t[m], trial["tau_h"][m], "r--", lw=1.0, label="tau_h (true)")
+        ax.plot(t[m], trial["tau_h_hat"][m], "k", lw=0.8, label="tau_h^ (robot's estimate)")
+        ax.set(xlabel="t (s)", ylabel="position", title=f"{prefix}: partner target estimate")
+        ax.legend(loc="upper right", fontsize=8)
+        written.append(_save(fig, folder / f"{prefix}_trajectory_phase{i}.png"))
+
+    for i in trial.phases_of("integration"):
+        m = trial.phase_mask(i)
+        fig, ax = plt.subplots(figsize=(9, 3.5))
+        ax.plot(t[m], trial["e_meas"][m], ".", ms=1, color="0.7", label="measured x - tau")
+        ax.plot(t[m], trial["e_hat_own"][m], lw=0.8, label="own sensing only")
+        ax.plot(t[m], trial["e"][m], "k", lw=1.6, label="true x - tau")
+        ax.plot(t[m], trial["e_hat_fused"][m], lw=0.8, color="tab:orange", label="with goal integration")
+        ax.set(xlabel="t (s)", ylabel="x - tau", title=f"{prefix}: goal integration")
+        ax.legend(loc="upper right", fontsize=8)
+        written.append(_save(fig, folder / f"{prefix}_integration_phase{i}.png"))
+    return written
+
+
+def _save(fig, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

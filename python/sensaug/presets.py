@@ -1,0 +1,136 @@
+"""Ready-made configurations for the paper's Hi5 experiment and simulation.
+
+Every number here is either the paper's or a documented choice
+(``docs/model.md``); the defaults are what ``sensaug demo`` runs.
+"""
+
+from __future__ import annotations
+
+import math
+
+from sensaug.config import (
+    Chirp,
+    Constant,
+    FilterConfig,
+    Harmonics,
+    IntegratorConfig,
+    PartnerConfig,
+    PhaseConfig,
+    PlantConfig,
+    RobotConfig,
+    RoundedSquare,
+    ScenarioConfig,
+    Square,
+    WorldConfig,
+)
+
+__all__ = ["hi5_experiment", "simulation_section", "HI5_LHH_VALUES"]
+
+#: The virtual human's gains of the paper's Hi5 gain sweep.
+HI5_LHH_VALUES = (0.0, 0.5, 1.0, 1.5, 2.0)
+
+
+def hi5_experiment(
+    lhh: float = 2.0,
+    *,
+    seed: int = 0,
+    target_noise_std: float = 1.0,
+    integrate: bool = True,
+    phase_s: float = 20.0,
+    chirp_amplitude: float = 2.0,
+    motor_noise_std: float = 1e-3,
+) -> ScenarioConfig:
+    """The Hi5 experiment (section "Experimental Results"), in degrees.
+
+    ``M = 0.0035``, ``C = 0``; robot ``Q_x = 1, Q_xdot = 0``; virtual human
+    ``L_h = [0, 0, lhh]``; ``Q_k = 1e-2 I6``, ``R_1 = 1e-7 I3``,
+    ``R_2 = 1e-7 I5``; three phases of ``phase_s`` each: partner gains (robot
+    target = rounded square + 0-2 Hz chirp of ``chirp_amplitude``), partner
+    trajectory (same rounded square), goal integration (same target, robot's
+    view of it with white noise of std ``target_noise_std``; 1 deg is 1/8 of
+    the amplitude).
+    """
+    rounded = RoundedSquare(amplitude=8.0, period_s=4.0)
+    chirp = Chirp(amplitude=chirp_amplitude, f0_hz=0.0, f1_hz=2.0, duration_s=phase_s)
+    sensor_var = 1e-7
+    return ScenarioConfig(
+        plant=PlantConfig(mass=0.0035, damping=0.0, dt_s=1e-3),
+        world=WorldConfig(
+            motor_noise_std=motor_noise_std,
+            position_noise_std=math.sqrt(sensor_var),
+            velocity_noise_std=math.sqrt(sensor_var),
+            seed=seed,
+        ),
+        robot=RobotConfig(
+            q_pos=1.0,
+            q_vel=0.0,
+            integrate=integrate,
+            gain_window_s=8.0,
+            torque_limit=1e3,
+            seed=seed + 1_000_003,
+            stage1=FilterConfig(Q=[1e-2] * 6, R=[sensor_var] * 3, P0=[1e-4] * 3 + [1.0] * 3),
+            stage2=FilterConfig(Q=[1e-2] * 6, R=[sensor_var] * 5, P0=[1e-4] * 3 + [1.0] * 3),
+            stage3=IntegratorConfig(Q=[1e-2, 1e-2], R_sensor=[sensor_var, sensor_var], P0=[1e-2, 1e-2]),
+        ),
+        partner=PartnerConfig(gains=[0.0, 0.0, lhh], torque_limit=1e3),
+        phases=[
+            PhaseConfig("gains", phase_s, robot_target=[rounded, chirp], partner_target=[rounded]),
+            PhaseConfig("trajectory", phase_s, robot_target=[rounded], partner_target=[rounded]),
+            PhaseConfig(
+                "integration",
+                phase_s,
+                robot_target=[rounded],
+                partner_target=[rounded],
+                target_noise_std=target_noise_std,
+            ),
+        ],
+    )
+
+
+def simulation_section(
+    *,
+    seed: int = 0,
+    phase_s: float = 20.0,
+    motor_noise_std: float = 1.0,
+) -> ScenarioConfig:
+    """The simulation section: ``M = 6 kg``, both agents LQR with
+    ``Q_x = 20000, Q_xdot = 2``, each identifying the other.
+
+    Gain phase: robot target ``1 m + [sin t + sin 2t + sin 3t]/1e4``, partner
+    target the 0.1 m, 2 s square wave ``+ [cos t + cos 2t + cos 3t]/1e4``
+    (the literal reading, ``docs/model.md``). Trajectory phase: both track the
+    0.1 m square wave, unknown to the other.
+    """
+    square = Square(amplitude=0.1, period_s=2.0)
+    sines = Harmonics(amplitude=1e-4, omega_rad_s=1.0, harmonics=3, cosine=False)
+    cosines = Harmonics(amplitude=1e-4, omega_rad_s=1.0, harmonics=3, cosine=True)
+    q, r = 1e-10, 1e-10
+    return ScenarioConfig(
+        plant=PlantConfig(mass=6.0, damping=0.0, dt_s=1e-3),
+        world=WorldConfig(
+            motor_noise_std=motor_noise_std,
+            position_noise_std=math.sqrt(r),
+            velocity_noise_std=math.sqrt(r),
+            seed=seed,
+        ),
+        robot=RobotConfig(
+            q_pos=20000.0,
+            q_vel=2.0,
+            integrate=False,
+            gain_window_s=8.0,
+            torque_limit=1e6,
+            seed=seed + 1_000_003,
+            stage1=FilterConfig(Q=[q] * 6, R=[r] * 3, P0=[1e-6] * 3 + [1e4] * 3),
+            stage2=FilterConfig(Q=[q] * 6, R=[r] * 5, P0=[1e-6] * 3 + [1e-2] * 3),
+        ),
+        partner=PartnerConfig(gains=None, q_pos=20000.0, q_vel=2.0, torque_limit=1e6, estimates_robot=True),
+        phases=[
+            PhaseConfig(
+                "gains",
+                phase_s,
+                robot_target=[Constant(1.0), sines],
+                partner_target=[square, cosines],
+            ),
+            PhaseConfig("trajectory", phase_s, robot_target=[square], partner_target=[square]),
+        ],
+    )
