@@ -4,7 +4,9 @@ The numerics run in the compiled core (`sensaug._core`, Rust); this package is
 the Python API for scripting experiments around it.
 """
 from sensaug import _core
-from sensaug._core import Plant
+from sensaug._core import GainEstimator, GoalIntegrator, Plant, TrajectoryEstimator
+from sensaug.config import PhaseConfig, ScenarioConfig
+from sensaug.experiment import Trial, run
 from sensaug.lqr import (
     RiccatiConvergenceError,
     agent_gains,
@@ -18,14 +20,21 @@ from sensaug.ukf import PendulumUKF, UkfStepError
 
 __all__ = [
     "_core",
-    "Plant",
+    "GainEstimator",
+    "GoalIntegrator",
     "PendulumUKF",
-    "UkfStepError",
+    "PhaseConfig",
+    "Plant",
     "RiccatiConvergenceError",
+    "ScenarioConfig",
+    "TrajectoryEstimator",
+    "Trial",
+    "UkfStepError",
     "agent_gains",
     "care",
     "dare",
     "lqr",
     "partner_gain_vector",
     "robot_gain_vector",
+    "run",
 ]

@@ -488,9 +488,14 @@ class ScenarioConfig:
         if "phases" not in d:
             raise _fail("phases", "missing; a trial needs at least one [[phases]] table")
 
-        def section(name: str, kls: type, sub: dict[str, type] | None = None) -> Any:
+        def section(
+            name: str, kls: type, sub: dict[str, type] | None = None, absent_is_none: tuple[str, ...] = ()
+        ) -> Any:
             raw = _check_fields(name, kls, d.get(name, {}))
             kw = dict(raw)
+            # TOML has no null: an optional field that was None is simply absent.
+            for key in absent_is_none:
+                kw.setdefault(key, None)
             for key, sk in (sub or {}).items():
                 if key in kw:
                     nested = _check_fields(f"{name}.{key}", sk, kw[key])
@@ -519,7 +524,7 @@ class ScenarioConfig:
                     RobotConfig,
                     {"sigma": SigmaConfig, "stage1": FilterConfig, "stage2": FilterConfig, "stage3": IntegratorConfig},
                 ),
-                partner=section("partner", PartnerConfig),
+                partner=section("partner", PartnerConfig, absent_is_none=("gains",)),
             )
         except TypeError as e:
             raise ValueError(f"<root>: {e}") from None

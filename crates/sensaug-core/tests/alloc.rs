@@ -1,0 +1,140 @@
+//! Proves at run time that nothing in a control tick allocates: a counting
+//! global allocator records every allocation made by the measuring thread
+//! while a flag is set (thread-local, so parallel tests do not interfere).
+#![allow(non_snake_case)]
+
+mod common;
+
+use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector2, Vector3};
+use sensaug_core::estimator::{GainEstimator, GoalIntegrator, TrajectoryEstimator};
+use sensaug_core::plant::{Plant, PlantParams};
+use sensaug_core::riccati::{care, dare};
+use sensaug_core::scenario::{Scenario, TickRecord};
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+
+struct Counting;
+
+thread_local! {
+    static ACTIVE: Cell<bool> = const { Cell::new(false) };
+    static COUNT: Cell<u64> = const { Cell::new(0) };
+}
+
+// SAFETY: forwards every call to the system allocator unchanged; the
+// bookkeeping touches only const-initialised thread-locals (no allocation).
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        if ACTIVE.with(Cell::get) {
+            COUNT.with(|c| c.set(c.get() + 1));
+        }
+        // SAFETY: same contract as the caller's.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: same contract as the caller's.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        if ACTIVE.with(Cell::get) {
+            COUNT.with(|c| c.set(c.get() + 1));
+        }
+        // SAFETY: same contract as the caller's.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+/// Allocations made by `f` on this thread.
+fn allocations(f: impl FnOnce()) -> u64 {
+    COUNT.with(|c| c.set(0));
+    ACTIVE.with(|a| a.set(true));
+    f();
+    ACTIVE.with(|a| a.set(false));
+    COUNT.with(Cell::get)
+}
+
+#[test]
+fn the_counter_sees_an_allocation() {
+    let n = allocations(|| {
+        let v: Vec<u8> = Vec::with_capacity(16);
+        std::hint::black_box(v);
+    });
+    assert_eq!(n, 1);
+}
+
+#[test]
+fn plant_steps_do_not_allocate() {
+    let mut p = Plant::new(PlantParams {
+        mass: 0.0035,
+        damping: 0.01,
+        coulomb: 0.002,
+        dt_s: 1e-3,
+    })
+    .unwrap();
+    let n = allocations(|| {
+        for k in 0..100_000 {
+            let _ = p.step((k as f64 * 1e-3).sin() * 0.01);
+        }
+    });
+    assert_eq!(n, 0);
+}
+
+#[test]
+fn riccati_solves_do_not_allocate() {
+    let A = Matrix3::new(0.0, 1.0, 0.0, 0.0, -0.1, 1.0, 0.5, 0.0, -1.0);
+    let B = SMatrix::<f64, 3, 1>::new(0.0, 0.0, 1.0);
+    let Q = Matrix3::identity();
+    let R = SMatrix::<f64, 1, 1>::identity();
+    let Ad = Matrix2::new(1.0, 1e-3, 0.0, 1.0);
+    let Bd = SMatrix::<f64, 2, 1>::new(0.0, 1e-3);
+    let n = allocations(|| {
+        for _ in 0..100 {
+            std::hint::black_box(care(&A, &B, &Q, &R).unwrap());
+            std::hint::black_box(dare(&Ad, &Bd, &Matrix2::identity(), &R).unwrap());
+        }
+    });
+    assert_eq!(n, 0);
+}
+
+#[test]
+fn estimator_steps_do_not_allocate() {
+    let model = common::model();
+    let mut g = GainEstimator::new(model, &common::extended::<3>()).unwrap();
+    let mut t = TrajectoryEstimator::new(model, &common::extended::<5>()).unwrap();
+    let mut gi = GoalIntegrator::new(model, &common::robot().stage3).unwrap();
+    let n = allocations(|| {
+        for k in 0..10_000 {
+            let s = (k as f64 * 1e-3).sin();
+            let _ = g.update(&Vector3::new(s, 0.1, s));
+            let _ = g.predict(0.1 * s, 1e-3, 1e-3);
+            let _ = t.update(&SVector::<f64, 5>::new(s, 0.1, 0.0, 0.0, 2.0));
+            let _ = t.predict(0.1 * s, 1e-3, 0.0);
+            let _ = gi.update(&Vector2::new(s, 0.1), Some((s, 1e-4)));
+            let _ = gi.predict(0.1, 0.0);
+        }
+    });
+    assert_eq!(n, 0);
+}
+
+#[test]
+fn a_full_trial_of_ticks_does_not_allocate() {
+    // Set-up (may allocate): the scenario and its output buffer.
+    let phases = common::phases(2.0, 1.0);
+    let mut sc = Scenario::new(
+        &phases,
+        common::robot(),
+        common::partner(2.0),
+        common::world(3),
+    )
+    .unwrap();
+    let mut out = vec![TickRecord::default(); sc.ticks()];
+    // Every tick: sense, robot (3 estimators + control), partner, plant.
+    let mut summary = None;
+    let n = allocations(|| summary = Some(sc.run(&mut out)));
+    assert_eq!(n, 0);
+    let summary = summary.unwrap().unwrap();
+    assert_eq!(summary.ticks, 6000);
+    assert!(out.iter().all(|r| r.x.is_finite() && r.u.is_finite()));
+}
