@@ -1,0 +1,1 @@
+"""Placeholder: being written on the bridge-py branch."""
