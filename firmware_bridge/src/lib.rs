@@ -1,1 +1,24 @@
-//! Placeholder: being written on the bridge-rs branch.
+//! CAN link to the Hi5 wrist robot's DC-motor driver.
+//!
+//! - [`frame`]: one classic CAN frame and the SocketCAN `can_frame` wire
+//!   layout.
+//! - [`protocol`]: the messages of `hi5.dbc`, encode and decode.
+//! - [`transport`]: sending and receiving frames over SocketCAN or over a
+//!   loopback-only UDP "virtual CAN bus".
+//!
+//! The per-frame paths (encode, decode, send, receive) do not allocate.
+//! The protocol and the state machine the drive implements are described in
+//! `docs/can_protocol.md`.
+#![deny(missing_docs)]
+#![deny(clippy::undocumented_unsafe_blocks)]
+
+pub mod frame;
+pub mod protocol;
+pub mod transport;
+
+pub use frame::{Frame, WireError};
+pub use protocol::{
+    decode, decode_any, encode, seq_is_newer, DecodeError, DriveState, EncodeError, FaultFlags,
+    Message, MessageKind, NodeId,
+};
+pub use transport::{open, Transport, TransportError};

@@ -1,0 +1,217 @@
+//! The loopback UDP virtual CAN bus. All traffic stays on 127.0.0.0/8.
+//!
+//! Each test asks the OS for a free port (bind 127.0.0.1:0, read it, close)
+//! so tests running in parallel use different buses.
+
+use std::net::{Ipv4Addr, SocketAddrV4, UdpSocket};
+use std::thread;
+use std::time::{Duration, Instant};
+
+use sensaug_bridge::transport::{open, BusStats, Transport, TransportError, UdpBus, UDP_BUS_ADDR};
+use sensaug_bridge::{Frame, WireError};
+
+fn free_port() -> u16 {
+    UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+fn frame(id: u32, byte: u8) -> Frame {
+    Frame::new(id, &[byte, byte ^ 0xFF, 3]).unwrap()
+}
+
+const SHORT: Duration = Duration::from_millis(30);
+const LONG: Duration = Duration::from_secs(2);
+
+#[test]
+fn three_peers_exchange_frames_and_never_see_their_own() {
+    let port = free_port();
+    let mut a = UdpBus::open(port).unwrap();
+    let mut b = UdpBus::open(port).unwrap();
+    let mut c = UdpBus::open(port).unwrap();
+    assert_eq!(a.port(), port);
+    assert_ne!(a.local_addr(), b.local_addr());
+    assert!(a.local_addr().ip().is_loopback());
+
+    a.send(&frame(0x201, 1)).unwrap();
+    assert_eq!(b.recv(LONG).unwrap(), Some(frame(0x201, 1)));
+    assert_eq!(c.recv(LONG).unwrap(), Some(frame(0x201, 1)));
+    assert_eq!(a.recv(SHORT).unwrap(), None, "a saw its own frame");
+
+    b.send(&frame(0x281, 2)).unwrap();
+    c.send(&frame(0x701, 3)).unwrap();
+    assert_eq!(a.recv(LONG).unwrap(), Some(frame(0x281, 2)));
+    assert_eq!(a.recv(LONG).unwrap(), Some(frame(0x701, 3)));
+    assert_eq!(b.recv(LONG).unwrap(), Some(frame(0x701, 3)));
+    assert_eq!(b.recv(SHORT).unwrap(), None);
+    assert_eq!(c.recv(LONG).unwrap(), Some(frame(0x281, 2)));
+    assert_eq!(c.recv(SHORT).unwrap(), None);
+
+    assert_eq!(
+        a.stats(),
+        BusStats {
+            sent: 1,
+            received: 2,
+            own_dropped: 1,
+            malformed_dropped: 0
+        }
+    );
+    assert_eq!(b.stats().own_dropped, 1);
+    assert_eq!(c.stats().received, 2);
+}
+
+#[test]
+fn frames_arrive_in_order() {
+    let port = free_port();
+    let mut a = UdpBus::open(port).unwrap();
+    let mut b = UdpBus::open(port).unwrap();
+    for i in 0..200u32 {
+        a.send(&Frame::new(0x200 + (i % 16), &i.to_le_bytes()).unwrap())
+            .unwrap();
+    }
+    for i in 0..200u32 {
+        let f = b.recv(LONG).unwrap().expect("frame");
+        assert_eq!(f.payload(), &i.to_le_bytes());
+    }
+    assert_eq!(b.recv(SHORT).unwrap(), None);
+}
+
+#[test]
+fn buses_on_different_ports_are_separate() {
+    let (p1, p2) = (free_port(), free_port());
+    if p1 == p2 {
+        return;
+    }
+    let mut a = UdpBus::open(p1).unwrap();
+    let mut b = UdpBus::open(p2).unwrap();
+    a.send(&frame(0x10, 0)).unwrap();
+    assert_eq!(b.recv(SHORT).unwrap(), None);
+}
+
+#[test]
+fn garbage_datagrams_are_dropped_and_counted() {
+    let port = free_port();
+    let mut peer = UdpBus::open(port).unwrap();
+    let raw = UdpSocket::bind("127.0.0.1:0").unwrap();
+    raw.set_broadcast(true).unwrap();
+    let dest = SocketAddrV4::new(UDP_BUS_ADDR, port);
+
+    let good = frame(0x281, 9).to_wire();
+    let mut too_long_len = good;
+    too_long_len[4] = 9;
+    let mut extended = good;
+    extended[3] |= 0x80;
+    let mut remote = good;
+    remote[3] |= 0x40;
+    let mut error = good;
+    error[3] |= 0x20;
+    let garbage: [&[u8]; 7] = [
+        &[],
+        &good[..15],
+        &[0u8; 17],
+        &too_long_len,
+        &extended,
+        &remote,
+        &error,
+    ];
+    for g in garbage {
+        raw.send_to(g, dest).unwrap();
+    }
+    raw.send_to(&good, dest).unwrap();
+
+    assert_eq!(peer.recv(LONG).unwrap(), Some(frame(0x281, 9)));
+    assert_eq!(peer.stats().malformed_dropped, 7);
+    assert_eq!(peer.stats().received, 1);
+    // Garbage alone: no frame, no error.
+    raw.send_to(&[1, 2, 3], dest).unwrap();
+    assert_eq!(peer.recv(SHORT).unwrap(), None);
+    assert_eq!(peer.stats().malformed_dropped, 8);
+}
+
+#[test]
+fn recv_timeout_returns_none_in_time() {
+    let mut peer = UdpBus::open(free_port()).unwrap();
+    let t0 = Instant::now();
+    assert_eq!(peer.recv(Duration::from_millis(50)).unwrap(), None);
+    let dt = t0.elapsed();
+    assert!(dt >= Duration::from_millis(50), "returned early: {dt:?}");
+    assert!(dt < Duration::from_millis(500), "returned late: {dt:?}");
+
+    let t0 = Instant::now();
+    assert_eq!(peer.recv(Duration::ZERO).unwrap(), None);
+    assert!(t0.elapsed() < Duration::from_millis(50));
+}
+
+#[test]
+fn recv_wakes_up_when_a_frame_arrives() {
+    let port = free_port();
+    let mut a = UdpBus::open(port).unwrap();
+    let mut b = UdpBus::open(port).unwrap();
+    let sender = thread::spawn(move || {
+        thread::sleep(Duration::from_millis(30));
+        a.send(&frame(0x300, 5)).unwrap();
+    });
+    let t0 = Instant::now();
+    assert_eq!(
+        b.recv(Duration::from_secs(5)).unwrap(),
+        Some(frame(0x300, 5))
+    );
+    assert!(t0.elapsed() < Duration::from_secs(2));
+    sender.join().unwrap();
+}
+
+#[test]
+fn send_refuses_invalid_frames() {
+    let mut peer = UdpBus::open(free_port()).unwrap();
+    let bad_len = Frame {
+        id: 0x10,
+        len: 9,
+        data: [0; 8],
+    };
+    assert!(matches!(
+        peer.send(&bad_len),
+        Err(TransportError::InvalidFrame(WireError::LengthTooLarge {
+            len: 9
+        }))
+    ));
+    let bad_id = Frame {
+        id: 0x800,
+        len: 0,
+        data: [0; 8],
+    };
+    assert!(matches!(
+        peer.send(&bad_id),
+        Err(TransportError::InvalidFrame(WireError::IdTooLarge {
+            id: 0x800
+        }))
+    ));
+    assert_eq!(peer.stats().sent, 0);
+}
+
+#[test]
+fn open_by_url_gives_a_working_boxed_transport() {
+    let port = free_port();
+    let url = format!("udp:{port}");
+    let mut a = open(&url).unwrap();
+    let mut b = open(&url).unwrap();
+    a.send(&frame(0x11, 0)).unwrap();
+    assert_eq!(b.recv(LONG).unwrap(), Some(frame(0x11, 0)));
+    // Send + 'static: usable from another thread.
+    let handle = thread::spawn(move || b.recv(SHORT).unwrap());
+    assert_eq!(handle.join().unwrap(), None);
+}
+
+#[test]
+fn udp_bus_port_zero_is_refused() {
+    let e = UdpBus::open(0).unwrap_err();
+    assert!(matches!(e, TransportError::BadUrl { .. }), "{e:?}");
+    assert!(e.to_string().contains("udp:0"));
+}
+
+#[test]
+fn bus_address_is_loopback() {
+    assert_eq!(UDP_BUS_ADDR, Ipv4Addr::new(127, 255, 255, 255));
+    assert!(UDP_BUS_ADDR.is_loopback());
+}

@@ -1,0 +1,81 @@
+"""The committed Hi5 golden CAN frames are exactly cantools' output.
+
+`firmware_bridge/golden/frames.json` is what the Rust codec is tested
+against (`firmware_bridge/tests/golden.rs`). Here it is regenerated from
+hi5.dbc with cantools (and the PyPI `crc` package for the TorqueCommand
+CRC-8) into a temporary file and compared byte for byte, so a hand edit of
+the JSON or a DBC change without regenerating fails.
+
+Regenerate with: python firmware_bridge/tools/make_golden.py
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+TOOL = ROOT / "firmware_bridge" / "tools" / "make_golden.py"
+COMMITTED = ROOT / "firmware_bridge" / "golden" / "frames.json"
+
+
+def _make_golden():
+    spec = importlib.util.spec_from_file_location("make_golden", TOOL)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_committed_golden_frames_are_cantools_output(tmp_path: Path) -> None:
+    out = tmp_path / "frames.json"
+    assert _make_golden().main(["make_golden.py", str(out)]) == 0
+    fresh = out.read_text()
+    committed = COMMITTED.read_text()
+    if fresh != committed:
+        a = json.loads(fresh)["frames"]
+        b = json.loads(committed)["frames"]
+        diff = [(x["label"], x["data"], y["data"]) for x, y in zip(a, b) if x != y]
+        raise AssertionError(
+            f"golden/frames.json differs from cantools' output ({len(a)} vs {len(b)} frames; "
+            f"first differences (label, cantools, committed): {diff[:5]}); "
+            "run python firmware_bridge/tools/make_golden.py"
+        )
+
+
+def test_golden_frames_cover_every_message_and_node() -> None:
+    frames = json.loads(COMMITTED.read_text())["frames"]
+    assert len(frames) >= 200
+    messages = {f["message"] for f in frames}
+    assert messages == {
+        "EmergencyStop",
+        "Fault",
+        "TorqueCommand",
+        "Feedback",
+        "SetState",
+        "ClearFaults",
+        "Heartbeat",
+    }
+    assert {f["node"] for f in frames} == set(range(16))
+
+
+def test_torque_crc_is_crc8_sae_j1850() -> None:
+    """Byte 7 of every TorqueCommand is CRC-8/SAE-J1850 of bytes 0..=6,
+    checked with a bitwise reference here (poly 0x1D, init 0xFF, xorout 0xFF)."""
+
+    def crc8(data: bytes) -> int:
+        reg = 0xFF
+        for byte in data:
+            reg ^= byte
+            for _ in range(8):
+                reg = ((reg << 1) ^ 0x1D) & 0xFF if reg & 0x80 else (reg << 1) & 0xFF
+        return reg ^ 0xFF
+
+    assert crc8(b"123456789") == 0x4B
+    frames = json.loads(COMMITTED.read_text())["frames"]
+    for f in frames:
+        if f["message"] == "TorqueCommand":
+            data = bytes.fromhex(f["data"])
+            assert data[5:7] == b"\x00\x00", f["label"]
+            assert data[7] == crc8(data[:7]), f["label"]
