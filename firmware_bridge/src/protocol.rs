@@ -621,15 +621,26 @@ fn check_int(signal: &'static str, value: u32, min: u32, max: u32) -> Result<(),
 /// Scale of `TorqueCommand.torque`, N m per LSB.
 pub const TORQUE_SCALE_NM: f64 = 1e-6;
 /// Scale of `Feedback.position`, rad per LSB.
-pub const POSITION_SCALE_RAD: f64 = 1e-7;
+pub const POSITION_SCALE_RAD: f64 = 1e-6;
 /// Scale of `Feedback.velocity`, rad/s per LSB.
-pub const VELOCITY_SCALE_RAD_S: f64 = 0.002;
+pub const VELOCITY_SCALE_RAD_S: f64 = 1e-6;
 
 const TORQUE_RANGE: (f64, f64) = (-2147.483648, 2147.483647);
-const POSITION_RANGE: (f64, f64) = (-214.7483648, 214.7483647);
-const VELOCITY_RANGE: (f64, f64) = (-65.536, 65.534);
+const POSITION_RANGE: (f64, f64) = (-8.388608, 8.388607);
+const VELOCITY_RANGE: (f64, f64) = (-8.388608, 8.388607);
 const I32_RANGE: (i64, i64) = (i32::MIN as i64, i32::MAX as i64);
-const I16_RANGE: (i64, i64) = (i16::MIN as i64, i16::MAX as i64);
+const I24_RANGE: (i64, i64) = (-(1 << 23), (1 << 23) - 1);
+
+/// The low three bytes of `raw` (in `I24_RANGE`), little-endian.
+fn i24_to_le(raw: i32) -> [u8; 3] {
+    let b = raw.to_le_bytes();
+    [b[0], b[1], b[2]]
+}
+
+/// A little-endian two's-complement 24-bit integer, sign-extended.
+fn i24_from_le(b: [u8; 3]) -> i32 {
+    i32::from_le_bytes([b[0], b[1], b[2], 0]) << 8 >> 8
+}
 
 /// TorqueCommand (DLC 8):
 /// bytes 0..4 `torque` int32 LE, raw = torque_nm / 1e-6 (1 uN m per LSB,
@@ -674,9 +685,9 @@ fn decode_torque_command(d: &[u8; 8]) -> Result<Message, DecodeError> {
 }
 
 /// Feedback (DLC 8):
-/// bytes 0..4 `position` int32 LE, raw = position_rad / 1e-7 (0.1 urad per
-/// LSB, -214.7483648..=214.7483647 rad); bytes 4..6 `velocity` int16 LE,
-/// raw = velocity_rad_s / 0.002 (2 mrad/s per LSB, -65.536..=65.534 rad/s);
+/// bytes 0..3 `position` int24 LE, raw = position_rad / 1e-6 (1 urad per
+/// LSB, -8.388608..=8.388607 rad); bytes 3..6 `velocity` int24 LE,
+/// raw = velocity_rad_s / 1e-6 (1 urad/s per LSB, -8.388608..=8.388607 rad/s);
 /// byte 6 `sequence`; byte 7 bits 0..2 `state`, bit 2 `torque_limited`,
 /// bit 3 `fault_active`, bits 4..8 zero.
 fn encode_feedback(
@@ -692,29 +703,29 @@ fn encode_feedback(
         position_rad,
         POSITION_SCALE_RAD,
         POSITION_RANGE,
-        I32_RANGE,
+        I24_RANGE,
     )? as i32;
     let vel = to_raw(
         "Feedback.velocity",
         velocity_rad_s,
         VELOCITY_SCALE_RAD_S,
         VELOCITY_RANGE,
-        I16_RANGE,
-    )? as i16;
+        I24_RANGE,
+    )? as i32;
     let mut d = [0u8; 8];
-    d[0..4].copy_from_slice(&pos.to_le_bytes());
-    d[4..6].copy_from_slice(&vel.to_le_bytes());
+    d[0..3].copy_from_slice(&i24_to_le(pos));
+    d[3..6].copy_from_slice(&i24_to_le(vel));
     d[6] = sequence;
     d[7] = state.raw() | u8::from(torque_limited) << 2 | u8::from(fault_active) << 3;
     Ok(d)
 }
 
-/// Inverse of [`encode_feedback`]: position_rad = raw x 1e-7,
-/// velocity_rad_s = raw x 0.002. Bits 4..8 of byte 7 are not defined by
+/// Inverse of [`encode_feedback`]: position_rad = raw x 1e-6,
+/// velocity_rad_s = raw x 1e-6. Bits 4..8 of byte 7 are not defined by
 /// the DBC and are ignored (as cantools does).
 fn decode_feedback(d: &[u8; 8]) -> Message {
-    let pos = i32::from_le_bytes([d[0], d[1], d[2], d[3]]);
-    let vel = i16::from_le_bytes([d[4], d[5]]);
+    let pos = i24_from_le([d[0], d[1], d[2]]);
+    let vel = i24_from_le([d[3], d[4], d[5]]);
     // Two bits hold exactly the four states.
     const STATES: [DriveState; 4] = [
         DriveState::Boot,

@@ -179,17 +179,17 @@ fn encode_rejects_out_of_range_never_wraps() {
         torque_limited: false,
         fault_active: false,
     };
-    assert!(encode(node(1), &fb(214.7483647, 65.534)).is_ok());
-    assert!(encode(node(1), &fb(-214.7483648, -65.536)).is_ok());
+    assert!(encode(node(1), &fb(8.388607, 8.388607)).is_ok());
+    assert!(encode(node(1), &fb(-8.388608, -8.388608)).is_ok());
     assert!(matches!(
-        encode(node(1), &fb(214.7483648, 0.0)),
+        encode(node(1), &fb(8.388608, 0.0)),
         Err(EncodeError::OutOfRange {
             signal: "Feedback.position",
             ..
         })
     ));
     assert!(matches!(
-        encode(node(1), &fb(0.0, 65.536)),
+        encode(node(1), &fb(0.0, 8.388608)),
         Err(EncodeError::OutOfRange {
             signal: "Feedback.velocity",
             ..

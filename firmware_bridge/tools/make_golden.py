@@ -31,8 +31,8 @@ DEFAULT_OUT = HERE.parent / "golden" / "frames.json"
 CRC8 = Calculator(Crc8.SAEJ1850)  # poly 0x1D, init 0xFF, xorout 0xFF, no reflection
 
 TORQUE_MIN, TORQUE_MAX = -2147.483648, 2147.483647
-POSITION_MIN, POSITION_MAX = -214.7483648, 214.7483647
-VELOCITY_MIN, VELOCITY_MAX = -65.536, 65.534
+POSITION_MIN, POSITION_MAX = -8.388608, 8.388607
+VELOCITY_MIN, VELOCITY_MAX = -8.388608, 8.388607
 SEED = 20240611
 
 Case = tuple[str, str, int, dict[str, Any]]  # (label, message, node, physical signals)
@@ -85,14 +85,14 @@ def cases() -> list[Case]:
         ("max", POSITION_MAX, VELOCITY_MAX),
         ("min", POSITION_MIN, VELOCITY_MIN),
         ("mixed", POSITION_MAX, VELOCITY_MIN),
-        ("1lsb", 1e-7, 0.002),
-        ("-1lsb", -1e-7, -0.002),
-        ("tie 0.5lsb", 0.5e-7, 0.001),
-        ("tie -0.5lsb", -0.5e-7, -0.001),
-        ("tie 1.5lsb", 1.5e-7, 0.003),
-        ("tie 2.5lsb", 2.5e-7, 0.005),
+        ("1lsb", 1e-6, 1e-6),
+        ("-1lsb", -1e-6, -1e-6),
+        ("tie 0.5lsb", 0.5e-6, 0.5e-6),
+        ("tie -0.5lsb", -0.5e-6, -0.5e-6),
+        ("tie 1.5lsb", 1.5e-6, 1.5e-6),
+        ("tie 2.5lsb", 2.5e-6, 2.5e-6),
         ("pi", 3.141592653589793, -3.141592653589793),
-        ("round", 1.23456789, 12.3456789),
+        ("round", 1.23456789, 4.56789012),
     ]
     for i, (label, pos, vel) in enumerate(fb_fixed):
         out.append(
