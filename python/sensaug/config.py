@@ -37,6 +37,8 @@ __all__ = [
     "RobotConfig",
     "PartnerConfig",
     "PhaseConfig",
+    "RealtimeConfig",
+    "RigConfig",
     "ScenarioConfig",
     "PHASE_KINDS",
 ]
@@ -415,6 +417,65 @@ class PhaseConfig:
                 s.validate(f"{path}.{name}[{i}]")
 
 
+@dataclass
+class RealtimeConfig:
+    """Thread settings of the real-time loop (each falls back with a warning)."""
+
+    fifo_priority: int | None = None
+    cpu: int | None = None
+    mlockall: bool = True
+
+    def validate(self, path: str) -> None:
+        if self.fifo_priority is not None and not (isinstance(self.fifo_priority, int) and 1 <= self.fifo_priority <= 99):
+            raise _fail(f"{path}.fifo_priority", f"must be an integer 1..99 or absent, got {self.fifo_priority!r}")
+        if self.cpu is not None and not (isinstance(self.cpu, int) and self.cpu >= 0):
+            raise _fail(f"{path}.cpu", f"must be a CPU index >= 0 or absent, got {self.cpu!r}")
+        if not isinstance(self.mlockall, bool):
+            raise _fail(f"{path}.mlockall", "must be true or false")
+
+
+@dataclass
+class RigConfig:
+    """The real-time binary's ``[rig]`` table: CAN link, units, safety, logs.
+
+    The simulation ignores it; ``sensaug-rt`` reads it (crates/sensaug-rt).
+    """
+
+    can: str = "udp:47100"
+    node_id: int = 1
+    position_unit: str = "deg"
+    torque_limit_nm: float = 3.0
+    watchdog_ms: int = 50
+    feedback_timeout_ms: float = 20.0
+    ramp_down_s: float = 0.2
+    virtual_human: bool = True
+    log: str = "out/rig_log.npy"
+    stats: str = "out/rig_stats.json"
+    ring_capacity: int = 65536
+    realtime: RealtimeConfig = field(default_factory=RealtimeConfig)
+
+    def validate(self, path: str = "rig") -> None:
+        scheme, _, rest = self.can.partition(":")
+        if scheme not in ("udp", "socketcan") or not rest:
+            raise _fail(f"{path}.can", f"must be 'udp:<port>' or 'socketcan:<ifname>', got {self.can!r}")
+        if scheme == "udp" and not (rest.isdigit() and 1 <= int(rest) <= 65535):
+            raise _fail(f"{path}.can", f"UDP port must be 1..65535, got {rest!r}")
+        if isinstance(self.node_id, bool) or not isinstance(self.node_id, int) or not 0 <= self.node_id <= 15:
+            raise _fail(f"{path}.node_id", f"must be an integer 0..15, got {self.node_id!r}")
+        if self.position_unit not in ("deg", "rad"):
+            raise _fail(f"{path}.position_unit", f"must be 'deg' or 'rad', got {self.position_unit!r}")
+        _positive(f"{path}.torque_limit_nm", self.torque_limit_nm)
+        if isinstance(self.watchdog_ms, bool) or not isinstance(self.watchdog_ms, int) or not 1 <= self.watchdog_ms <= 65535:
+            raise _fail(f"{path}.watchdog_ms", f"must be an integer 1..65535, got {self.watchdog_ms!r}")
+        _positive(f"{path}.feedback_timeout_ms", self.feedback_timeout_ms)
+        _non_negative(f"{path}.ramp_down_s", self.ramp_down_s)
+        if not isinstance(self.virtual_human, bool):
+            raise _fail(f"{path}.virtual_human", "must be true or false")
+        if isinstance(self.ring_capacity, bool) or not isinstance(self.ring_capacity, int) or self.ring_capacity < 1024:
+            raise _fail(f"{path}.ring_capacity", f"must be an integer >= 1024, got {self.ring_capacity!r}")
+        self.realtime.validate(f"{path}.realtime")
+
+
 MAX_PHASES = 4
 
 
@@ -427,6 +488,7 @@ class ScenarioConfig:
     world: WorldConfig = field(default_factory=WorldConfig)
     robot: RobotConfig = field(default_factory=RobotConfig)
     partner: PartnerConfig = field(default_factory=PartnerConfig)
+    rig: RigConfig = field(default_factory=RigConfig)
 
     def __post_init__(self) -> None:
         self.validate()
@@ -437,6 +499,7 @@ class ScenarioConfig:
         self.world.validate("world")
         self.robot.validate("robot")
         self.partner.validate("partner")
+        self.rig.validate("rig")
         if not 1 <= len(self.phases) <= MAX_PHASES:
             raise _fail("phases", f"needs 1 to {MAX_PHASES} phases, got {len(self.phases)}")
         gains_known = self.robot.prior_partner_gains is not None
@@ -525,6 +588,7 @@ class ScenarioConfig:
                     {"sigma": SigmaConfig, "stage1": FilterConfig, "stage2": FilterConfig, "stage3": IntegratorConfig},
                 ),
                 partner=section("partner", PartnerConfig, absent_is_none=("gains",)),
+                rig=section("rig", RigConfig, {"realtime": RealtimeConfig}),
             )
         except TypeError as e:
             raise ValueError(f"<root>: {e}") from None

@@ -1,0 +1,128 @@
+//! Loop statistics: fixed-bin histograms (allocated before the loop; a
+//! sample is one counter increment) of wake-up latency and tick compute
+//! time, and the loop's error counters.
+
+use serde::Serialize;
+
+/// A histogram of durations with 1 us bins up to `max_us`, plus an overflow
+/// bin and the exact maximum.
+#[derive(Clone, Debug)]
+pub struct Histogram {
+    bins: Vec<u64>,
+    overflow: u64,
+    count: u64,
+    max_ns: u64,
+}
+
+/// Percentiles of a histogram, in microseconds (bin upper edges: resolution 1 us).
+#[derive(Clone, Copy, Debug, Default, Serialize, PartialEq)]
+pub struct Summary {
+    /// Samples.
+    pub count: u64,
+    /// Median.
+    pub p50_us: f64,
+    /// 99th percentile.
+    pub p99_us: f64,
+    /// 99.9th percentile.
+    pub p999_us: f64,
+    /// Exact maximum.
+    pub max_us: f64,
+}
+
+impl Histogram {
+    /// Set-up: all bins allocated here.
+    pub fn new(max_us: usize) -> Self {
+        Histogram {
+            bins: vec![0; max_us],
+            overflow: 0,
+            count: 0,
+            max_ns: 0,
+        }
+    }
+
+    /// Per tick: one sample.
+    pub fn record(&mut self, ns: u64) {
+        let us = (ns / 1000) as usize;
+        match self.bins.get_mut(us) {
+            Some(b) => *b += 1,
+            None => self.overflow += 1,
+        }
+        self.count += 1;
+        self.max_ns = self.max_ns.max(ns);
+    }
+
+    /// The value below which a fraction `q` of the samples lie (bin upper edge).
+    pub fn quantile_us(&self, q: f64) -> f64 {
+        if self.count == 0 {
+            return f64::NAN;
+        }
+        let rank = (q * self.count as f64).ceil().max(1.0) as u64;
+        let mut seen = 0;
+        for (i, b) in self.bins.iter().enumerate() {
+            seen += b;
+            if seen >= rank {
+                return (i + 1) as f64;
+            }
+        }
+        self.max_ns as f64 / 1000.0
+    }
+
+    /// p50, p99, p99.9 and the maximum.
+    pub fn summary(&self) -> Summary {
+        Summary {
+            count: self.count,
+            p50_us: self.quantile_us(0.5),
+            p99_us: self.quantile_us(0.99),
+            p999_us: self.quantile_us(0.999),
+            max_us: self.max_ns as f64 / 1000.0,
+        }
+    }
+}
+
+/// Counters of the CAN link.
+#[derive(Clone, Copy, Debug, Default, Serialize, PartialEq, Eq)]
+pub struct CanCounters {
+    /// Frames the transport failed to send.
+    pub send_errors: u64,
+    /// Receive errors of the transport.
+    pub recv_errors: u64,
+    /// Frames that did not decode (unknown id, bad length, bad CRC).
+    pub decode_errors: u64,
+    /// Ticks whose previous command had no feedback yet.
+    pub missing_feedback: u64,
+    /// Feedback frames with an unexpected sequence number.
+    pub stale_feedback: u64,
+}
+
+/// Everything the loop reports at the end.
+#[derive(Clone, Debug, Serialize)]
+pub struct LoopReport {
+    /// Ticks run.
+    pub ticks: u64,
+    /// Why the loop stopped.
+    pub stop_reason: String,
+    /// Wake-up latency after each absolute deadline.
+    pub wake_latency: Summary,
+    /// Compute time of a tick (wake-up to command sent).
+    pub compute: Summary,
+    /// Ticks that woke up after the next deadline had already passed.
+    pub deadline_misses: u64,
+    /// CAN counters.
+    pub can: CanCounters,
+    /// Records dropped because the log ring was full.
+    pub ring_overflows: u64,
+    /// Records written to the log file.
+    pub records_written: u64,
+    /// Commands clamped to the torque limit.
+    pub torque_clamped: u64,
+    /// Non-finite commands replaced by zero.
+    pub non_finite_commands: u64,
+    /// Estimator calls that failed (handled by the filters).
+    pub estimator_errors: u64,
+    /// The robot's estimate of the partner gains (stage 1, final window mean).
+    pub partner_gains_estimate: [f64; 3],
+    /// The virtual human's true gains.
+    pub partner_gains_true: [f64; 3],
+    /// Which real-time settings took effect, and warnings for those that did not.
+    pub realtime: Vec<String>,
+}
