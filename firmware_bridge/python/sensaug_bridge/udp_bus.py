@@ -44,6 +44,7 @@ __all__ = [
     "FRAME_SIZE",
     "SEND_ADDR",
     "UdpLoopbackBus",
+    "free_port",
     "pack_frame",
     "unpack_frame",
 ]
@@ -257,6 +258,18 @@ class UdpLoopbackBus(BusABC):
     @staticmethod
     def _detect_available_configs() -> list[AutoDetectedConfig]:
         return [{"interface": "sensaug_udp", "channel": DEFAULT_PORT}]
+
+
+def free_port() -> int:
+    """A port no socket has bound on the loopback broadcast address right now (for tests).
+
+    Binds ``127.255.255.255:0`` without SO_REUSEPORT, so the kernel skips ports
+    that other buses hold; racy by nature, but two tests asking at once get
+    different ports.
+    """
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind((BROADCAST_ADDR, 0))
+        return int(sock.getsockname()[1])
 
 
 def _port_from_channel(channel: Any) -> int:
