@@ -77,7 +77,7 @@ def frames_for(bus: can.BusABC, seconds: float) -> list[p.Decoded]:
     return out
 
 
-def enable(bus: can.BusABC, watchdog_ms: int = 500, node: int = NODE) -> None:
+def enable(bus: can.BusABC, watchdog_ms: int = 2000, node: int = NODE) -> None:
     bus.send(p.SetState(True, watchdog_ms).encode(node))
     expect(bus, "Fault", lambda f: f.state == State.ENABLED, node=node)
 
@@ -167,14 +167,18 @@ def test_protocol_ids_crc_and_round_trip():
 
 
 def test_boots_disabled_and_heartbeats(drive: Drive):
-    first = frames_for(drive.host, 0.35)
+    t0 = time.monotonic()
+    first = []
+    while sum(d.name == "Heartbeat" for d in first) < 3 and time.monotonic() - t0 < RECV_S:
+        msg = drive.host.recv(RECV_S)
+        assert msg is not None
+        first.append(p.decode(msg))
     names = [(d.name, getattr(d.message, "state", None)) for d in first]
     assert names[:3] == [("Fault", State.BOOT), ("Fault", State.DISABLED), ("Heartbeat", State.DISABLED)]
     beats = [d.message for d in first if d.name == "Heartbeat"]
-    assert len(beats) >= 2  # ~10 Hz: at t=0, 0.1, 0.2, 0.3 s on an idle machine
-    assert [b.counter for b in beats] == list(range(len(beats)))
-    assert all(b.fault_flags == FaultFlag.NONE for b in beats)
-    print(f"heartbeats in the first 0.35 s: {len(beats)}")
+    assert [b.counter for b in beats] == [0, 1, 2]
+    assert all(b.state == State.DISABLED and b.fault_flags == FaultFlag.NONE for b in beats)
+    print(f"3 heartbeats (10 Hz nominal: 0.2 s) took {time.monotonic() - t0:.3f} s")
 
 
 def test_torque_ignored_unless_enabled(drive: Drive):
@@ -216,27 +220,26 @@ def test_torque_clamped_at_limit(start_drive):
 
 
 def test_watchdog_faults_then_clear_and_reenable(drive: Drive):
-    enable(drive.host, watchdog_ms=50)
+    enable(drive.host, watchdog_ms=100)
     for seq in range(3):
-        command(drive.host, 0.01, seq)
-    last_send = time.monotonic()
-    drive.host.send(p.TorqueCommand(0.01, 3).encode(NODE))
+        last_send = time.monotonic()  # before the send: the drive's timer restarts later than this
+        command(drive.host, 0.01, seq)  # feedback proves the command was accepted
     fault = expect(drive.host, "Fault", lambda f: f.state == State.FAULT)
     elapsed = time.monotonic() - last_send
-    print(f"watchdog 50 ms: FAULT seen {elapsed * 1e3:.1f} ms after the last command")
+    print(f"watchdog 100 ms: FAULT seen {elapsed * 1e3:.1f} ms after the last accepted command was sent")
     assert fault.fault_flags == FaultFlag.WATCHDOG
-    assert 0.050 <= elapsed <= 0.050 + WATCHDOG_MARGIN_S
+    assert 0.100 <= elapsed <= 0.100 + WATCHDOG_MARGIN_S
     assert drive.hi5.torque_nm == 0.0
     # Latched: commands are ignored, no feedback, until ClearFaults.
     drive.host.send(p.TorqueCommand(0.01, 4).encode(NODE))
     assert not [d for d in frames_for(drive.host, 0.15) if d.name == "Feedback"]
     hb = expect(drive.host, "Heartbeat")
     assert hb.state == State.FAULT and hb.fault_flags == FaultFlag.WATCHDOG
-    drive.host.send(p.SetState(True, 50).encode(NODE))  # enable refused in FAULT
+    drive.host.send(p.SetState(True, 100).encode(NODE))  # enable refused in FAULT
     drive.host.send(p.ClearFaults().encode(NODE))
     cleared = expect(drive.host, "Fault", lambda f: f.state != State.FAULT)
     assert cleared.state == State.DISABLED and cleared.fault_flags == FaultFlag.NONE
-    enable(drive.host, watchdog_ms=500)
+    enable(drive.host)
     fb = command(drive.host, 0.01, 9)  # any sequence is accepted after an enable
     assert fb.sequence == 9 and fb.state == State.ENABLED
 
