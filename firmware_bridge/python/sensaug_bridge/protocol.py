@@ -1,0 +1,433 @@
+"""The Hi5 CAN protocol, read from ``firmware_bridge/hi5.dbc`` with cantools.
+
+The DBC is the one definition; this module adds what a DBC cannot say:
+
+* node addressing: the DBC lists node 1's ids; node ``n`` (0..=15) uses
+  ``base + n`` with the bases in :data:`BASE_IDS` (derived from the DBC, so they
+  cannot drift);
+* the TorqueCommand CRC: byte 7 is CRC-8/SAE-J1850 (poly 0x1D, init 0xFF,
+  xorout 0xFF, not reflected; check value 0x4B over ``b"123456789"``) over
+  bytes 0..=6;
+* names for the states and fault bits.
+
+The DBC is loaded from the source tree (``Path(__file__).resolve().parents[2] /
+"hi5.dbc"``, i.e. ``firmware_bridge/hi5.dbc``), which works for the editable
+install (``pip install -e firmware_bridge``) the project uses; it is never
+copied. ``SENSAUG_HI5_DBC`` overrides the path.
+
+Encoding rounds each physical value to the nearest raw step (cantools uses
+Python's ``round``, ties to even) and raises :class:`ProtocolError` (a
+``ValueError``) when a value is outside the signal's range; callers that want
+saturation clamp first (see :func:`saturate`).
+"""
+
+from __future__ import annotations
+
+import enum
+import functools
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Final, Optional
+
+import can
+import cantools
+import crc
+
+__all__ = [
+    "BASE_IDS",
+    "DBC_NODE",
+    "DLC",
+    "NODE_MAX",
+    "NODE_MIN",
+    "ClearFaults",
+    "Decoded",
+    "EmergencyStop",
+    "Fault",
+    "FaultFlag",
+    "Feedback",
+    "Heartbeat",
+    "ProtocolError",
+    "SetState",
+    "State",
+    "TorqueCommand",
+    "classify",
+    "crc8",
+    "crc_ok",
+    "dbc_path",
+    "decode",
+    "frame_id",
+    "load_database",
+    "saturate",
+]
+
+
+class State(enum.IntEnum):
+    """Drive state, as in the ``state`` signals."""
+
+    BOOT = 0
+    DISABLED = 1
+    ENABLED = 2
+    FAULT = 3
+
+
+class FaultFlag(enum.IntFlag):
+    """Bits of ``fault_flags`` (latched until ClearFaults)."""
+
+    NONE = 0
+    WATCHDOG = 1 << 0
+    EMERGENCY_STOP = 1 << 1
+    OVERSPEED = 1 << 2
+    INTERNAL = 1 << 3
+
+
+#: Lowest and highest node id.
+NODE_MIN: Final = 0
+NODE_MAX: Final = 15
+#: The node whose ids the DBC lists.
+DBC_NODE: Final = 1
+
+_MESSAGES: Final = (
+    "EmergencyStop",
+    "Fault",
+    "TorqueCommand",
+    "Feedback",
+    "SetState",
+    "ClearFaults",
+    "Heartbeat",
+)
+
+
+class ProtocolError(ValueError):
+    """A frame or value that the protocol does not allow.
+
+    ``kind`` is one of ``"crc"``, ``"length"``, ``"range"``, ``"id"``, ``"node"``.
+    """
+
+    def __init__(self, kind: str, msg: str) -> None:
+        super().__init__(msg)
+        self.kind = kind
+
+
+def dbc_path() -> Path:
+    """Where the DBC is read from: ``$SENSAUG_HI5_DBC`` or ``firmware_bridge/hi5.dbc``."""
+    env = os.environ.get("SENSAUG_HI5_DBC")
+    if env:
+        return Path(env)
+    return Path(__file__).resolve().parents[2] / "hi5.dbc"
+
+
+@functools.cache
+def load_database() -> cantools.database.can.Database:
+    """The parsed DBC (loaded once per process).
+
+    Raises:
+        FileNotFoundError: if the DBC is not at :func:`dbc_path` (a non-editable
+            install; set ``SENSAUG_HI5_DBC``).
+    """
+    path = dbc_path()
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"hi5.dbc not found at {path}: install firmware_bridge editable "
+            "(pip install -e firmware_bridge) or set SENSAUG_HI5_DBC"
+        )
+    return cantools.database.load_file(str(path), strict=True)
+
+
+def _bases() -> dict[str, int]:
+    db = load_database()
+    return {name: db.get_message_by_name(name).frame_id - DBC_NODE for name in _MESSAGES}
+
+
+#: Base id per message name; node ``n`` uses ``base + n``.
+BASE_IDS: Final[dict[str, int]] = _bases()
+#: Data length per message name, from the DBC.
+DLC: Final[dict[str, int]] = {
+    name: load_database().get_message_by_name(name).length for name in _MESSAGES
+}
+
+_CRC: Final = crc.Calculator(crc.Crc8.SAEJ1850)
+
+
+def _check_node(node: int) -> int:
+    if not (isinstance(node, int) and NODE_MIN <= node <= NODE_MAX):
+        raise ProtocolError("node", f"node: must be an int in {NODE_MIN}..={NODE_MAX}, got {node!r}")
+    return node
+
+
+def frame_id(name: str, node: int) -> int:
+    """The 11-bit id of message ``name`` for ``node``."""
+    return BASE_IDS[name] + _check_node(node)
+
+
+def classify(arbitration_id: int) -> Optional[tuple[str, int]]:
+    """``(message name, node)`` for a protocol id, or None for an id the protocol does not define."""
+    for name, base in BASE_IDS.items():
+        node = arbitration_id - base
+        if NODE_MIN <= node <= NODE_MAX:
+            return name, node
+    return None
+
+
+def crc8(data: bytes) -> int:
+    """CRC-8/SAE-J1850 of ``data`` (for a TorqueCommand: bytes 0..=6)."""
+    return int(_CRC.checksum(bytes(data)))
+
+
+def crc_ok(data: bytes) -> bool:
+    """True when an 8-byte TorqueCommand payload carries the right CRC in byte 7."""
+    return len(data) == 8 and crc8(data[:7]) == data[7]
+
+
+def saturate(name: str, signal: str, value: float) -> float:
+    """Clamp ``value`` into the DBC range of ``name.signal`` (NaN becomes 0)."""
+    sig = load_database().get_message_by_name(name).get_signal_by_name(signal)
+    if math.isnan(value):
+        return 0.0
+    lo = sig.minimum if sig.minimum is not None else -math.inf
+    hi = sig.maximum if sig.maximum is not None else math.inf
+    return min(max(value, lo), hi)
+
+
+def _encode(name: str, node: int, signals: dict[str, Any]) -> can.Message:
+    msg_def = load_database().get_message_by_name(name)
+    for key, value in signals.items():
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ProtocolError("range", f"{name}.{key}: must be finite, got {value!r}")
+    try:
+        data = msg_def.encode(signals, strict=True) if msg_def.signals else b""
+    except (cantools.database.EncodeError, KeyError) as err:
+        raise ProtocolError("range", f"{name}: {err}") from err
+    return can.Message(
+        arbitration_id=frame_id(name, node), is_extended_id=False, data=data, dlc=len(data)
+    )
+
+
+def _decode(name: str, data: bytes) -> dict[str, Any]:
+    msg_def = load_database().get_message_by_name(name)
+    if len(data) != msg_def.length:
+        raise ProtocolError(
+            "length", f"{name}: expected {msg_def.length} data bytes, got {len(data)}"
+        )
+    if not msg_def.signals:
+        return {}
+    return dict(msg_def.decode(bytes(data), decode_choices=False, scaling=True))
+
+
+@dataclass(frozen=True, slots=True)
+class TorqueCommand:
+    """Host -> drive, every control tick. ``torque_nm`` in N m (1e-6 steps), u8 ``sequence``."""
+
+    torque_nm: float
+    sequence: int
+
+    def encode(self, node: int) -> can.Message:
+        """The frame for ``node``, CRC filled in."""
+        msg = _encode("TorqueCommand", node, {"torque": self.torque_nm, "sequence": self.sequence, "crc8": 0})
+        msg.data[7] = crc8(msg.data[:7])
+        return msg
+
+    @classmethod
+    def decode(cls, data: bytes) -> TorqueCommand:
+        """Raises :class:`ProtocolError` (``length`` or ``crc``)."""
+        if len(data) != DLC["TorqueCommand"]:
+            raise ProtocolError("length", f"TorqueCommand: expected 8 data bytes, got {len(data)}")
+        if not crc_ok(data):
+            raise ProtocolError(
+                "crc", f"TorqueCommand: crc8 {data[7]:#04x} != {crc8(data[:7]):#04x}"
+            )
+        s = _decode("TorqueCommand", data)
+        return cls(torque_nm=float(s["torque"]), sequence=int(s["sequence"]))
+
+
+@dataclass(frozen=True, slots=True)
+class Feedback:
+    """Drive -> host, one per accepted TorqueCommand, ``sequence`` echoed.
+
+    ``position_rad`` in 1e-7 rad steps, ``velocity_rad_s`` in 0.002 rad/s steps.
+    """
+
+    position_rad: float
+    velocity_rad_s: float
+    sequence: int
+    state: State
+    torque_limited: bool
+    fault_active: bool
+
+    def encode(self, node: int) -> can.Message:
+        return _encode(
+            "Feedback",
+            node,
+            {
+                "position": self.position_rad,
+                "velocity": self.velocity_rad_s,
+                "sequence": self.sequence,
+                "state": int(self.state),
+                "torque_limited": int(self.torque_limited),
+                "fault_active": int(self.fault_active),
+            },
+        )
+
+    @classmethod
+    def decode(cls, data: bytes) -> Feedback:
+        s = _decode("Feedback", data)
+        return cls(
+            position_rad=float(s["position"]),
+            velocity_rad_s=float(s["velocity"]),
+            sequence=int(s["sequence"]),
+            state=State(int(s["state"])),
+            torque_limited=bool(s["torque_limited"]),
+            fault_active=bool(s["fault_active"]),
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class SetState:
+    """Host -> drive: ``enable`` (arms the watchdog with ``watchdog_ms``, 1..=65535) or disable."""
+
+    enable: bool
+    watchdog_ms: int = 100
+
+    def encode(self, node: int) -> can.Message:
+        return _encode(
+            "SetState", node, {"request": int(self.enable), "watchdog_ms": self.watchdog_ms}
+        )
+
+    @classmethod
+    def decode(cls, data: bytes) -> SetState:
+        """Raises :class:`ProtocolError` (``length``; ``range`` for a request other than 0/1)."""
+        s = _decode("SetState", data)
+        request = int(s["request"])
+        if request not in (0, 1):
+            raise ProtocolError("range", f"SetState.request: must be 0 or 1, got {request}")
+        return cls(enable=bool(request), watchdog_ms=int(s["watchdog_ms"]))
+
+
+@dataclass(frozen=True, slots=True)
+class ClearFaults:
+    """Host -> drive: clear latched faults, FAULT -> DISABLED. No data."""
+
+    def encode(self, node: int) -> can.Message:
+        return _encode("ClearFaults", node, {})
+
+    @classmethod
+    def decode(cls, data: bytes) -> ClearFaults:
+        _decode("ClearFaults", data)
+        return cls()
+
+
+@dataclass(frozen=True, slots=True)
+class EmergencyStop:
+    """Host -> drive: zero torque now, latch FAULT(EMERGENCY_STOP). No data."""
+
+    def encode(self, node: int) -> can.Message:
+        return _encode("EmergencyStop", node, {})
+
+    @classmethod
+    def decode(cls, data: bytes) -> EmergencyStop:
+        _decode("EmergencyStop", data)
+        return cls()
+
+
+@dataclass(frozen=True, slots=True)
+class Fault:
+    """Drive -> host whenever state or fault flags change; ``counter`` is a wrapping u8."""
+
+    state: State
+    fault_flags: FaultFlag
+    counter: int
+
+    def encode(self, node: int) -> can.Message:
+        return _encode(
+            "Fault",
+            node,
+            {"state": int(self.state), "fault_flags": int(self.fault_flags), "counter": self.counter},
+        )
+
+    @classmethod
+    def decode(cls, data: bytes) -> Fault:
+        s = _decode("Fault", data)
+        return cls(
+            state=State(int(s["state"])),
+            fault_flags=FaultFlag(int(s["fault_flags"])),
+            counter=int(s["counter"]),
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class Heartbeat:
+    """Drive -> host at about 10 Hz. Error counters saturate at 255; ``counter`` wraps."""
+
+    state: State
+    fault_flags: FaultFlag
+    counter: int
+    crc_errors: int = 0
+    length_errors: int = 0
+    sequence_errors: int = 0
+    unknown_ids: int = 0
+
+    def encode(self, node: int) -> can.Message:
+        return _encode(
+            "Heartbeat",
+            node,
+            {
+                "state": int(self.state),
+                "fault_flags": int(self.fault_flags),
+                "counter": self.counter,
+                "crc_errors": self.crc_errors,
+                "length_errors": self.length_errors,
+                "sequence_errors": self.sequence_errors,
+                "unknown_ids": self.unknown_ids,
+            },
+        )
+
+    @classmethod
+    def decode(cls, data: bytes) -> Heartbeat:
+        s = _decode("Heartbeat", data)
+        return cls(
+            state=State(int(s["state"])),
+            fault_flags=FaultFlag(int(s["fault_flags"])),
+            counter=int(s["counter"]),
+            crc_errors=int(s["crc_errors"]),
+            length_errors=int(s["length_errors"]),
+            sequence_errors=int(s["sequence_errors"]),
+            unknown_ids=int(s["unknown_ids"]),
+        )
+
+
+_CLASSES: Final[dict[str, Any]] = {
+    "EmergencyStop": EmergencyStop,
+    "Fault": Fault,
+    "TorqueCommand": TorqueCommand,
+    "Feedback": Feedback,
+    "SetState": SetState,
+    "ClearFaults": ClearFaults,
+    "Heartbeat": Heartbeat,
+}
+
+
+@dataclass(frozen=True, slots=True)
+class Decoded:
+    """A decoded frame: message name, node, and the message object."""
+
+    name: str
+    node: int
+    message: Any
+
+
+def decode(msg: can.Message) -> Decoded:
+    """Decode any protocol frame.
+
+    Raises:
+        ProtocolError: ``id`` for an id the protocol does not define (or an
+            extended/remote frame), ``length``/``crc``/``range`` as the message's
+            ``decode`` does.
+    """
+    if msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame:
+        raise ProtocolError("id", f"not a classic 11-bit data frame: {msg.arbitration_id:#x}")
+    found = classify(msg.arbitration_id)
+    if found is None:
+        raise ProtocolError("id", f"unknown id {msg.arbitration_id:#05x}")
+    name, node = found
+    return Decoded(name, node, _CLASSES[name].decode(bytes(msg.data[: msg.dlc])))

@@ -1,0 +1,495 @@
+"""A virtual Hi5 drive: the wrist robot's DC-motor driver, simulated on any python-can bus.
+
+Run it with ``sensaug-virtual-hi5`` or ``python -m sensaug_bridge.virtual_hi5``
+(default bus: the loopback ``sensaug_udp`` interface, port 47100, node 1). The
+behaviour, the choices and their reasons are in ``docs/virtual_hi5.md``; in short:
+
+* BOOT -> DISABLED at start; a Fault frame on every state or fault change, a
+  Heartbeat every ``heartbeat_period_s`` (10 Hz).
+* SetState(enable, watchdog_ms): DISABLED -> ENABLED, arms the watchdog;
+  SetState(disable): ENABLED -> DISABLED, torque 0.
+* Each accepted TorqueCommand while ENABLED: clamp to the torque limit, step
+  the 1-DoF plant (``sensaug.Plant``) once, reply with one Feedback echoing the
+  sequence. The plant's clock is the host's command stream (one step per
+  command), so a run is deterministic.
+* Bad CRC, wrong DLC, stale sequence, unknown id: dropped and counted
+  (Heartbeat counters, saturating at 255); no Feedback.
+* Watchdog (no accepted command for ``watchdog_ms`` while ENABLED), emergency
+  stop, overspeed: torque 0, FAULT with the flag latched until ClearFaults.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Optional, Sequence
+
+import can
+
+from sensaug_bridge import protocol as p
+from sensaug_bridge.protocol import FaultFlag, State
+
+__all__ = ["SEQUENCE_WINDOW", "DriveConfig", "VirtualHi5", "main", "parse_args"]
+
+#: A TorqueCommand's sequence is accepted when ``(seq - last) mod 256`` is in
+#: ``1..=SEQUENCE_WINDOW`` (newer by at most 127); 0 (repeat) and 128..=255
+#: (older) are stale. The first command after an enable is always accepted.
+SEQUENCE_WINDOW = 127
+
+_COUNTER_MAX = 255
+
+
+@dataclass
+class DriveConfig:
+    """Everything the virtual drive can be configured with. Units in the names."""
+
+    node: int = 1
+    torque_limit_nm: float = 3.0
+    mass: float = 0.0035
+    damping: float = 0.0
+    coulomb: float = 0.0
+    dt_s: float = 1e-3
+    encoder_counts_per_rev: int = 2**20
+    max_velocity_rad_s: float = 60.0
+    heartbeat_period_s: float = 0.1
+    x0_rad: float = 0.0
+
+    def validate(self) -> None:
+        """Raises ValueError naming the field."""
+        p.frame_id("TorqueCommand", self.node)  # checks the node range
+        checks: list[tuple[str, float, bool]] = [
+            ("torque_limit_nm", self.torque_limit_nm, self.torque_limit_nm > 0),
+            ("mass", self.mass, self.mass > 0),
+            ("damping", self.damping, self.damping >= 0),
+            ("coulomb", self.coulomb, self.coulomb >= 0),
+            ("dt_s", self.dt_s, self.dt_s > 0),
+            ("max_velocity_rad_s", self.max_velocity_rad_s, self.max_velocity_rad_s > 0),
+            ("heartbeat_period_s", self.heartbeat_period_s, self.heartbeat_period_s > 0),
+            ("x0_rad", self.x0_rad, True),
+        ]
+        for name, value, ok in checks:
+            if not (math.isfinite(value) and ok):
+                raise ValueError(f"{name}: invalid value {value!r}")
+        if self.encoder_counts_per_rev < 1:
+            raise ValueError(
+                f"encoder_counts_per_rev: must be >= 1, got {self.encoder_counts_per_rev}"
+            )
+
+
+@dataclass
+class DriveLog:
+    """One row per accepted TorqueCommand (kept only when logging is on)."""
+
+    t_s: list[float] = field(default_factory=list)
+    sequence: list[int] = field(default_factory=list)
+    torque_cmd_nm: list[float] = field(default_factory=list)
+    torque_nm: list[float] = field(default_factory=list)
+    position_rad: list[float] = field(default_factory=list)
+    velocity_rad_s: list[float] = field(default_factory=list)
+    latency_s: list[float] = field(default_factory=list)
+
+    def save(self, path: str) -> None:
+        import numpy as np
+
+        np.savez(
+            path,
+            t_s=np.asarray(self.t_s, dtype=np.float64),
+            sequence=np.asarray(self.sequence, dtype=np.uint8),
+            torque_cmd_nm=np.asarray(self.torque_cmd_nm, dtype=np.float64),
+            torque_nm=np.asarray(self.torque_nm, dtype=np.float64),
+            position_rad=np.asarray(self.position_rad, dtype=np.float64),
+            velocity_rad_s=np.asarray(self.velocity_rad_s, dtype=np.float64),
+            latency_s=np.asarray(self.latency_s, dtype=np.float64),
+        )
+
+
+class VirtualHi5:
+    """The drive's state machine on a python-can bus.
+
+    Not thread-safe: one thread calls :meth:`start`, then :meth:`run` (or
+    :meth:`handle` and :meth:`poll` itself), then :meth:`stop`. The bus is owned
+    by the caller and is not closed here.
+    """
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        config: Optional[DriveConfig] = None,
+        *,
+        log: bool = False,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        import sensaug  # the project's Rust extension; imported late so protocol users need not build it
+
+        self.config = config or DriveConfig()
+        self.config.validate()
+        self.bus = bus
+        self._clock = clock
+        self._Plant = sensaug.Plant
+        self.plant = self._new_plant()
+        cfg = self.config
+        self._rad_per_count = 2.0 * math.pi / cfg.encoder_counts_per_rev
+        self._ids = {name: p.frame_id(name, cfg.node) for name in p.BASE_IDS}
+        self._handlers: dict[int, Callable[[can.Message, float], None]] = {
+            self._ids["TorqueCommand"]: self._on_torque,
+            self._ids["SetState"]: self._on_set_state,
+            self._ids["ClearFaults"]: self._on_clear_faults,
+            self._ids["EmergencyStop"]: self._on_emergency_stop,
+        }
+        self.state = State.BOOT
+        self.fault_flags = FaultFlag.NONE
+        #: Torque applied to the plant now (0 unless ENABLED).
+        self.torque_nm = 0.0
+        self.watchdog_s = 0.0
+        self._last_valid_s = 0.0
+        self._last_seq: Optional[int] = None
+        self._fault_counter = 0
+        self._hb_counter = 0
+        self._next_hb_s = 0.0
+        self._t0 = 0.0
+        # Error counts (unbounded here; the Heartbeat saturates them at 255).
+        self.crc_errors = 0
+        self.length_errors = 0
+        self.sequence_errors = 0
+        self.unknown_ids = 0
+        #: Frames that are valid but not acted on: torque commands while not
+        #: ENABLED, SetState with a bad request/watchdog value. Not in the Heartbeat.
+        self.ignored = 0
+        self.accepted = 0
+        self.log: Optional[DriveLog] = DriveLog() if log else None
+
+    # -- set-up --------------------------------------------------------------------
+
+    def _new_plant(self) -> Any:
+        cfg = self.config
+        return self._Plant(
+            mass=cfg.mass, damping=cfg.damping, coulomb=cfg.coulomb, dt_s=cfg.dt_s, x0=cfg.x0_rad, v0=0.0
+        )
+
+    def start(self) -> None:
+        """Announce BOOT, move to DISABLED, send the first Heartbeat."""
+        now = self._clock()
+        self._t0 = now
+        self._send_fault()
+        self._set_state(State.DISABLED)
+        self._send_heartbeat()
+        self._next_hb_s = now + self.config.heartbeat_period_s
+
+    def stop(self) -> None:
+        """Zero torque, leave ENABLED for DISABLED, send a final Fault and Heartbeat."""
+        self.torque_nm = 0.0
+        if self.state == State.ENABLED:
+            self._set_state(State.DISABLED)
+        else:
+            self._send_fault()
+        self._send_heartbeat()
+
+    # -- the loop ------------------------------------------------------------------
+
+    def run(self, stop: Optional[threading.Event] = None, duration_s: Optional[float] = None) -> None:
+        """Serve the bus until ``stop`` is set or ``duration_s`` has passed.
+
+        Receives with a short blocking timeout (at most 10 ms, shorter when the
+        watchdog or the next heartbeat is due sooner); no sleeps; the watchdog is
+        checked on every iteration with the monotonic clock.
+        """
+        end = math.inf if duration_s is None else self._clock() + duration_s
+        recv = self.bus.recv
+        while stop is None or not stop.is_set():
+            now = self._clock()
+            if now >= end:
+                break
+            self.poll(now)
+            due = min(self._next_hb_s, end, now + 0.01)
+            if self.state == State.ENABLED:
+                due = min(due, self._last_valid_s + self.watchdog_s)
+            msg = recv(max(due - now, 0.0))
+            if msg is not None:
+                self.handle(msg, self._clock())
+
+    def poll(self, now: float) -> None:
+        """Watchdog check and heartbeat; called on every loop iteration."""
+        self._check_watchdog(now)
+        if now >= self._next_hb_s:
+            self._send_heartbeat()
+            # Skip missed beats instead of bursting after a stall.
+            period = self.config.heartbeat_period_s
+            self._next_hb_s = max(self._next_hb_s + period, now + 0.5 * period)
+
+    def handle(self, msg: can.Message, now: float) -> None:
+        """Act on one received frame. Never raises on bad input."""
+        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id or msg.is_fd:
+            self.unknown_ids += 1
+            return
+        handler = self._handlers.get(msg.arbitration_id)
+        if handler is not None:
+            handler(msg, now)
+        elif p.classify(msg.arbitration_id) is None:
+            self.unknown_ids += 1
+        # else: a protocol frame for another node, or another drive's
+        # Feedback/Fault/Heartbeat: not ours, silently ignored.
+
+    # -- handlers --------------------------------------------------------------------
+
+    def _on_torque(self, msg: can.Message, now: float) -> None:
+        t_rx = time.perf_counter()
+        self._check_watchdog(now)
+        data = bytes(msg.data[: msg.dlc])
+        if len(data) != 8:
+            self.length_errors += 1
+            return
+        if not p.crc_ok(data):
+            self.crc_errors += 1
+            return
+        if self.state != State.ENABLED:
+            self.ignored += 1
+            return
+        cmd = p.TorqueCommand.decode(data)
+        if self._last_seq is not None and not (
+            1 <= (cmd.sequence - self._last_seq) % 256 <= SEQUENCE_WINDOW
+        ):
+            self.sequence_errors += 1
+            return
+        self._last_seq = cmd.sequence
+        self._last_valid_s = now
+        self.accepted += 1
+        cfg = self.config
+        limit = cfg.torque_limit_nm
+        torque = min(max(cmd.torque_nm, -limit), limit)
+        limited = torque != cmd.torque_nm
+        self.torque_nm = torque
+        x, v = self.plant.step(torque)
+        if abs(v) > cfg.max_velocity_rad_s:
+            self.torque_nm = 0.0
+            self._latch(FaultFlag.OVERSPEED)
+        # The encoder: position quantised to whole counts, then to the field's 1e-7 rad.
+        x_q = round(x / self._rad_per_count) * self._rad_per_count
+        x_rep = p.saturate("Feedback", "position", x_q)
+        v_rep = p.saturate("Feedback", "velocity", v)
+        reply = p.Feedback(
+            position_rad=x_rep,
+            velocity_rad_s=v_rep,
+            sequence=cmd.sequence,
+            state=self.state,
+            torque_limited=limited,
+            fault_active=bool(self.fault_flags),
+        ).encode(cfg.node)
+        self.bus.send(reply)
+        if self.log is not None:
+            log = self.log
+            log.t_s.append(now - self._t0)
+            log.sequence.append(cmd.sequence)
+            log.torque_cmd_nm.append(cmd.torque_nm)
+            log.torque_nm.append(torque)
+            log.position_rad.append(x_q)
+            log.velocity_rad_s.append(v)
+            log.latency_s.append(time.perf_counter() - t_rx)
+
+    def _on_set_state(self, msg: can.Message, now: float) -> None:
+        try:
+            req = p.SetState.decode(bytes(msg.data[: msg.dlc]))
+        except p.ProtocolError as err:
+            if err.kind == "length":
+                self.length_errors += 1
+            else:
+                self.ignored += 1
+            return
+        if not req.enable:
+            self.torque_nm = 0.0
+            if self.state == State.ENABLED:
+                self._set_state(State.DISABLED)
+            return
+        if req.watchdog_ms < 1:
+            self.ignored += 1
+            return
+        if self.state in (State.DISABLED, State.ENABLED):
+            # From DISABLED: enable. While ENABLED: take the new watchdog and re-arm.
+            self.watchdog_s = req.watchdog_ms / 1000.0
+            self._last_valid_s = now
+            if self.state == State.DISABLED:
+                self._last_seq = None
+                self._set_state(State.ENABLED)
+        else:
+            self.ignored += 1
+
+    def _on_clear_faults(self, msg: can.Message, now: float) -> None:
+        if msg.dlc != p.DLC["ClearFaults"]:
+            self.length_errors += 1
+            return
+        if self.state == State.FAULT:
+            self.fault_flags = FaultFlag.NONE
+            self._set_state(State.DISABLED)
+        elif self.fault_flags:
+            self.fault_flags = FaultFlag.NONE
+            self._send_fault()
+
+    def _on_emergency_stop(self, msg: can.Message, now: float) -> None:
+        # Acted on whatever its length: a stop request is never dropped.
+        self.torque_nm = 0.0
+        self._latch(FaultFlag.EMERGENCY_STOP)
+
+    # -- state changes ---------------------------------------------------------------
+
+    def _check_watchdog(self, now: float) -> None:
+        if self.state == State.ENABLED and now - self._last_valid_s > self.watchdog_s:
+            self.torque_nm = 0.0
+            self._latch(FaultFlag.WATCHDOG)
+
+    def _latch(self, flag: FaultFlag) -> None:
+        changed = not (self.fault_flags & flag) or self.state != State.FAULT
+        self.fault_flags |= flag
+        if self.state != State.FAULT:
+            self.state = State.FAULT
+        if changed:
+            self._send_fault()
+
+    def _set_state(self, state: State) -> None:
+        if state != State.ENABLED:
+            self.torque_nm = 0.0
+        self.state = state
+        self._send_fault()
+
+    # -- frames out ------------------------------------------------------------------
+
+    def _send_fault(self) -> None:
+        self.bus.send(p.Fault(self.state, self.fault_flags, self._fault_counter).encode(self.config.node))
+        self._fault_counter = (self._fault_counter + 1) & 0xFF
+
+    def heartbeat(self) -> p.Heartbeat:
+        """The Heartbeat as it would be sent now (counters saturated at 255).
+
+        Malformed datagrams dropped by the transport (``bus.drop_reasons``, the
+        ``sensaug_udp`` bus) are folded in: wrong size, len or reserved bytes
+        count as length errors; extended/RTR/error flags or an id over 0x7FF as
+        unknown ids.
+        """
+        length_errors = self.length_errors
+        unknown_ids = self.unknown_ids
+        drops = getattr(self.bus, "drop_reasons", None)
+        if drops:
+            length_errors += drops.get("size", 0) + drops.get("len", 0) + drops.get("reserved", 0)
+            unknown_ids += (
+                drops.get("extended", 0) + drops.get("rtr", 0) + drops.get("error_frame", 0) + drops.get("id", 0)
+            )
+        return p.Heartbeat(
+            state=self.state,
+            fault_flags=self.fault_flags,
+            counter=self._hb_counter,
+            crc_errors=min(self.crc_errors, _COUNTER_MAX),
+            length_errors=min(length_errors, _COUNTER_MAX),
+            sequence_errors=min(self.sequence_errors, _COUNTER_MAX),
+            unknown_ids=min(unknown_ids, _COUNTER_MAX),
+        )
+
+    def _send_heartbeat(self) -> None:
+        self.bus.send(self.heartbeat().encode(self.config.node))
+        self._hb_counter = (self._hb_counter + 1) & 0xFF
+
+    def summary(self) -> dict[str, Any]:
+        """Counts for a one-line report at exit."""
+        hb = self.heartbeat()
+        out: dict[str, Any] = {
+            "state": self.state.name,
+            "fault_flags": int(self.fault_flags),
+            "accepted": self.accepted,
+            "ignored": self.ignored,
+            "crc_errors": self.crc_errors,
+            "length_errors": hb.length_errors,
+            "sequence_errors": self.sequence_errors,
+            "unknown_ids": hb.unknown_ids,
+        }
+        if self.log is not None and self.log.latency_s:
+            lat = sorted(self.log.latency_s)
+            out["latency_us_p50"] = round(lat[len(lat) // 2] * 1e6, 1)
+            out["latency_us_p99"] = round(lat[min(len(lat) - 1, int(0.99 * len(lat)))] * 1e6, 1)
+            out["latency_us_max"] = round(lat[-1] * 1e6, 1)
+        return out
+
+
+# -- command line ----------------------------------------------------------------------
+
+
+def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
+    d = DriveConfig()
+    ap = argparse.ArgumentParser(
+        prog="sensaug-virtual-hi5",
+        description="Virtual Hi5 drive on a python-can bus (default: loopback sensaug_udp). "
+        "See docs/virtual_hi5.md.",
+    )
+    ap.add_argument("-i", "--interface", default="sensaug_udp", help="python-can interface (default sensaug_udp)")
+    ap.add_argument("-c", "--channel", default="47100", help="python-can channel; for sensaug_udp the UDP port (default 47100)")
+    ap.add_argument("--node", type=int, default=d.node, help="node id 0..15 (default 1)")
+    ap.add_argument("--torque-limit", type=float, default=d.torque_limit_nm, help="N m (default 3)")
+    ap.add_argument("--mass", type=float, default=d.mass, help="inertia M, kg m^2 (default 0.0035)")
+    ap.add_argument("--damping", type=float, default=d.damping, help="viscous C, N m s/rad (default 0)")
+    ap.add_argument("--coulomb", type=float, default=d.coulomb, help="Coulomb friction, N m (default 0)")
+    ap.add_argument("--dt", type=float, default=d.dt_s, help="plant step per command, s (default 0.001)")
+    ap.add_argument("--x0", type=float, default=d.x0_rad, help="initial position, rad (default 0)")
+    ap.add_argument(
+        "--encoder-counts-per-rev", type=int, default=d.encoder_counts_per_rev, help="default 2**20 = 1048576"
+    )
+    ap.add_argument(
+        "--max-velocity", type=float, default=d.max_velocity_rad_s, help="OVERSPEED fault above this, rad/s (default 60)"
+    )
+    ap.add_argument("--heartbeat-hz", type=float, default=1.0 / d.heartbeat_period_s, help="default 10")
+    ap.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    ap.add_argument("--log", default=None, metavar="FILE.npz", help="save t_s, torque_nm, position_rad, velocity_rad_s, ...")
+    ap.add_argument("-q", "--quiet", action="store_true", help="no summary line on stderr at exit")
+    return ap.parse_args(argv)
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Console entry point. Exit code 0 on a clean stop (duration, SIGINT, SIGTERM)."""
+    args = parse_args(argv)
+    config = DriveConfig(
+        node=args.node,
+        torque_limit_nm=args.torque_limit,
+        mass=args.mass,
+        damping=args.damping,
+        coulomb=args.coulomb,
+        dt_s=args.dt,
+        encoder_counts_per_rev=args.encoder_counts_per_rev,
+        max_velocity_rad_s=args.max_velocity,
+        heartbeat_period_s=1.0 / args.heartbeat_hz if args.heartbeat_hz > 0 else math.nan,
+        x0_rad=args.x0,
+    )
+    try:
+        config.validate()
+    except ValueError as err:
+        print(f"sensaug-virtual-hi5: {err}", file=sys.stderr)
+        return 2
+    stop = threading.Event()
+
+    def _on_signal(signum: int, frame: Any) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, _on_signal)
+    signal.signal(signal.SIGTERM, _on_signal)
+    try:
+        bus = can.Bus(interface=args.interface, channel=args.channel)
+    except (can.CanError, ValueError, OSError, NotImplementedError) as err:
+        print(f"sensaug-virtual-hi5: cannot open bus: {err}", file=sys.stderr)
+        return 1
+    try:
+        drive = VirtualHi5(bus, config, log=args.log is not None)
+        drive.start()
+        try:
+            drive.run(stop=stop, duration_s=args.duration)
+        finally:
+            drive.stop()
+            if args.log is not None and drive.log is not None:
+                drive.log.save(args.log)
+            if not args.quiet:
+                print(f"sensaug-virtual-hi5: {drive.summary()}", file=sys.stderr)
+    finally:
+        bus.shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
