@@ -26,8 +26,6 @@ from typing import Any
 import can
 import pytest
 
-pytest.importorskip("sensaug_bridge")
-
 from sensaug_bridge.udp_bus import BROADCAST_ADDR, FRAME_SIZE, UdpLoopbackBus, free_port  # noqa: E402
 
 RECV_S = 2.0  # generous: a frame on loopback arrives in well under 1 ms

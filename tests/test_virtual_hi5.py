@@ -30,13 +30,16 @@ from typing import Any, Callable, Iterator, Optional
 import can
 import pytest
 
-sensaug = pytest.importorskip("sensaug")
-pytest.importorskip("sensaug_bridge")
-
+import sensaug
 from sensaug_bridge import protocol as p  # noqa: E402
 from sensaug_bridge.protocol import FaultFlag, State  # noqa: E402
 from sensaug_bridge.udp_bus import BROADCAST_ADDR, free_port  # noqa: E402
 from sensaug_bridge.virtual_hi5 import DriveConfig, VirtualHi5  # noqa: E402
+
+# Resolution of the Feedback fields, read from the DBC (the single source).
+_FEEDBACK = p.load_database().get_message_by_name("Feedback")
+POS_LSB = _FEEDBACK.get_signal_by_name("position").scale
+VEL_LSB = _FEEDBACK.get_signal_by_name("velocity").scale
 
 NODE = 1
 RECV_S = 3.0
@@ -198,8 +201,8 @@ def test_feedback_echoes_sequence_and_matches_plant(drive: Drive):
         x, v = ref.step(round(tau * 1e6) / 1e6)  # the wire carries 1e-6 N m steps
         assert fb.sequence == seq and fb.state == State.ENABLED
         assert not fb.torque_limited and not fb.fault_active
-        assert abs(fb.position_rad - encoder(x)) <= 0.5e-7 + 1e-12, (k, fb.position_rad, x)
-        assert abs(fb.velocity_rad_s - v) <= 0.001 + 1e-12, (k, fb.velocity_rad_s, v)
+        assert abs(fb.position_rad - encoder(x)) <= 0.5 * POS_LSB + 1e-12, (k, fb.position_rad, x)
+        assert abs(fb.velocity_rad_s - v) <= 0.5 * VEL_LSB + 1e-12, (k, fb.velocity_rad_s, v)
     # Exactly one feedback each: nothing more arrives.
     assert not [d for d in frames_for(drive.host, 0.1) if d.name == "Feedback"]
     assert drive.hi5.accepted == len(torques)
@@ -215,8 +218,8 @@ def test_torque_clamped_at_limit(start_drive):
         x, v = ref.step(applied)
         assert fb.torque_limited == (abs(tau) > 0.5)
         assert drive.hi5.torque_nm == applied
-        assert abs(fb.position_rad - encoder(x)) <= 0.5e-7 + 1e-12
-        assert abs(fb.velocity_rad_s - v) <= 0.001 + 1e-12
+        assert abs(fb.position_rad - encoder(x)) <= 0.5 * POS_LSB + 1e-12
+        assert abs(fb.velocity_rad_s - v) <= 0.5 * VEL_LSB + 1e-12
 
 
 def test_watchdog_faults_then_clear_and_reenable(drive: Drive):

@@ -245,7 +245,7 @@ class TorqueCommand:
 class Feedback:
     """Drive -> host, one per accepted TorqueCommand, ``sequence`` echoed.
 
-    ``position_rad`` in 1e-7 rad steps, ``velocity_rad_s`` in 0.002 rad/s steps.
+    ``position_rad`` in 1e-6 rad steps, ``velocity_rad_s`` in 1e-6 rad/s steps (int24, hi5.dbc).
     """
 
     position_rad: float

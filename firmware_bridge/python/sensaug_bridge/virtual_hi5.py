@@ -55,7 +55,7 @@ class DriveConfig:
     coulomb: float = 0.0
     dt_s: float = 1e-3
     encoder_counts_per_rev: int = 2**20
-    max_velocity_rad_s: float = 60.0
+    max_velocity_rad_s: float = 8.0
     heartbeat_period_s: float = 0.1
     x0_rad: float = 0.0
 
@@ -267,7 +267,7 @@ class VirtualHi5:
         if abs(v) > cfg.max_velocity_rad_s:
             self.torque_nm = 0.0
             self._latch(FaultFlag.OVERSPEED)
-        # The encoder: position quantised to whole counts, then to the field's 1e-7 rad.
+        # The encoder: position quantised to whole counts, then to the field's 1e-6 rad.
         x_q = round(x / self._rad_per_count) * self._rad_per_count
         x_rep = p.saturate("Feedback", "position", x_q)
         v_rep = p.saturate("Feedback", "velocity", v)
@@ -434,7 +434,7 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
         "--encoder-counts-per-rev", type=int, default=d.encoder_counts_per_rev, help="default 2**20 = 1048576"
     )
     ap.add_argument(
-        "--max-velocity", type=float, default=d.max_velocity_rad_s, help="OVERSPEED fault above this, rad/s (default 60)"
+        "--max-velocity", type=float, default=d.max_velocity_rad_s, help="OVERSPEED fault above this, rad/s (default 8, inside the +-8.39 rad/s Feedback field)"
     )
     ap.add_argument("--heartbeat-hz", type=float, default=1.0 / d.heartbeat_period_s, help="default 10")
     ap.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
