@@ -1,9 +1,14 @@
-"""Command line: ``python -m sensaug {demo,run,preset}``.
+"""Command line: ``python -m sensaug {demo,paper,run,rig,preset}``.
 
-* ``demo`` reproduces the paper's headline numbers on the embedded Hi5 and
-  simulation defaults and prints them as tables (the README's main job).
-* ``run CONFIG.toml`` runs one trial and saves its log (``.npz``).
-* ``preset {hi5,simulation}`` prints a preset as TOML, to edit and ``run``.
+* ``demo`` runs the Hi5 experiment end to end on the virtual rig (the
+  virtual drive and the real-time binary over the loopback CAN bus) on the
+  embedded default, prints the results and the loop statistics, and writes
+  plots (the README's main job).
+* ``paper`` reproduces the paper's headline numbers in simulation (Hi5 gain
+  sweep, trajectory, goal integration, simulation section) as tables.
+* ``run CONFIG.toml`` runs one simulated trial and saves its log (``.npz``).
+* ``rig CONFIG.toml`` runs one trial on the virtual rig.
+* ``preset {hi5,hi5-rig,simulation}`` prints a preset as TOML.
 """
 
 from __future__ import annotations
@@ -30,9 +35,9 @@ def _table(headers: list[str], rows: list[list[str]]) -> str:
     return "\n".join([line, sep, *body])
 
 
-def demo(seeds: int, out: Path | None) -> int:
+def paper(seeds: int, out: Path | None) -> int:
     t_start = time.perf_counter()
-    print("sensaug demo: the paper's Hi5 experiment and simulation on the embedded defaults\n")
+    print("sensaug paper: the paper's Hi5 experiment and simulation, simulated, on the embedded defaults\n")
 
     hi5 = agent_gains(0.0035, 0.0, 1.0, 0.0)
     sim = agent_gains(6.0, 0.0, 20000.0, 2.0)
@@ -110,6 +115,51 @@ def demo(seeds: int, out: Path | None) -> int:
     return 0
 
 
+def rig_demo(config: ScenarioConfig, out: Path, plots: bool) -> int:
+    from sensaug import rig
+
+    t_start = time.perf_counter()
+    phases = ", ".join(f"{p.kind} {p.duration_s:g} s" for p in config.phases)
+    print(f"sensaug demo: the Hi5 experiment on the virtual rig ({phases})")
+    print("virtual Hi5 drive (Python, python-can) <-> sensaug-rt (Rust, 1 kHz) over the loopback CAN bus\n")
+    run = rig.run_virtual_rig(config, out=out)
+    s = run.stats
+    print(f"sensaug-rt: {s['ticks']} ticks, stop: {s['stop_reason']}, exit {run.returncode}; "
+          f"virtual drive exit {run.drive_returncode}\n")
+    true = np.array(s["partner_gains_true"])
+    est = run.gain_estimate()
+    print(f"Stage 1: partner gains (mean over the last {config.robot.gain_window_s:g} s of the gain phase)")
+    print(_table(["gain", "true", "estimated", "error"], [
+        [name, f"{t:.4f}", f"{e:.4f}", f"{e - t:+.4f}"] for name, t, e in zip(("Lhx", "Lhv", "Lhh"), true, est)
+    ]))
+    amp = max(abs(sh.amplitude) for sh in config.phases[1].partner_target if hasattr(sh, "amplitude")) if len(config.phases) > 1 else 1.0
+    rmse = run.partner_target_rmse()
+    print(f"\nStage 2: partner-target RMSE {rmse:.4f} ({100 * rmse / amp:.2f}% of the {amp:g} amplitude)")
+    r = run.integration_rmse()
+    noise = config.phases[-1].target_noise_std
+    print(f"\nStage 3: RMSE of the robot's (x - tau) estimate, target-view noise std {noise:g}")
+    print(_table(["measured", "without integration", "with integration", "improvement"], [
+        [f"{r['measured']:.4f}", f"{r['own']:.4f}", f"{r['integrated']:.4f}", f"{r['own'] / r['integrated']:.2f}x"]
+    ]))
+    print("\nLoop statistics (this machine, this run; no deadline is asserted)")
+    rows = [[name, f"{h['p50_us']:.0f}", f"{h['p99_us']:.0f}", f"{h['p999_us']:.0f}", f"{h['max_us']:.0f}"]
+            for name, h in (("wake-up latency (us)", s["wake_latency"]), ("tick compute (us)", s["compute"]))]
+    print(_table(["", "p50", "p99", "p99.9", "max"], rows))
+    can = s["can"]
+    print(f"deadline misses {s['deadline_misses']}, CAN send/recv/decode errors "
+          f"{can['send_errors']}/{can['recv_errors']}/{can['decode_errors']}, missing feedback {can['missing_feedback']}, "
+          f"ring overflows {s['ring_overflows']}, records {s['records_written']}, clamped {s['torque_clamped']}")
+    print(f"real-time settings: {'; '.join(s['realtime'])}")
+    print(f"\nlog: {out / 'rig_log.npy'} (np.load), stats: {out / 'rig_stats.json'}")
+    if plots:
+        from sensaug import plots as pl
+
+        written = pl.write_rig_plots(run, out)
+        print(f"plots: {', '.join(str(p) for p in written)}")
+    print(f"\ndone in {time.perf_counter() - t_start:.1f} s")
+    return 0 if run.returncode == 0 else 1
+
+
 def _fmt(v) -> str:
     return "[" + ", ".join(f"{x:.3f}" for x in v) + "]"
 
@@ -126,26 +176,38 @@ def run_config(path: Path, out: Path | None) -> int:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="sensaug", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
-    d = sub.add_parser("demo", help="reproduce the paper's headline numbers")
-    d.add_argument("--seeds", type=int, default=3, help="trials per setting (default 3)")
-    d.add_argument("--plots", type=Path, default=Path("out"), help="folder for plots (default ./out)")
+    d = sub.add_parser("demo", help="the Hi5 experiment end to end on the virtual rig")
+    d.add_argument("--config", type=Path, default=None, help="TOML (default: the embedded hi5-rig preset)")
+    d.add_argument("--out", type=Path, default=Path("out"), help="folder for log, stats, plots (default ./out)")
     d.add_argument("--no-plots", action="store_true", help="do not write plots")
+    pp = sub.add_parser("paper", help="reproduce the paper's headline numbers in simulation")
+    pp.add_argument("--seeds", type=int, default=3, help="trials per setting (default 3)")
+    pp.add_argument("--plots", type=Path, default=Path("out"), help="folder for plots (default ./out)")
+    pp.add_argument("--no-plots", action="store_true", help="do not write plots")
+    rg = sub.add_parser("rig", help="run one trial on the virtual rig")
+    rg.add_argument("config", type=Path)
+    rg.add_argument("--out", type=Path, default=Path("out"))
     r = sub.add_parser("run", help="run one trial from a TOML configuration")
     r.add_argument("config", type=Path)
     r.add_argument("--out", type=Path, default=None, help="log file (.npz); default next to the config")
     p = sub.add_parser("preset", help="print a preset configuration as TOML")
-    p.add_argument("name", choices=["hi5", "simulation"])
+    p.add_argument("name", choices=["hi5", "hi5-rig", "simulation"])
     args = parser.parse_args(argv)
     try:
         if args.command == "demo":
+            cfg = ScenarioConfig.from_toml(args.config) if args.config else presets.hi5_rig()
+            return rig_demo(cfg, args.out, not args.no_plots)
+        if args.command == "paper":
             if args.seeds < 1:
                 parser.error("--seeds: must be >= 1")
-            return demo(args.seeds, None if args.no_plots else args.plots)
+            return paper(args.seeds, None if args.no_plots else args.plots)
         if args.command == "run":
             return run_config(args.config, args.out)
-        cfg = presets.hi5_experiment() if args.name == "hi5" else presets.simulation_section()
+        if args.command == "rig":
+            return rig_demo(ScenarioConfig.from_toml(args.config), args.out, True)
+        cfg = {"hi5": presets.hi5_experiment, "hi5-rig": presets.hi5_rig, "simulation": presets.simulation_section}[args.name]()
         sys.stdout.write(cfg.to_toml())
         return 0
-    except ValueError as e:
+    except (ValueError, FileNotFoundError, RuntimeError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

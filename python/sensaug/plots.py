@@ -11,7 +11,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from sensaug.experiment import Trial  # noqa: E402
 
-__all__ = ["write_trial_plots"]
+__all__ = ["write_trial_plots", "write_rig_plots"]
 
 
 def write_trial_plots(trial: Trial, folder: Path, *, prefix: str) -> list[Path]:
@@ -66,3 +66,48 @@ def _save(fig, path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def write_rig_plots(run, folder: Path) -> list[Path]:
+    """Plots of a virtual-rig run (``sensaug.rig.RigRun``): gains, partner
+    target, goal integration, and the loop's wake-up latency."""
+    folder = Path(folder)
+    d = run.log
+    t = d["t"]
+    written: list[Path] = []
+    true = run.stats["partner_gains_true"]
+
+    m = run.phase_mask("gains")
+    fig, ax = plt.subplots(figsize=(9, 3.5))
+    for f, tr in zip(("Lhx_hat", "Lhv_hat", "Lhh_hat"), true):
+        line = ax.plot(t[m], d[f][m], lw=0.8, label=f)[0]
+        ax.axhline(tr, color=line.get_color(), ls=":", lw=1.0)
+    ax.set(xlabel="t (s)", ylabel="gain", title="rig: partner gain estimates (dotted: truth)")
+    ax.legend(loc="upper right", fontsize=8)
+    written.append(_save(fig, folder / "rig_gains.png"))
+
+    m = run.phase_mask("trajectory")
+    fig, ax = plt.subplots(figsize=(9, 3.5))
+    ax.plot(t[m], d["tau_h"][m], "r--", lw=1.0, label="tau_h (true)")
+    ax.plot(t[m], d["tau_h_hat"][m], "k", lw=0.8, label="tau_h^ (robot's estimate)")
+    ax.set(xlabel="t (s)", ylabel="position (deg)", title="rig: partner target estimate")
+    ax.legend(loc="upper right", fontsize=8)
+    written.append(_save(fig, folder / "rig_trajectory.png"))
+
+    m = run.phase_mask("integration")
+    fig, ax = plt.subplots(figsize=(9, 3.5))
+    ax.plot(t[m], d["e_meas"][m], ".", ms=1, color="0.7", label="measured x - tau")
+    ax.plot(t[m], d["e_hat_own"][m], lw=0.8, label="without integration")
+    ax.plot(t[m], d["x"][m] - d["tau"][m], "k", lw=1.6, label="true x - tau")
+    ax.plot(t[m], d["e_hat_fused"][m], lw=0.8, color="tab:orange", label="with integration")
+    ax.set(xlabel="t (s)", ylabel="x - tau (deg)", title="rig: goal integration")
+    ax.legend(loc="upper right", fontsize=8)
+    written.append(_save(fig, folder / "rig_integration.png"))
+
+    fig, ax = plt.subplots(figsize=(9, 3.5))
+    ax.hist(d["wake_latency_us"], bins=200, log=True, color="tab:blue", alpha=0.7, label="wake-up latency")
+    ax.hist(d["compute_us"], bins=200, log=True, color="tab:orange", alpha=0.7, label="tick compute")
+    ax.set(xlabel="us", ylabel="ticks", title="rig: loop timing")
+    ax.legend(loc="upper right", fontsize=8)
+    written.append(_save(fig, folder / "rig_timing.png"))
+    return written

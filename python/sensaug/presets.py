@@ -24,7 +24,7 @@ from sensaug.config import (
     WorldConfig,
 )
 
-__all__ = ["hi5_experiment", "simulation_section", "HI5_LHH_VALUES"]
+__all__ = ["hi5_experiment", "hi5_rig", "simulation_section", "HI5_LHH_VALUES"]
 
 #: The virtual human's gains of the paper's Hi5 gain sweep.
 HI5_LHH_VALUES = (0.0, 0.5, 1.0, 1.5, 2.0)
@@ -85,6 +85,15 @@ def hi5_experiment(
             ),
         ],
     )
+
+
+def hi5_rig(lhh: float = 2.0, *, seed: int = 0, phase_s: float = 10.0) -> ScenarioConfig:
+    """The Hi5 experiment for the (virtual) rig: :func:`hi5_experiment` with
+    10 s phases (~30 s in all) and a 4 s gain window, the virtual human inside
+    the real-time loop. ``configs/hi5_rig.toml`` is this preset as a file."""
+    cfg = hi5_experiment(lhh, seed=seed, phase_s=phase_s)
+    cfg.robot.gain_window_s = min(8.0, 0.4 * phase_s)
+    return cfg
 
 
 def simulation_section(

@@ -135,6 +135,7 @@ fn run(args: Args) -> Result<StopReason, String> {
             out.push(format!("{what}: not applied ({e})"));
         }
     };
+    note("timer slack 1 ns", os::minimal_timer_slack(), &mut realtime);
     if rig.realtime.mlockall {
         note("mlockall", os::lock_memory(), &mut realtime);
     }

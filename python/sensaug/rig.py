@@ -1,0 +1,158 @@
+"""The experiment on the virtual Hi5 rig: the virtual drive (Python,
+python-can) and the real-time binary (`sensaug-rt`, Rust) as two processes
+on the loopback CAN bus, then the log read back as numpy arrays.
+
+The real-time binary is found at ``$SENSAUG_RT`` or in the repository's
+``target/release`` (``scripts/setup.sh`` builds it).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from sensaug.config import ScenarioConfig
+
+__all__ = ["RigRun", "find_binary", "run_virtual_rig", "read_log"]
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def find_binary() -> Path:
+    """The `sensaug-rt` executable: ``$SENSAUG_RT`` or ``target/release``."""
+    env = os.environ.get("SENSAUG_RT")
+    path = Path(env) if env else REPO / "target" / "release" / "sensaug-rt"
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"sensaug-rt not found at {path}; build it with `cargo build --release -p sensaug-rt` "
+            "(scripts/setup.sh does) or set SENSAUG_RT"
+        )
+    return path
+
+
+def read_log(path: str | Path) -> np.ndarray:
+    """The loop's log: a structured array, one record per tick."""
+    return np.load(path)
+
+
+@dataclass
+class RigRun:
+    """What one rig run produced."""
+
+    config: ScenarioConfig
+    log: np.ndarray
+    stats: dict
+    returncode: int
+    drive_returncode: int
+    stderr: str
+
+    def phase_mask(self, kind: str, *, skip_s: float = 0.0, last_s: float | None = None) -> np.ndarray:
+        codes = {"gains": 0.0, "trajectory": 1.0, "integration": 2.0}
+        m = self.log["phase"] == codes[kind]
+        if not m.any():
+            raise ValueError(f"kind: the log has no {kind!r} phase")
+        t = self.log["t"]
+        t0, t1 = t[m][0], t[m][-1]
+        if last_s is not None:
+            return m & (t > t1 - last_s)
+        return m & (t >= t0 + skip_s)
+
+    def gain_estimate(self, last_s: float | None = None) -> np.ndarray:
+        """Mean estimated gains over the last ``last_s`` of the gain phase
+        (default: the robot's own window, ``robot.gain_window_s``)."""
+        m = self.phase_mask("gains", last_s=last_s or self.config.robot.gain_window_s)
+        return np.array([self.log[f][m].mean() for f in ("Lhx_hat", "Lhv_hat", "Lhh_hat")])
+
+    def partner_target_rmse(self, skip_s: float = 2.0) -> float:
+        m = self.phase_mask("trajectory", skip_s=skip_s)
+        return float(np.sqrt(np.mean((self.log["tau_h_hat"][m] - self.log["tau_h"][m]) ** 2)))
+
+    def integration_rmse(self, skip_s: float = 2.0) -> dict[str, float]:
+        """RMSE of the robot's (x - tau) estimate against x - tau, with the
+        measured x and the true target (the binary injected the noise)."""
+        m = self.phase_mask("integration", skip_s=skip_s)
+        e = self.log["x"][m] - self.log["tau"][m]
+        return {
+            f: float(np.sqrt(np.mean((self.log[col][m] - e) ** 2)))
+            for f, col in (("measured", "e_meas"), ("own", "e_hat_own"), ("integrated", "e_hat_fused"))
+        }
+
+
+def _free_port() -> int:
+    from sensaug_bridge.udp_bus import free_port
+
+    return free_port()
+
+
+def start_drive(port: int, *, duration_s: float, extra: list[str] | None = None) -> subprocess.Popen:
+    """The virtual Hi5 as a subprocess on the loopback bus at ``port``."""
+    cmd = [
+        sys.executable,
+        "-m",
+        "sensaug_bridge.virtual_hi5",
+        "--channel",
+        str(port),
+        "--duration",
+        f"{duration_s:g}",
+        "-q",
+        *(extra or []),
+    ]
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def run_virtual_rig(
+    config: ScenarioConfig | str | Path,
+    *,
+    out: str | Path = "out",
+    port: int | None = None,
+    timeout_s: float | None = None,
+) -> RigRun:
+    """Runs one trial on the virtual rig and returns its log and statistics.
+
+    ``config`` is a configuration or a TOML path; its ``[rig]`` table is used
+    except for the CAN URL (a free loopback port) and the output paths
+    (under ``out``).
+    """
+    cfg = config if isinstance(config, ScenarioConfig) else ScenarioConfig.from_toml(config)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    port = port or _free_port()
+    toml_path = out / "rig_config.toml"
+    cfg.to_toml(toml_path)
+    log_path, stats_path = out / "rig_log.npy", out / "rig_stats.json"
+    binary = find_binary()
+    budget = timeout_s or cfg.duration_s + 30.0
+    drive = start_drive(port, duration_s=budget + 5.0)
+    try:
+        time.sleep(0.5)
+        proc = subprocess.run(
+            [str(binary), str(toml_path), "--can", f"udp:{port}", "--log", str(log_path), "--stats", str(stats_path)],
+            capture_output=True,
+            text=True,
+            timeout=budget,
+        )
+    finally:
+        drive.send_signal(signal.SIGTERM)
+        try:
+            drive.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            drive.kill()
+            drive.wait()
+    if not stats_path.exists():
+        raise RuntimeError(f"sensaug-rt failed (exit {proc.returncode}): {proc.stderr.strip()}")
+    return RigRun(
+        config=cfg,
+        log=read_log(log_path),
+        stats=json.loads(stats_path.read_text()),
+        returncode=proc.returncode,
+        drive_returncode=drive.returncode,
+        stderr=proc.stderr,
+    )
