@@ -251,6 +251,8 @@ pub struct RobotCounters {
     pub estimator_errors: u64,
     /// Estimator calls that needed a re-symmetrised covariance.
     pub resymmetrised: u64,
+    /// Ticks without a fresh measurement (predict only).
+    pub missing_measurements: u64,
 }
 
 /// What the robot did in one tick (its log line).
@@ -292,6 +294,7 @@ pub struct Robot<'a> {
     stage3_live: bool,
     noise: Noise,
     counters: RobotCounters,
+    last_measurement: (f64, f64),
 }
 
 fn check_finite_positive(v: f64, name: &'static str) -> Result<(), ScenarioError> {
@@ -342,6 +345,7 @@ impl<'a> Robot<'a> {
             stage3_live: false,
             noise: Noise::new(cfg.seed),
             counters: RobotCounters::default(),
+            last_measurement: (0.0, 0.0),
         })
     }
 
@@ -395,6 +399,23 @@ impl<'a> Robot<'a> {
     /// compute the command, then propagate the estimators with it. After
     /// the protocol's end the command is 0.
     pub fn tick(&mut self, k: u64, x: f64, v: f64) -> RobotTick {
+        self.tick_with(k, Some((x, v)))
+    }
+
+    /// One control period with a possibly missing measurement (a feedback
+    /// frame that did not arrive in time, or a non-finite one). Without a
+    /// fresh measurement the estimators skip their update and only predict,
+    /// and the command uses the last measurement received: a stale sample
+    /// fed to the filters as if new would corrupt them.
+    pub fn tick_with(&mut self, k: u64, measurement: Option<(f64, f64)>) -> RobotTick {
+        let fresh = measurement.filter(|(x, v)| x.is_finite() && v.is_finite());
+        if let Some(m) = fresh {
+            self.last_measurement = m;
+        } else {
+            self.counters.missing_measurements += 1;
+        }
+        let (x, v) = self.last_measurement;
+        let fresh = fresh.is_some();
         let Some((_, &phase, _, end)) = self.protocol.locate(k) else {
             return RobotTick {
                 phase: f64::NAN,
@@ -418,8 +439,10 @@ impl<'a> Robot<'a> {
         };
         let u_raw = match phase.kind {
             PhaseKind::Gains => {
-                let r = self.stage1.update(&Vector3::new(x - tau, v, x - tau_h));
-                self.note(r);
+                if fresh {
+                    let r = self.stage1.update(&Vector3::new(x - tau, v, x - tau_h));
+                    self.note(r);
+                }
                 let window_ticks = (self.cfg.gain_window_s / self.protocol.dt_s()) as u64;
                 let g = self.stage1.gains();
                 if k + window_ticks >= end {
@@ -442,8 +465,10 @@ impl<'a> Robot<'a> {
                 }
                 let g = self.pseudo_gains();
                 let y = SVector::<f64, 5>::new(x - tau, v, g[0], g[1], g[2]);
-                let r = self.stage2.update(&y);
-                self.note(r);
+                if fresh {
+                    let r = self.stage2.update(&y);
+                    self.note(r);
+                }
                 self.record_stage2(&mut out, x);
                 let u = feedback_torque(&L, &xi(x, v, tau, tau_h));
                 let u = self.guard(u);
@@ -462,8 +487,10 @@ impl<'a> Robot<'a> {
                 let y = SVector::<f64, 5>::new(e_meas, v, g[0], g[1], g[2]);
                 let mut R2 = self.cfg.stage2.R;
                 R2[(0, 0)] += std * std;
-                let r = self.stage2.update_with_r(&y, &R2);
-                self.note(r);
+                if fresh {
+                    let r = self.stage2.update_with_r(&y, &R2);
+                    self.note(r);
+                }
                 self.record_stage2(&mut out, x);
                 let channel = self.stage2.filter().x()[E_H];
                 let floor = self.stage2.partner_error_variance();
@@ -477,10 +504,12 @@ impl<'a> Robot<'a> {
                     self.note(r.map(|()| Status::Nominal));
                     self.stage3_live = true;
                 }
-                let r = self
-                    .stage3
-                    .update(&Vector2::new(e_meas, v), Some((channel, floor)));
-                self.note(r);
+                if fresh {
+                    let r = self
+                        .stage3
+                        .update(&Vector2::new(e_meas, v), Some((channel, floor)));
+                    self.note(r);
+                }
                 out.e_hat_own = self.stage3.estimate(false)[0];
                 out.e_hat_fused = self.stage3.estimate(true)[0];
                 out.partner_var = self.stage3.partner_variance();

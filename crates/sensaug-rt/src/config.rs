@@ -157,10 +157,7 @@ impl ShapeSpec {
                 harmonics,
                 cosine,
             },
-            ShapeSpec::Sampled {
-                ref samples,
-                dt_s,
-            } => Shape::Sampled { samples, dt_s },
+            ShapeSpec::Sampled { ref samples, dt_s } => Shape::Sampled { samples, dt_s },
         }
     }
 }
@@ -668,10 +665,9 @@ impl FileSpec {
             };
             let s = spec.as_ref().unwrap_or(&none);
             let q = s.Q.clone().unwrap_or(Cov::Diag(vec![1e-2; 6]));
-            let p0 = s
-                .P0
-                .clone()
-                .unwrap_or(Cov::Diag(vec![1e-4, 1e-4, 1e-4, 1.0, 1.0, 1.0]));
+            let p0 =
+                s.P0.clone()
+                    .unwrap_or(Cov::Diag(vec![1e-4, 1e-4, 1e-4, 1.0, 1.0, 1.0]));
             let mut x0 = SVector::<f64, 6>::zeros();
             if let Some(g) = &s.gains0 {
                 let g = gains3(&format!("{path}.gains0"), g)?;
@@ -738,10 +734,7 @@ impl FileSpec {
                     .R_sensor
                     .unwrap_or(Cov::Diag(vec![1e-7; 2]))
                     .matrix::<2>("robot.stage3.R_sensor")?,
-                partner_window_s: positive(
-                    "robot.stage3.partner_window_s",
-                    s3.partner_window_s,
-                )?,
+                partner_window_s: positive("robot.stage3.partner_window_s", s3.partner_window_s)?,
                 sigma,
             },
             integrate: r.integrate,

@@ -36,11 +36,9 @@ impl fmt::Display for StopReason {
             StopReason::Completed => write!(f, "completed"),
             StopReason::Signal => write!(f, "signal (ramped down, drive disabled)"),
             StopReason::FeedbackTimeout => write!(f, "feedback timeout (emergency stop sent)"),
-            StopReason::DriveFault(flags) => write!(
-                f,
-                "drive fault {:?}",
-                FaultFlags::from_bits_retain(*flags)
-            ),
+            StopReason::DriveFault(flags) => {
+                write!(f, "drive fault {:?}", FaultFlags::from_bits_retain(*flags))
+            }
         }
     }
 }
@@ -270,7 +268,8 @@ impl<'a> Rig<'a> {
 
             self.drain(k);
             let expected = (k.wrapping_sub(1) & 0xff) as u8;
-            if k > 0 && self.drive.last_seq != Some(expected) {
+            let fresh = k == 0 || self.drive.last_seq == Some(expected);
+            if !fresh {
                 self.can.missing_feedback += 1;
             }
             let age = k.saturating_sub(self.drive.last_feedback_tick);
@@ -301,7 +300,7 @@ impl<'a> Rig<'a> {
                     from * (1.0 - (i + 1) as f64 / ramp_ticks.max(1) as f64)
                 }
                 None => {
-                    let out = self.robot.tick(k, x, v);
+                    let out = self.robot.tick_with(k, fresh.then_some((x, v)));
                     let (tau, tau_h, u_h) = self.partner_torque(k, x, v);
                     rec[5] = tau;
                     rec[6] = tau_h;
@@ -382,18 +381,24 @@ impl<'a> Rig<'a> {
 
     /// The end-of-run report (without the log and real-time fields).
     pub fn report(&self, reason: StopReason) -> LoopReport {
+        let bus = self.transport.stats();
+        let mut can = self.can;
+        can.bus_sent = bus.sent;
+        can.bus_received = bus.received;
+        can.bus_malformed_dropped = bus.malformed_dropped;
         LoopReport {
             ticks: self.ticks_run,
             stop_reason: reason.to_string(),
             wake_latency: self.wake.summary(),
             compute: self.compute.summary(),
             deadline_misses: self.deadline_misses,
-            can: self.can,
+            can,
             ring_overflows: 0,
             records_written: 0,
             torque_clamped: self.torque_clamped,
             non_finite_commands: self.non_finite,
             estimator_errors: self.robot.counters().estimator_errors,
+            missing_measurements: self.robot.counters().missing_measurements,
             partner_gains_estimate: self.robot.pseudo_gains(),
             partner_gains_true: self.settings.partner_gains,
             realtime: Vec::new(),

@@ -144,11 +144,7 @@ pub fn npy_header(rows: u64) -> Vec<u8> {
     h
 }
 
-fn write_all(
-    file: File,
-    mut consumer: Consumer<LogRecord>,
-    done: &AtomicBool,
-) -> io::Result<u64> {
+fn write_all(file: File, mut consumer: Consumer<LogRecord>, done: &AtomicBool) -> io::Result<u64> {
     let mut out = BufWriter::with_capacity(1 << 20, file);
     out.write_all(&npy_header(0))?;
     let mut rows = 0u64;

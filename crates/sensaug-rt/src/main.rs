@@ -14,7 +14,8 @@ use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::Duration;
 
-const USAGE: &str = "usage: sensaug-rt CONFIG.toml [--check] [--can URL] [--log PATH] [--stats PATH]
+const USAGE: &str =
+    "usage: sensaug-rt CONFIG.toml [--check] [--can URL] [--log PATH] [--stats PATH]
 
   CONFIG.toml   the trial: the Python API's TOML plus an optional [rig] table
   --check       validate the configuration and exit
@@ -47,7 +48,9 @@ fn parse_args() -> Result<Args, String> {
             "--log" => args.log = Some(it.next().ok_or("--log needs a path")?.into()),
             "--stats" => args.stats = Some(it.next().ok_or("--stats needs a path")?.into()),
             "-h" | "--help" => return Err(USAGE.into()),
-            other if other.starts_with('-') => return Err(format!("unknown option {other}\n{USAGE}")),
+            other if other.starts_with('-') => {
+                return Err(format!("unknown option {other}\n{USAGE}"))
+            }
             other => config = Some(PathBuf::from(other)),
         }
     }
@@ -89,8 +92,8 @@ fn run(args: Args) -> Result<StopReason, String> {
     if let Some(p) = args.stats {
         resolved.rig.stats = p;
     }
-    let protocol = Protocol::new(&resolved.phases, resolved.dt_s)
-        .map_err(|e| format!("phases: {e:?}"))?;
+    let protocol =
+        Protocol::new(&resolved.phases, resolved.dt_s).map_err(|e| format!("phases: {e:?}"))?;
     let robot = Robot::new(resolved.robot, protocol).map_err(|e| format!("robot: {e:?}"))?;
     let node = NodeId::new(resolved.rig.node_id.into()).map_err(|e| format!("rig.node_id: {e}"))?;
     if args.check {
@@ -108,7 +111,8 @@ fn run(args: Args) -> Result<StopReason, String> {
 
     let stop = Arc::new(AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        signal_hook::flag::register(sig, Arc::clone(&stop)).map_err(|e| format!("signal handler: {e}"))?;
+        signal_hook::flag::register(sig, Arc::clone(&stop))
+            .map_err(|e| format!("signal handler: {e}"))?;
     }
     let (mut sink, writer) = log::start(&rig.log, rig.ring_capacity)
         .map_err(|e| format!("rig.log: {}: {e}", rig.log.display()))?;
@@ -140,7 +144,11 @@ fn run(args: Args) -> Result<StopReason, String> {
         note("mlockall", os::lock_memory(), &mut realtime);
     }
     if let Some(cpu) = rig.realtime.cpu {
-        note(&format!("pin to cpu {cpu}"), os::pin_to_cpu(cpu), &mut realtime);
+        note(
+            &format!("pin to cpu {cpu}"),
+            os::pin_to_cpu(cpu),
+            &mut realtime,
+        );
     }
     if let Some(p) = rig.realtime.fifo_priority {
         note(&format!("SCHED_FIFO {p}"), os::set_fifo(p), &mut realtime);

@@ -56,7 +56,10 @@ pub fn set_fifo(priority: i32) -> io::Result<()> {
 /// Pins the calling thread to `cpu`.
 pub fn pin_to_cpu(cpu: usize) -> io::Result<()> {
     if cpu >= libc::CPU_SETSIZE as usize {
-        return Err(io::Error::new(io::ErrorKind::InvalidInput, "cpu out of range"));
+        return Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            "cpu out of range",
+        ));
     }
     // SAFETY: a zeroed cpu_set_t is a valid empty set; CPU_SET stays in bounds (checked above).
     let rc = unsafe {

@@ -92,6 +92,12 @@ pub struct CanCounters {
     pub missing_feedback: u64,
     /// Feedback frames with an unexpected sequence number.
     pub stale_feedback: u64,
+    /// Frames the transport sent.
+    pub bus_sent: u64,
+    /// Frames the transport received.
+    pub bus_received: u64,
+    /// Malformed datagrams/frames the transport dropped.
+    pub bus_malformed_dropped: u64,
 }
 
 /// Everything the loop reports at the end.
@@ -119,6 +125,8 @@ pub struct LoopReport {
     pub non_finite_commands: u64,
     /// Estimator calls that failed (handled by the filters).
     pub estimator_errors: u64,
+    /// Ticks the estimators ran predict-only (no fresh feedback).
+    pub missing_measurements: u64,
     /// The robot's estimate of the partner gains (stage 1, final window mean).
     pub partner_gains_estimate: [f64; 3],
     /// The virtual human's true gains.
