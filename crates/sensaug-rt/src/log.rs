@@ -170,3 +170,21 @@ fn write_all(file: File, mut consumer: Consumer<LogRecord>, done: &AtomicBool) -
     file.sync_all()?;
     Ok(rows)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::{npy_header, COLUMNS};
+
+    #[test]
+    fn header_is_padded_and_keeps_its_length() {
+        let a = npy_header(0);
+        let b = npy_header(123_456_789);
+        assert_eq!(a.len() % 64, 0);
+        assert_eq!(a.len(), b.len(), "the count is rewritten in place");
+        assert_eq!(&a[..6], b"\x93NUMPY");
+        assert_eq!(*a.last().unwrap(), b'\n');
+        let text = String::from_utf8_lossy(&b[10..]);
+        assert!(text.contains("123456789,)"));
+        assert_eq!(text.matches("'<f8'").count(), COLUMNS.len());
+    }
+}

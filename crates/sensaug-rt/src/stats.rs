@@ -134,3 +134,24 @@ pub struct LoopReport {
     /// Which real-time settings took effect, and warnings for those that did not.
     pub realtime: Vec<String>,
 }
+
+#[cfg(test)]
+mod tests {
+    use super::Histogram;
+
+    #[test]
+    fn quantiles_are_bin_upper_edges() {
+        let mut h = Histogram::new(100);
+        for us in 0..100u64 {
+            h.record(us * 1000 + 500);
+        }
+        let s = h.summary();
+        assert_eq!(s.count, 100);
+        assert_eq!(s.p50_us, 50.0);
+        assert_eq!(s.p99_us, 99.0);
+        assert_eq!(s.max_us, 99.5);
+        h.record(1_000_000);
+        assert_eq!(h.summary().max_us, 1000.0);
+        assert_eq!(h.quantile_us(1.0), 1000.0);
+    }
+}
