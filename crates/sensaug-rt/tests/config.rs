@@ -33,9 +33,12 @@ fn the_base_config_is_valid() {
     assert_eq!(error_of("", None), "ok");
 }
 
+/// Extra TOML to append, a replacement in the base, and the expected message.
+type Case = (&'static str, Option<(&'static str, &'static str)>, &'static str);
+
 #[test]
 fn errors_name_the_field() {
-    let cases: &[(&str, Option<(&str, &str)>, &str)] = &[
+    let cases: &[Case] = &[
         (
             "[plant]\nmass = -1.0",
             None,
