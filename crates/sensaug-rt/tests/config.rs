@@ -34,7 +34,11 @@ fn the_base_config_is_valid() {
 }
 
 /// Extra TOML to append, a replacement in the base, and the expected message.
-type Case = (&'static str, Option<(&'static str, &'static str)>, &'static str);
+type Case = (
+    &'static str,
+    Option<(&'static str, &'static str)>,
+    &'static str,
+);
 
 #[test]
 fn errors_name_the_field() {
