@@ -154,7 +154,7 @@ def test_killing_the_controller_trips_the_drive_watchdog(procs):
 
 def _garbage(port: int) -> None:
     """Malformed traffic on the bus: short and long datagrams, bad flags,
-    a bad-CRC and a wrong-DLC torque command, an unknown id."""
+    a bad-CRC and a wrong-DLC torque command, an unknown id (5 rounds)."""
     raw = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     raw.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
     dest = (BROADCAST_ADDR, port)
@@ -174,11 +174,25 @@ def _garbage(port: int) -> None:
     raw.close()
 
 
+def _stale_commands(pr: Processes, count: int = 5) -> None:
+    """Valid torque commands (good CRC, zero torque) whose sequence is 64
+    behind the controller's latest: the drive must reject them as stale."""
+    latest = None
+    for d in pr.frames(1.0):
+        if d.name == "TorqueCommand":
+            latest = d.message.sequence
+            break
+    assert latest is not None, "no torque command seen on the bus"
+    for i in range(count):
+        pr.monitor.send(p.TorqueCommand(0.0, (latest - 64 - i) % 256).encode(NODE))
+
+
 def test_malformed_frames_are_dropped_and_counted_on_both_sides(procs):
     pr = procs(short_config())
     pr.start_controller()
     time.sleep(1.0)
     _garbage(pr.port)
+    _stale_commands(pr)
     assert pr.wait_controller() == 0, pr.controller.stderr.read()
     stats = json.loads(pr.stats.read_text())
     assert stats["stop_reason"] == "completed"
@@ -188,6 +202,7 @@ def test_malformed_frames_are_dropped_and_counted_on_both_sides(procs):
     assert beats, "the drive stopped sending heartbeats"
     last = beats[-1]
     assert last.crc_errors >= 5 and last.length_errors >= 5 and last.unknown_ids >= 5, last
+    assert last.sequence_errors >= 5, last
     assert pr.drive.poll() is None, "the drive crashed"
     np.testing.assert_array_equal(np.load(pr.log)["tick"], np.arange(stats["ticks"]))
 

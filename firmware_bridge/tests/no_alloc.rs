@@ -1,42 +1,19 @@
 //! The per-frame paths (encode, decode, wire conversion, UDP send and recv,
 //! including dropped own and malformed datagrams and timeouts) allocate
 //! nothing: a counting global allocator over warmed-up iterations must read
-//! 0. One test in this binary, so no other test allocates meanwhile.
+//! 0 (counted on this test's thread only).
 
-use std::alloc::{GlobalAlloc, Layout, System};
 use std::net::{SocketAddrV4, UdpSocket};
-use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Duration;
 
 use sensaug_bridge::protocol::{decode, encode, DriveState, Message, NodeId};
 use sensaug_bridge::transport::{Transport, UdpBus, UDP_BUS_ADDR};
 use sensaug_bridge::Frame;
 
-struct Counting;
+#[path = "../../crates/sensaug-core/tests/common/alloc_counter.rs"]
+mod alloc_counter;
 
-static ALLOCS: AtomicUsize = AtomicUsize::new(0);
-
-// SAFETY: forwards every call unchanged to the system allocator; only
-// counts.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
-        // SAFETY: same contract as our caller's.
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        // SAFETY: same contract as our caller's.
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
-        // SAFETY: same contract as our caller's.
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
-#[global_allocator]
-static GLOBAL: Counting = Counting;
+use alloc_counter::allocations;
 
 fn tick(host: &mut UdpBus, drive: &mut UdpBus, raw: &UdpSocket, dest: SocketAddrV4, i: u32) {
     let node = NodeId::new(i % 16).unwrap();
@@ -84,12 +61,12 @@ fn per_frame_paths_do_not_allocate() {
     for i in 0..100 {
         tick(&mut host, &mut drive, &raw, dest, i);
     }
-    let before = ALLOCS.load(Ordering::Relaxed);
-    for i in 0..1000 {
-        tick(&mut host, &mut drive, &raw, dest, i);
-    }
-    let after = ALLOCS.load(Ordering::Relaxed);
-    assert_eq!(after - before, 0, "allocations in 1000 ticks");
+    let n = allocations(|| {
+        for i in 0..1000 {
+            tick(&mut host, &mut drive, &raw, dest, i);
+        }
+    });
+    assert_eq!(n, 0, "allocations in 1000 ticks");
     assert_eq!(host.stats().malformed_dropped, 1100);
     assert!(host.stats().own_dropped >= 1100);
 }

@@ -170,3 +170,167 @@ class DemoUkf:
     @property
     def Wc(self) -> NDArray[np.float64]: ...
 # --- end ukf ---
+
+# --- plant ---
+
+@final
+class Plant:
+    """The handle ``M xdd + C xd = torque``, exact zero-order hold over ``dt_s``."""
+
+    def __init__(
+        self, *, mass: float, damping: float = 0.0, coulomb: float = 0.0, dt_s: float = 1e-3, x0: float = 0.0, v0: float = 0.0
+    ) -> None:
+        """Raises:
+        ValueError: a parameter out of range (the message names it).
+        """
+    @property
+    def x(self) -> float: ...
+    @property
+    def v(self) -> float: ...
+    def step(self, torque: float) -> tuple[float, float]:
+        """One period with ``torque`` held; returns ``(x, v)``.
+
+        Raises:
+            ValueError: non-finite torque (state unchanged).
+        """
+    def run(self, torques: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Every torque in turn; positions and velocities after each step."""
+
+# --- estimators ---
+
+@final
+class GainEstimator:
+    """Stage 1: the partner's gains from ``y1 = [x - tau, xdot, x - tau_h]`` (6 states, 3 measurements)."""
+
+    def __init__(
+        self,
+        *,
+        mass: float,
+        Q: NDArray[np.float64],
+        R: NDArray[np.float64],
+        x0: NDArray[np.float64],
+        P0: NDArray[np.float64],
+        damping: float = 0.0,
+        dt: float = 1e-3,
+        alpha: float = 1.0,
+        beta: float = 2.0,
+        kappa: float = 0.0,
+    ) -> None: ...
+    def update(self, y: NDArray[np.float64]) -> str:
+        """Fuse one measurement; returns "nominal" or "resymmetrised:<stage>".
+
+        Raises:
+            UkfStepError: non-finite input or a covariance reset (see docs/ukf.md).
+        """
+    def predict(self, u: float, dtau: float = 0.0, dtau_h: float = 0.0) -> str: ...
+    def run(
+        self,
+        y: NDArray[np.float64],
+        u: NDArray[np.float64],
+        dtau: NDArray[np.float64],
+        dtau_h: NDArray[np.float64],
+        *,
+        strict: bool = True,
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """update(y[k]) then predict(u[k], dtau[k], dtau_h[k]) for every k; posteriors ``(xs, Pdiag)``."""
+    @property
+    def x(self) -> NDArray[np.float64]: ...
+    @property
+    def P(self) -> NDArray[np.float64]: ...
+    @property
+    def x_prior(self) -> NDArray[np.float64]: ...
+    @property
+    def P_prior(self) -> NDArray[np.float64]: ...
+    @property
+    def gains(self) -> NDArray[np.float64]: ...
+    def recoveries(self) -> dict[str, int]: ...
+
+@final
+class TrajectoryEstimator:
+    """Stage 2: the partner's target from ``y2 = [x - tau, xdot, Lhx^, Lhv^, Lhh^]`` (same keywords as GainEstimator)."""
+
+    def __init__(
+        self,
+        *,
+        mass: float,
+        Q: NDArray[np.float64],
+        R: NDArray[np.float64],
+        x0: NDArray[np.float64],
+        P0: NDArray[np.float64],
+        damping: float = 0.0,
+        dt: float = 1e-3,
+        alpha: float = 1.0,
+        beta: float = 2.0,
+        kappa: float = 0.0,
+    ) -> None: ...
+    def update(self, y: NDArray[np.float64]) -> str: ...
+    def predict(self, u: float, dtau: float = 0.0, dtau_h: float = 0.0) -> str: ...
+    def run(
+        self,
+        y: NDArray[np.float64],
+        u: NDArray[np.float64],
+        dtau: NDArray[np.float64],
+        dtau_h: NDArray[np.float64],
+        *,
+        strict: bool = True,
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
+    def partner_target(self, x: float) -> float:
+        """``tau_h^ = x - (x - tau_h)^``."""
+    @property
+    def x(self) -> NDArray[np.float64]: ...
+    @property
+    def P(self) -> NDArray[np.float64]: ...
+    @property
+    def x_prior(self) -> NDArray[np.float64]: ...
+    @property
+    def P_prior(self) -> NDArray[np.float64]: ...
+    @property
+    def gains(self) -> NDArray[np.float64]: ...
+    def recoveries(self) -> dict[str, int]: ...
+
+@final
+class GoalIntegrator:
+    """Stage 3: ``[x - tau, xdot]`` with and without the partner channel ``x - tau_h^``."""
+
+    def __init__(
+        self,
+        *,
+        mass: float,
+        Q: NDArray[np.float64],
+        R: NDArray[np.float64],
+        x0: NDArray[np.float64],
+        P0: NDArray[np.float64],
+        damping: float = 0.0,
+        dt: float = 1e-3,
+        partner_window_s: float = 0.2,
+        alpha: float = 1.0,
+        beta: float = 2.0,
+        kappa: float = 0.0,
+    ) -> None: ...
+    def update(self, y: NDArray[np.float64], partner_floor: float = 0.0) -> str:
+        """``y`` = ``[x - tau, xdot]`` or ``[x - tau, xdot, x - tau_h^]``."""
+    def predict(self, u: float, dtau: float = 0.0, dtau_h: float = 0.0) -> str:
+        """``u``: all known torque (own plus estimated partner); ``dtau_h`` must be 0."""
+    @property
+    def x(self) -> NDArray[np.float64]: ...
+    @property
+    def P(self) -> NDArray[np.float64]: ...
+    @property
+    def x_own(self) -> NDArray[np.float64]: ...
+    @property
+    def P_own(self) -> NDArray[np.float64]: ...
+    @property
+    def partner_variance(self) -> float: ...
+
+# --- scenario ---
+
+RECORD_FIELDS: list[str]
+
+def run_scenario(config: dict) -> tuple[NDArray[np.float64], dict[str, int]]:
+    """One whole simulated trial from the resolved dict of ``sensaug.experiment.resolve``.
+
+    Returns ``(records (ticks, len(RECORD_FIELDS)), summary)``.
+
+    Raises:
+        ValueError: a setting out of range (the message names its path).
+    """

@@ -11,46 +11,16 @@ use sensaug_core::scenario::{Protocol, Robot};
 use sensaug_rt::config::parse;
 use sensaug_rt::control::{LoopSettings, Rig, StopReason};
 use sensaug_rt::log;
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
 use std::net::UdpSocket;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-struct Counting;
+#[path = "../../sensaug-core/tests/common/alloc_counter.rs"]
+mod alloc_counter;
 
-thread_local! {
-    static ACTIVE: Cell<bool> = const { Cell::new(false) };
-    static COUNT: Cell<u64> = const { Cell::new(0) };
-}
-
-// SAFETY: forwards to the system allocator; the bookkeeping uses only
-// const-initialised thread-locals.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        if ACTIVE.with(Cell::get) {
-            COUNT.with(|c| c.set(c.get() + 1));
-        }
-        // SAFETY: same contract as the caller's.
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        // SAFETY: same contract as the caller's.
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        if ACTIVE.with(Cell::get) {
-            COUNT.with(|c| c.set(c.get() + 1));
-        }
-        // SAFETY: same contract as the caller's.
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
-#[global_allocator]
-static GLOBAL: Counting = Counting;
+use alloc_counter::allocations;
 
 fn free_port() -> u16 {
     UdpSocket::bind("127.0.0.1:0")
@@ -185,11 +155,8 @@ fn run_loop(answer_for: u64, stop_after: Option<Duration>) -> Outcome {
             s.store(true, Ordering::Relaxed);
         });
     }
-    COUNT.with(|c| c.set(0));
-    ACTIVE.with(|a| a.set(true));
-    let reason = rig.run(&mut sink, &stop);
-    ACTIVE.with(|a| a.set(false));
-    let allocations = COUNT.with(Cell::get);
+    let mut reason = StopReason::Completed;
+    let allocations = allocations(|| reason = rig.run(&mut sink, &stop));
     drop(sink);
     let records = writer.finish().unwrap();
     drive_stop.store(true, Ordering::Relaxed);
