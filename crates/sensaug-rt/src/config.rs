@@ -12,7 +12,7 @@ use sensaug_core::riccati::agent_gains;
 use sensaug_core::scenario::{PhaseKind, RobotConfig};
 use sensaug_core::target::{Shape, Target, MAX_PARTS};
 use sensaug_core::ukf::MerweParams;
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::path::PathBuf;
 
@@ -327,7 +327,7 @@ pub struct PartnerSpec {
 }
 
 /// Real-time settings of the loop thread.
-#[derive(Debug, Clone, Default, Deserialize)]
+#[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct RealtimeSpec {
     /// SCHED_FIFO priority (1..=99); none keeps the default scheduler.
@@ -339,8 +339,14 @@ pub struct RealtimeSpec {
     pub mlockall: bool,
 }
 
+impl Default for RealtimeSpec {
+    fn default() -> Self {
+        toml::from_str("").expect("every realtime field has a default")
+    }
+}
+
 /// `[rig]`: the real-time loop and the CAN link.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct RigSpec {
     /// Transport URL: `udp:<port>` (virtual bus) or `socketcan:<ifname>`.
@@ -552,10 +558,16 @@ impl FileSpec {
             });
         }
 
-        let robot_spec = self
-            .robot
-            .as_ref()
-            .ok_or_else(|| err("robot", "missing [robot] table"))?;
+        // An absent [robot] table means every default, as on the Python side.
+        let default_robot;
+        let robot_spec = match &self.robot {
+            Some(r) => r,
+            None => {
+                default_robot = toml::from_str::<RobotSpec>("")
+                    .map_err(|e| err("robot", e.message().to_string()))?;
+                &default_robot
+            }
+        };
         let robot = self.robot_config(robot_spec, mass, damping, dt_s)?;
         let mut gains_known = robot.prior_partner_gains.is_some();
         for (i, ph) in phases.iter().enumerate() {
@@ -742,6 +754,53 @@ impl FileSpec {
             prior_partner_gains: prior,
             torque_limit: r.torque_limit,
             seed: r.seed,
+        })
+    }
+}
+
+fn rows<const R: usize, const C: usize>(m: &SMatrix<f64, R, C>) -> Vec<Vec<f64>> {
+    (0..R)
+        .map(|i| (0..C).map(|j| m[(i, j)]).collect())
+        .collect()
+}
+
+impl Resolved<'_> {
+    /// Every resolved setting as JSON (`sensaug-rt --print-resolved`), so the
+    /// Python side can check that both read a file the same way, defaults
+    /// included.
+    pub fn to_json(&self) -> serde_json::Value {
+        let r = &self.robot;
+        let ext = |c: &ExtendedFilterConfig<3>| serde_json::json!({"x0": c.x0.as_slice(), "P0": rows(&c.P0), "Q": rows(&c.Q), "R": rows(&c.R)});
+        let ext5 = |c: &ExtendedFilterConfig<5>| serde_json::json!({"x0": c.x0.as_slice(), "P0": rows(&c.P0), "Q": rows(&c.Q), "R": rows(&c.R)});
+        let kind = |k: PhaseKind| match k {
+            PhaseKind::Gains => "gains",
+            PhaseKind::Trajectory => "trajectory",
+            PhaseKind::Integration => "integration",
+        };
+        serde_json::json!({
+            "dt_s": self.dt_s,
+            "mass": r.model.mass,
+            "damping": r.model.damping,
+            "phases": self.phases.iter().map(|p| serde_json::json!({
+                "kind": kind(p.kind), "duration_s": p.duration_s, "target_noise_std": p.target_noise_std,
+            })).collect::<Vec<_>>(),
+            "robot": {
+                "gains": r.gains,
+                "integrate": r.integrate,
+                "gain_window_s": r.gain_window_s,
+                "torque_limit": r.torque_limit,
+                "seed": r.seed,
+                "prior_partner_gains": r.prior_partner_gains,
+                "sigma": {"alpha": r.stage1.sigma.alpha, "beta": r.stage1.sigma.beta, "kappa": r.stage1.sigma.kappa},
+                "stage1": ext(&r.stage1),
+                "stage2": ext5(&r.stage2),
+                "stage3": {
+                    "P0": rows(&r.stage3.P0), "Q": rows(&r.stage3.Q),
+                    "R_sensor": rows(&r.stage3.R_own), "partner_window_s": r.stage3.partner_window_s,
+                },
+            },
+            "partner": {"gains": self.partner_gains, "torque_limit": self.partner_torque_limit},
+            "rig": self.rig,
         })
     }
 }

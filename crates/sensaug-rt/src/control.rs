@@ -177,7 +177,7 @@ impl<'a> Rig<'a> {
         while !done(&self.drive) {
             if start.elapsed() > timeout {
                 return Err(StartError::Drive(format!(
-                    "no {what} within {timeout:?} (state {:?}, faults {:?}); is the drive on the bus?",
+                    "waited {timeout:?} for {what} (state {:?}, faults {:?}); is the drive on the bus?",
                     self.drive.state, self.drive.faults
                 )));
             }

@@ -19,6 +19,7 @@ const USAGE: &str =
 
   CONFIG.toml   the trial: the Python API's TOML plus an optional [rig] table
   --check       validate the configuration and exit
+  --print-resolved  print every resolved setting (defaults filled in) as JSON and exit
   --can URL     override rig.can (udp:<port> or socketcan:<ifname>)
   --log PATH    override rig.log (.npy)
   --stats PATH  override rig.stats (.json)";
@@ -26,6 +27,7 @@ const USAGE: &str =
 struct Args {
     config: PathBuf,
     check: bool,
+    print_resolved: bool,
     can: Option<String>,
     log: Option<PathBuf>,
     stats: Option<PathBuf>,
@@ -36,6 +38,7 @@ fn parse_args() -> Result<Args, String> {
     let mut args = Args {
         config: PathBuf::new(),
         check: false,
+        print_resolved: false,
         can: None,
         log: None,
         stats: None,
@@ -44,6 +47,7 @@ fn parse_args() -> Result<Args, String> {
     while let Some(a) = it.next() {
         match a.as_str() {
             "--check" => args.check = true,
+            "--print-resolved" => args.print_resolved = true,
             "--can" => args.can = Some(it.next().ok_or("--can needs a URL")?),
             "--log" => args.log = Some(it.next().ok_or("--log needs a path")?.into()),
             "--stats" => args.stats = Some(it.next().ok_or("--stats needs a path")?.into()),
@@ -91,6 +95,10 @@ fn run(args: Args) -> Result<StopReason, String> {
     }
     if let Some(p) = args.stats {
         resolved.rig.stats = p;
+    }
+    if args.print_resolved {
+        println!("{}", resolved.to_json());
+        return Ok(StopReason::Completed);
     }
     let protocol =
         Protocol::new(&resolved.phases, resolved.dt_s).map_err(|e| format!("phases: {e:?}"))?;
