@@ -128,3 +128,19 @@ def test_trial_log_is_complete_and_finite(hi5_trials):
         assert np.all(np.isfinite(tr[f])), f
     assert tr.summary["estimator_errors"] == 0
     assert tr.summary["robot_non_finite"] == 0
+
+
+def test_every_estimate_comes_with_its_posterior_variance(hi5_trials, sim_trials):
+    tr = hi5_trials[(2.0, 0)]
+    gains, integ = tr.phase_mask(0), tr.phase_mask(2, skip_s=1.0)
+    for f in ("Lhx_var", "Lhv_var", "Lhh_var"):
+        assert np.all(tr[f][gains] > 0), f
+    assert np.all(tr["tau_h_var"][tr.phase_mask(1)] > 0)
+    own, fused = tr["e_hat_own_var"][integ], tr["e_hat_fused_var"][integ]
+    assert np.all(own > 0) and np.all(fused > 0)
+    # The partner channel adds information: the integrated filter is surer.
+    assert np.median(fused) < np.median(own)
+    sim = sim_trials[0]
+    for f in ("Lx_var", "Lv_var", "Lh_var"):
+        assert np.all(sim[f][sim.phase_mask(0)] > 0), f
+    assert np.all(sim["tau_hat_var"][sim.phase_mask(1)] > 0)

@@ -177,6 +177,11 @@ def _garbage(port: int) -> None:
 def _stale_commands(pr: Processes, count: int = 5) -> None:
     """Valid torque commands (good CRC, zero torque) whose sequence is 64
     behind the controller's latest: the drive must reject them as stale."""
+    # Drop what the monitor buffered since it opened: only a command seen
+    # now tells the controller's current sequence (an old one could make
+    # "64 behind" land ahead of the controller and lock it out).
+    while pr.monitor.recv(timeout=0) is not None:
+        pass
     latest = None
     for d in pr.frames(1.0):
         if d.name == "TorqueCommand":

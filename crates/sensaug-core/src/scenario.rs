@@ -276,6 +276,10 @@ pub struct RobotTick {
     pub e_hat_own: f64,
     /// Stage 3: `(x - tau)^` with the partner channel.
     pub e_hat_fused: f64,
+    /// Posterior variance of `e_hat_own`.
+    pub e_hat_own_var: f64,
+    /// Posterior variance of `e_hat_fused`.
+    pub e_hat_fused_var: f64,
     /// Stage 3: the partner-channel variance used.
     pub partner_var: f64,
 }
@@ -434,6 +438,8 @@ impl<'a> Robot<'a> {
             tau_h_var: f64::NAN,
             e_hat_own: f64::NAN,
             e_hat_fused: f64::NAN,
+            e_hat_own_var: f64::NAN,
+            e_hat_fused_var: f64::NAN,
             partner_var: f64::NAN,
             u: 0.0,
         };
@@ -512,6 +518,8 @@ impl<'a> Robot<'a> {
                 }
                 out.e_hat_own = self.stage3.estimate(false)[0];
                 out.e_hat_fused = self.stage3.estimate(true)[0];
+                out.e_hat_own_var = self.stage3.own_filter().P()[(0, 0)];
+                out.e_hat_fused_var = self.stage3.fused_filter().P()[(0, 0)];
                 out.partner_var = self.stage3.partner_variance();
                 let e_hat = self.stage3.estimate(self.cfg.integrate)[0];
                 let u = feedback_torque(&L, &[e_hat, v, 0.0]);
@@ -626,16 +634,24 @@ pub struct TickRecord {
     pub e_hat_own: f64,
     /// Stage-3 `(x - tau)^` with integration.
     pub e_hat_fused: f64,
+    /// Variance of `e_hat_own`.
+    pub e_hat_own_var: f64,
+    /// Variance of `e_hat_fused`.
+    pub e_hat_fused_var: f64,
     /// Partner-channel variance used.
     pub partner_var: f64,
     /// The partner's estimate of the robot's gains, in the robot's `xi` order.
     pub L_robot_hat: [f64; 3],
+    /// Their variances.
+    pub L_robot_var: [f64; 3],
     /// The partner's estimate of the robot's target.
     pub tau_hat: f64,
+    /// Variance of the partner's `(x - tau)^`.
+    pub tau_hat_var: f64,
 }
 
 /// Column names of a [`TickRecord`] seen as a row of `f64`.
-pub const FIELDS: [&str; 26] = [
+pub const FIELDS: [&str; 32] = [
     "t",
     "phase",
     "x",
@@ -657,11 +673,17 @@ pub const FIELDS: [&str; 26] = [
     "tau_h_var",
     "e_hat_own",
     "e_hat_fused",
+    "e_hat_own_var",
+    "e_hat_fused_var",
     "partner_var",
     "Lx_hat",
     "Lv_hat",
     "Lh_hat",
+    "Lx_var",
+    "Lv_var",
+    "Lh_var",
     "tau_hat",
+    "tau_hat_var",
 ];
 
 impl TickRecord {
@@ -689,11 +711,17 @@ impl TickRecord {
             self.tau_h_var,
             self.e_hat_own,
             self.e_hat_fused,
+            self.e_hat_own_var,
+            self.e_hat_fused_var,
             self.partner_var,
             self.L_robot_hat[0],
             self.L_robot_hat[1],
             self.L_robot_hat[2],
+            self.L_robot_var[0],
+            self.L_robot_var[1],
+            self.L_robot_var[2],
             self.tau_hat,
+            self.tau_hat_var,
         ]
     }
 }
@@ -719,7 +747,8 @@ impl Mirror {
     }
 
     /// One tick; returns the robot gains (robot's `xi` order) and target as
-    /// the partner estimates them (NaN where the phase has no estimate).
+    /// the partner estimates them, with variances (NaN where the phase has
+    /// no estimate).
     fn tick(
         &mut self,
         kind: PhaseKind,
@@ -727,7 +756,7 @@ impl Mirror {
         (x, v): (f64, f64),
         (tau, tau_h, dtau, dtau_h): (f64, f64, f64, f64),
         u_h: f64,
-    ) -> ([f64; 3], f64) {
+    ) -> MirrorEstimate {
         match kind {
             PhaseKind::Gains => {
                 let r = self.stage1.update(&Vector3::new(x - tau_h, v, x - tau));
@@ -739,9 +768,14 @@ impl Mirror {
                     }
                     self.gain_count += 1;
                 }
+                let out = MirrorEstimate {
+                    gains: mirrored(g),
+                    gains_var: mirrored(diag3(self.stage1.filter().P(), GAINS)),
+                    ..MirrorEstimate::NONE
+                };
                 let r = self.stage1.predict(u_h, dtau_h, dtau);
                 self.note(r);
-                (mirrored(g), f64::NAN)
+                out
             }
             PhaseKind::Trajectory => {
                 let n = self.gain_count.max(1) as f64;
@@ -765,15 +799,38 @@ impl Mirror {
                     .stage2
                     .update(&SVector::<f64, 5>::new(x - tau_h, v, g[0], g[1], g[2]));
                 self.note(r);
-                let z = self.stage2.filter().x();
-                let out = (mirrored([z[GAINS], z[GAINS + 1], z[GAINS + 2]]), x - z[E_H]);
+                let (z, P) = (self.stage2.filter().x(), self.stage2.filter().P());
+                let out = MirrorEstimate {
+                    gains: mirrored([z[GAINS], z[GAINS + 1], z[GAINS + 2]]),
+                    gains_var: mirrored(diag3(P, GAINS)),
+                    target: x - z[E_H],
+                    target_var: P[(E_H, E_H)],
+                };
                 let r = self.stage2.predict(u_h, dtau_h, 0.0);
                 self.note(r);
                 out
             }
-            PhaseKind::Integration => ([f64::NAN; 3], f64::NAN),
+            PhaseKind::Integration => MirrorEstimate::NONE,
         }
     }
+}
+
+/// What the partner's mirrored estimators say about the robot in one tick.
+#[derive(Clone, Copy, Debug)]
+struct MirrorEstimate {
+    gains: [f64; 3],
+    gains_var: [f64; 3],
+    target: f64,
+    target_var: f64,
+}
+
+impl MirrorEstimate {
+    const NONE: MirrorEstimate = MirrorEstimate {
+        gains: [f64::NAN; 3],
+        gains_var: [f64::NAN; 3],
+        target: f64::NAN,
+        target_var: f64::NAN,
+    };
 }
 
 /// What a finished trial reports besides its records.
@@ -901,7 +958,7 @@ impl<'a> Scenario<'a> {
         if g != Guard::Passed {
             summary.partner_guarded += 1;
         }
-        let (L_robot_hat, tau_hat) = match self.mirror.as_mut() {
+        let mirror = match self.mirror.as_mut() {
             Some(m) => {
                 let window = (self.robot.cfg.gain_window_s / protocol.dt_s()) as u64;
                 let in_window = k + window >= end;
@@ -913,7 +970,7 @@ impl<'a> Scenario<'a> {
                     u_h,
                 )
             }
-            None => ([f64::NAN; 3], f64::NAN),
+            None => MirrorEstimate::NONE,
         };
 
         let eps = self.noise.normal(self.world.motor_noise_std);
@@ -937,9 +994,13 @@ impl<'a> Scenario<'a> {
             tau_h_var: robot.tau_h_var,
             e_hat_own: robot.e_hat_own,
             e_hat_fused: robot.e_hat_fused,
+            e_hat_own_var: robot.e_hat_own_var,
+            e_hat_fused_var: robot.e_hat_fused_var,
             partner_var: robot.partner_var,
-            L_robot_hat,
-            tau_hat,
+            L_robot_hat: mirror.gains,
+            L_robot_var: mirror.gains_var,
+            tau_hat: mirror.target,
+            tau_hat_var: mirror.target_var,
         }
     }
 }
