@@ -295,10 +295,18 @@ pub struct Robot<'a> {
     gain_sum: [f64; 3],
     gain_count: u64,
     stage2_live: bool,
-    stage3_live: bool,
+    /// The integration phase stage 3 was last started for.
+    integration_phase: Option<usize>,
     noise: Noise,
     counters: RobotCounters,
     last_measurement: (f64, f64),
+    /// Ticks at the end of a gain phase whose estimates are averaged.
+    gain_window_ticks: u64,
+    /// Stage 2's gain pseudo-measurement, fixed when stage 2 starts.
+    stage2_gains: [f64; 3],
+    /// Stage 2's measurement covariance with the integration phase's
+    /// target-view noise added, set when that phase starts.
+    stage2_R_noisy: nalgebra::SMatrix<f64, 5, 5>,
 }
 
 fn check_finite_positive(v: f64, name: &'static str) -> Result<(), ScenarioError> {
@@ -346,10 +354,13 @@ impl<'a> Robot<'a> {
             gain_sum: [0.0; 3],
             gain_count: 0,
             stage2_live: false,
-            stage3_live: false,
+            integration_phase: None,
             noise: Noise::new(cfg.seed),
             counters: RobotCounters::default(),
             last_measurement: (0.0, 0.0),
+            gain_window_ticks: (cfg.gain_window_s / protocol.dt_s()) as u64,
+            stage2_gains: [0.0; 3],
+            stage2_R_noisy: cfg.stage2.R,
         })
     }
 
@@ -392,6 +403,7 @@ impl<'a> Robot<'a> {
     fn start_stage2(&mut self) {
         let mut x0 = *self.stage1.filter().x();
         let g = self.pseudo_gains();
+        self.stage2_gains = g;
         x0.fixed_rows_mut::<3>(GAINS).copy_from_slice(&g);
         if self.stage2.reset(x0, self.cfg.stage2.P0).is_err() {
             self.counters.estimator_errors += 1;
@@ -420,7 +432,7 @@ impl<'a> Robot<'a> {
         }
         let (x, v) = self.last_measurement;
         let fresh = fresh.is_some();
-        let Some((_, &phase, _, end)) = self.protocol.locate(k) else {
+        let Some((phase_index, &phase, _, end)) = self.protocol.locate(k) else {
             return RobotTick {
                 phase: f64::NAN,
                 ..RobotTick::default()
@@ -449,9 +461,8 @@ impl<'a> Robot<'a> {
                     let r = self.stage1.update(&Vector3::new(x - tau, v, x - tau_h));
                     self.note(r);
                 }
-                let window_ticks = (self.cfg.gain_window_s / self.protocol.dt_s()) as u64;
                 let g = self.stage1.gains();
-                if k + window_ticks >= end {
+                if k + self.gain_window_ticks >= end {
                     for (s, gi) in self.gain_sum.iter_mut().zip(g) {
                         *s += gi;
                     }
@@ -469,7 +480,7 @@ impl<'a> Robot<'a> {
                 if !self.stage2_live {
                     self.start_stage2();
                 }
-                let g = self.pseudo_gains();
+                let g = self.stage2_gains;
                 let y = SVector::<f64, 5>::new(x - tau, v, g[0], g[1], g[2]);
                 if fresh {
                     let r = self.stage2.update(&y);
@@ -489,27 +500,18 @@ impl<'a> Robot<'a> {
                 let std = phase.target_noise_std;
                 let e_meas = x - (tau + self.noise.normal(std));
                 out.e_meas = e_meas;
-                let g = self.pseudo_gains();
+                if self.integration_phase != Some(phase_index) {
+                    self.start_integration(phase_index, std, Vector2::new(e_meas, v));
+                }
+                let g = self.stage2_gains;
                 let y = SVector::<f64, 5>::new(e_meas, v, g[0], g[1], g[2]);
-                let mut R2 = self.cfg.stage2.R;
-                R2[(0, 0)] += std * std;
                 if fresh {
-                    let r = self.stage2.update_with_r(&y, &R2);
+                    let r = self.stage2.update_with_r(&y, &self.stage2_R_noisy);
                     self.note(r);
                 }
                 self.record_stage2(&mut out, x);
                 let channel = self.stage2.filter().x()[E_H];
                 let floor = self.stage2.partner_error_variance();
-                if !self.stage3_live {
-                    let mut R_own = self.cfg.stage3.R_own;
-                    R_own[(0, 0)] += std * std;
-                    let r = self
-                        .stage3
-                        .set_own_noise(R_own)
-                        .and_then(|()| self.stage3.reset(Vector2::new(e_meas, v)));
-                    self.note(r.map(|()| Status::Nominal));
-                    self.stage3_live = true;
-                }
                 if fresh {
                     let r = self
                         .stage3
@@ -535,6 +537,22 @@ impl<'a> Robot<'a> {
         };
         out.u = u_raw;
         out
+    }
+
+    /// Start of an integration phase: the phase's target-view noise enters
+    /// stage 2's and stage 3's measurement covariances (computed here, once),
+    /// and stage 3 restarts from the current measurement.
+    fn start_integration(&mut self, phase_index: usize, std: f64, y: Vector2<f64>) {
+        self.stage2_R_noisy = self.cfg.stage2.R;
+        self.stage2_R_noisy[(0, 0)] += std * std;
+        let mut R_own = self.cfg.stage3.R_own;
+        R_own[(0, 0)] += std * std;
+        let r = self
+            .stage3
+            .set_own_noise(R_own)
+            .and_then(|()| self.stage3.reset(y));
+        self.note(r.map(|()| Status::Nominal));
+        self.integration_phase = Some(phase_index);
     }
 
     fn record_stage2(&self, out: &mut RobotTick, x: f64) {
