@@ -111,6 +111,27 @@ pub enum ScenarioError {
     },
 }
 
+/// One tick of the protocol (see [`Protocol::sample`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sample<'a> {
+    /// The tick.
+    pub k: u64,
+    /// Index of its phase.
+    pub index: usize,
+    /// Its phase.
+    pub phase: Phase<'a>,
+    /// First tick after its phase.
+    pub end: u64,
+    /// Robot target `tau` at `k`.
+    pub tau: f64,
+    /// Partner target `tau_h` at `k`.
+    pub tau_h: f64,
+    /// `tau[k+1] - tau[k]`.
+    pub dtau: f64,
+    /// `tau_h[k+1] - tau_h[k]`.
+    pub dtau_h: f64,
+}
+
 /// The phases, and their boundaries in ticks.
 #[derive(Clone, Copy, Debug)]
 pub struct Protocol<'a> {
@@ -180,24 +201,24 @@ impl<'a> Protocol<'a> {
         &self.phases[..self.len]
     }
 
-    /// The phase that tick `k` falls in: `(index, phase, first tick, end tick)`.
-    pub fn locate(&self, k: u64) -> Option<(usize, &Phase<'a>, u64, u64)> {
-        let i = self.ends[..self.len].iter().position(|&end| k < end)?;
-        let start = if i == 0 { 0 } else { self.ends[i - 1] };
-        Some((i, &self.phases[i], start, self.ends[i]))
-    }
-
-    /// Both targets at tick `k` and their increments to tick `k + 1`, from
-    /// the phase of `k`: `(tau, tau_h, dtau, dtau_h)`.
-    pub fn targets(&self, phase: &Phase<'a>, k: u64) -> (f64, f64, f64, f64) {
+    /// Everything a tick needs from the protocol, computed once per tick:
+    /// the phase of tick `k`, both targets at `k` and their increments to
+    /// `k + 1` (from the phase of `k`). `None` after the last tick.
+    pub fn sample(&self, k: u64) -> Option<Sample<'a>> {
+        let index = self.ends[..self.len].iter().position(|&end| k < end)?;
+        let phase = self.phases[index];
         let t = k as f64 * self.dt_s;
         let dt = self.dt_s;
-        (
-            phase.robot_target.at(t),
-            phase.partner_target.at(t),
-            phase.robot_target.increment(t, dt),
-            phase.partner_target.increment(t, dt),
-        )
+        Some(Sample {
+            k,
+            index,
+            phase,
+            end: self.ends[index],
+            tau: phase.robot_target.at(t),
+            tau_h: phase.partner_target.at(t),
+            dtau: phase.robot_target.increment(t, dt),
+            dtau_h: phase.partner_target.increment(t, dt),
+        })
     }
 
     /// The loop period.
@@ -282,6 +303,25 @@ pub struct RobotTick {
     pub e_hat_fused_var: f64,
     /// Stage 3: the partner-channel variance used.
     pub partner_var: f64,
+}
+
+impl RobotTick {
+    /// No estimate anywhere (NaN), zero command: the start of every tick's
+    /// log line, and the whole of it after the protocol's end.
+    pub const NONE: RobotTick = RobotTick {
+        u: 0.0,
+        phase: f64::NAN,
+        e_meas: f64::NAN,
+        gains: [f64::NAN; 3],
+        gains_var: [f64::NAN; 3],
+        tau_h_hat: f64::NAN,
+        tau_h_var: f64::NAN,
+        e_hat_own: f64::NAN,
+        e_hat_fused: f64::NAN,
+        e_hat_own_var: f64::NAN,
+        e_hat_fused_var: f64::NAN,
+        partner_var: f64::NAN,
+    };
 }
 
 /// The robot's controller: estimators and control law.
@@ -418,12 +458,20 @@ impl<'a> Robot<'a> {
         self.tick_with(k, Some((x, v)))
     }
 
+    /// [`Robot::tick_at`] for tick `k` (samples the protocol itself).
+    pub fn tick_with(&mut self, k: u64, measurement: Option<(f64, f64)>) -> RobotTick {
+        match self.protocol.sample(k) {
+            Some(sample) => self.tick_at(&sample, measurement),
+            None => RobotTick::NONE,
+        }
+    }
+
     /// One control period with a possibly missing measurement (a feedback
     /// frame that did not arrive in time, or a non-finite one). Without a
     /// fresh measurement the estimators skip their update and only predict,
     /// and the command uses the last measurement received: a stale sample
     /// fed to the filters as if new would corrupt them.
-    pub fn tick_with(&mut self, k: u64, measurement: Option<(f64, f64)>) -> RobotTick {
+    pub fn tick_at(&mut self, sample: &Sample<'_>, measurement: Option<(f64, f64)>) -> RobotTick {
         let fresh = measurement.filter(|(x, v)| x.is_finite() && v.is_finite());
         if let Some(m) = fresh {
             self.last_measurement = m;
@@ -432,28 +480,21 @@ impl<'a> Robot<'a> {
         }
         let (x, v) = self.last_measurement;
         let fresh = fresh.is_some();
-        let Some((phase_index, &phase, _, end)) = self.protocol.locate(k) else {
-            return RobotTick {
-                phase: f64::NAN,
-                ..RobotTick::default()
-            };
-        };
-        let (tau, tau_h, dtau, dtau_h) = self.protocol.targets(&phase, k);
+        let &Sample {
+            k,
+            index: phase_index,
+            phase,
+            end,
+            tau,
+            tau_h,
+            dtau,
+            dtau_h,
+        } = sample;
         let L = self.cfg.gains;
-        let nan3 = [f64::NAN; 3];
         let mut out = RobotTick {
             phase: phase.kind.code(),
             e_meas: x - tau,
-            gains: nan3,
-            gains_var: nan3,
-            tau_h_hat: f64::NAN,
-            tau_h_var: f64::NAN,
-            e_hat_own: f64::NAN,
-            e_hat_fused: f64::NAN,
-            e_hat_own_var: f64::NAN,
-            e_hat_fused_var: f64::NAN,
-            partner_var: f64::NAN,
-            u: 0.0,
+            ..RobotTick::NONE
         };
         let u_raw = match phase.kind {
             PhaseKind::Gains => {
@@ -613,15 +654,13 @@ pub struct WorldConfig {
     pub seed: u64,
 }
 
-/// One tick of a simulated trial, every field `f64` so a buffer of records
-/// is a plain `(ticks, FIELDS.len())` array.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-#[repr(C)]
+/// One tick of a simulated trial: the world's side, the robot's log line
+/// and the partner's estimates of the robot. [`TickRecord::to_row`] flattens
+/// it into `f64` columns named by [`FIELDS`].
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TickRecord {
     /// Time (s).
     pub t: f64,
-    /// Phase code.
-    pub phase: f64,
     /// True position.
     pub x: f64,
     /// True velocity.
@@ -630,42 +669,33 @@ pub struct TickRecord {
     pub tau: f64,
     /// Partner target.
     pub tau_h: f64,
-    /// Robot torque.
-    pub u: f64,
     /// Partner torque.
     pub u_h: f64,
     /// Motor noise.
     pub eps: f64,
     /// True `x - tau`.
     pub e: f64,
-    /// Robot's measured `x - tau` (noisy in integration phases).
-    pub e_meas: f64,
-    /// Estimated partner gains.
-    pub L_hat: [f64; 3],
-    /// Their variances.
-    pub L_var: [f64; 3],
-    /// Estimated partner target.
-    pub tau_h_hat: f64,
-    /// Variance of `x - tau_h^`.
-    pub tau_h_var: f64,
-    /// Stage-3 `(x - tau)^` without integration.
-    pub e_hat_own: f64,
-    /// Stage-3 `(x - tau)^` with integration.
-    pub e_hat_fused: f64,
-    /// Variance of `e_hat_own`.
-    pub e_hat_own_var: f64,
-    /// Variance of `e_hat_fused`.
-    pub e_hat_fused_var: f64,
-    /// Partner-channel variance used.
-    pub partner_var: f64,
-    /// The partner's estimate of the robot's gains, in the robot's `xi` order.
-    pub L_robot_hat: [f64; 3],
-    /// Their variances.
-    pub L_robot_var: [f64; 3],
-    /// The partner's estimate of the robot's target.
-    pub tau_hat: f64,
-    /// Variance of the partner's `(x - tau)^`.
-    pub tau_hat_var: f64,
+    /// What the robot did (command, estimates, variances).
+    pub robot: RobotTick,
+    /// The partner's mirrored estimates of the robot.
+    pub mirror: PartnerEstimate,
+}
+
+impl Default for TickRecord {
+    fn default() -> Self {
+        TickRecord {
+            t: 0.0,
+            x: 0.0,
+            v: 0.0,
+            tau: 0.0,
+            tau_h: 0.0,
+            u_h: 0.0,
+            eps: 0.0,
+            e: 0.0,
+            robot: RobotTick::NONE,
+            mirror: PartnerEstimate::NONE,
+        }
+    }
 }
 
 /// Column names of a [`TickRecord`] seen as a row of `f64`.
@@ -707,39 +737,40 @@ pub const FIELDS: [&str; 32] = [
 impl TickRecord {
     /// The record as a row in [`FIELDS`] order.
     pub fn to_row(&self) -> [f64; FIELDS.len()] {
+        let (r, m) = (&self.robot, &self.mirror);
         [
             self.t,
-            self.phase,
+            r.phase,
             self.x,
             self.v,
             self.tau,
             self.tau_h,
-            self.u,
+            r.u,
             self.u_h,
             self.eps,
             self.e,
-            self.e_meas,
-            self.L_hat[0],
-            self.L_hat[1],
-            self.L_hat[2],
-            self.L_var[0],
-            self.L_var[1],
-            self.L_var[2],
-            self.tau_h_hat,
-            self.tau_h_var,
-            self.e_hat_own,
-            self.e_hat_fused,
-            self.e_hat_own_var,
-            self.e_hat_fused_var,
-            self.partner_var,
-            self.L_robot_hat[0],
-            self.L_robot_hat[1],
-            self.L_robot_hat[2],
-            self.L_robot_var[0],
-            self.L_robot_var[1],
-            self.L_robot_var[2],
-            self.tau_hat,
-            self.tau_hat_var,
+            r.e_meas,
+            r.gains[0],
+            r.gains[1],
+            r.gains[2],
+            r.gains_var[0],
+            r.gains_var[1],
+            r.gains_var[2],
+            r.tau_h_hat,
+            r.tau_h_var,
+            r.e_hat_own,
+            r.e_hat_fused,
+            r.e_hat_own_var,
+            r.e_hat_fused_var,
+            r.partner_var,
+            m.gains[0],
+            m.gains[1],
+            m.gains[2],
+            m.gains_var[0],
+            m.gains_var[1],
+            m.gains_var[2],
+            m.target,
+            m.target_var,
         ]
     }
 }
@@ -769,13 +800,19 @@ impl Mirror {
     /// no estimate).
     fn tick(
         &mut self,
-        kind: PhaseKind,
+        sample: &Sample<'_>,
         in_window: bool,
         (x, v): (f64, f64),
-        (tau, tau_h, dtau, dtau_h): (f64, f64, f64, f64),
         u_h: f64,
-    ) -> MirrorEstimate {
-        match kind {
+    ) -> PartnerEstimate {
+        let &Sample {
+            tau,
+            tau_h,
+            dtau,
+            dtau_h,
+            ..
+        } = sample;
+        match sample.phase.kind {
             PhaseKind::Gains => {
                 let r = self.stage1.update(&Vector3::new(x - tau_h, v, x - tau));
                 self.note(r);
@@ -786,10 +823,10 @@ impl Mirror {
                     }
                     self.gain_count += 1;
                 }
-                let out = MirrorEstimate {
+                let out = PartnerEstimate {
                     gains: mirrored(g),
                     gains_var: mirrored(diag3(self.stage1.filter().P(), GAINS)),
-                    ..MirrorEstimate::NONE
+                    ..PartnerEstimate::NONE
                 };
                 let r = self.stage1.predict(u_h, dtau_h, dtau);
                 self.note(r);
@@ -818,7 +855,7 @@ impl Mirror {
                     .update(&SVector::<f64, 5>::new(x - tau_h, v, g[0], g[1], g[2]));
                 self.note(r);
                 let (z, P) = (self.stage2.filter().x(), self.stage2.filter().P());
-                let out = MirrorEstimate {
+                let out = PartnerEstimate {
                     gains: mirrored([z[GAINS], z[GAINS + 1], z[GAINS + 2]]),
                     gains_var: mirrored(diag3(P, GAINS)),
                     target: x - z[E_H],
@@ -828,22 +865,27 @@ impl Mirror {
                 self.note(r);
                 out
             }
-            PhaseKind::Integration => MirrorEstimate::NONE,
+            PhaseKind::Integration => PartnerEstimate::NONE,
         }
     }
 }
 
 /// What the partner's mirrored estimators say about the robot in one tick.
-#[derive(Clone, Copy, Debug)]
-struct MirrorEstimate {
-    gains: [f64; 3],
-    gains_var: [f64; 3],
-    target: f64,
-    target_var: f64,
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PartnerEstimate {
+    /// The robot's gains, in the robot's `xi` order.
+    pub gains: [f64; 3],
+    /// Their posterior variances.
+    pub gains_var: [f64; 3],
+    /// The robot's target.
+    pub target: f64,
+    /// Posterior variance of the partner's `(x - tau)^`.
+    pub target_var: f64,
 }
 
-impl MirrorEstimate {
-    const NONE: MirrorEstimate = MirrorEstimate {
+impl PartnerEstimate {
+    /// No estimate (NaN).
+    pub const NONE: PartnerEstimate = PartnerEstimate {
         gains: [f64::NAN; 3],
         gains_var: [f64::NAN; 3],
         target: f64::NAN,
@@ -962,63 +1004,41 @@ impl<'a> Scenario<'a> {
         let s = self.plant.state();
         let x_meas = s.x + self.noise.normal(self.world.position_noise_std);
         let v_meas = s.v + self.noise.normal(self.world.velocity_noise_std);
-        let protocol = self.robot.protocol;
-        let Some((_, phase, _, end)) = protocol.locate(k) else {
+        let Some(sample) = self.robot.protocol.sample(k) else {
             return TickRecord::default();
         };
-        let (tau, tau_h, dtau, dtau_h) = protocol.targets(phase, k);
-        let robot = self.robot.tick(k, x_meas, v_meas);
+        let robot = self.robot.tick_at(&sample, Some((x_meas, v_meas)));
 
         let (u_h, g) = guard_torque(
-            feedback_torque(&self.partner.gains, &xi(x_meas, v_meas, tau, tau_h)),
+            feedback_torque(
+                &self.partner.gains,
+                &xi(x_meas, v_meas, sample.tau, sample.tau_h),
+            ),
             self.partner.torque_limit,
         );
         if g != Guard::Passed {
             summary.partner_guarded += 1;
         }
+        let in_window = k + self.robot.gain_window_ticks >= sample.end;
         let mirror = match self.mirror.as_mut() {
-            Some(m) => {
-                let window = (self.robot.cfg.gain_window_s / protocol.dt_s()) as u64;
-                let in_window = k + window >= end;
-                m.tick(
-                    phase.kind,
-                    in_window,
-                    (x_meas, v_meas),
-                    (tau, tau_h, dtau, dtau_h),
-                    u_h,
-                )
-            }
-            None => MirrorEstimate::NONE,
+            Some(m) => m.tick(&sample, in_window, (x_meas, v_meas), u_h),
+            None => PartnerEstimate::NONE,
         };
 
         let eps = self.noise.normal(self.world.motor_noise_std);
         // Every term is finite (guarded), so the step cannot fail.
         let _ = self.plant.step(robot.u + u_h + eps);
         TickRecord {
-            t: k as f64 * protocol.dt_s(),
-            phase: robot.phase,
+            t: k as f64 * self.robot.protocol.dt_s(),
             x: s.x,
             v: s.v,
-            tau,
-            tau_h,
-            u: robot.u,
+            tau: sample.tau,
+            tau_h: sample.tau_h,
             u_h,
             eps,
-            e: s.x - tau,
-            e_meas: robot.e_meas,
-            L_hat: robot.gains,
-            L_var: robot.gains_var,
-            tau_h_hat: robot.tau_h_hat,
-            tau_h_var: robot.tau_h_var,
-            e_hat_own: robot.e_hat_own,
-            e_hat_fused: robot.e_hat_fused,
-            e_hat_own_var: robot.e_hat_own_var,
-            e_hat_fused_var: robot.e_hat_fused_var,
-            partner_var: robot.partner_var,
-            L_robot_hat: mirror.gains,
-            L_robot_var: mirror.gains_var,
-            tau_hat: mirror.target,
-            tau_hat_var: mirror.target_var,
+            e: s.x - sample.tau,
+            robot,
+            mirror,
         }
     }
 }

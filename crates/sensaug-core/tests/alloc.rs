@@ -96,5 +96,5 @@ fn a_full_trial_of_ticks_does_not_allocate() {
     assert_eq!(n, 0);
     let summary = summary.unwrap().unwrap();
     assert_eq!(summary.ticks, 6000);
-    assert!(out.iter().all(|r| r.x.is_finite() && r.u.is_finite()));
+    assert!(out.iter().all(|r| r.x.is_finite() && r.robot.u.is_finite()));
 }

@@ -6,13 +6,13 @@
 //! exists before it starts, and a tick performs no allocation and no blocking
 //! call other than the deadline sleep (proven by `tests/alloc.rs`).
 
-use crate::log::{LogRecord, LogSink, COLUMNS};
+use crate::log::{LogRecord, LogSink};
 use crate::os;
 use crate::stats::{CanCounters, Histogram, LoopReport};
 use sensaug_bridge::protocol::{decode, encode, DriveState, FaultFlags, Message, NodeId};
 use sensaug_bridge::{Frame, Transport};
 use sensaug_core::agent::{feedback_torque, guard_torque, xi, Guard};
-use sensaug_core::scenario::{Protocol, Robot, ScenarioError};
+use sensaug_core::scenario::{Protocol, Robot, RobotTick, ScenarioError};
 use std::fmt;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
@@ -290,39 +290,53 @@ impl<'a> Rig<'a> {
             // Controller units: positions in `unit`s, torques in model units.
             let x = self.drive.x_rad / unit;
             let v = self.drive.v_rad_s / unit;
-            let mut rec = [f64::NAN; COLUMNS.len()];
-            let torque_nm = match ramp {
-                Some((k0, from)) => {
+            let mut rec = LogRecord {
+                tick: k,
+                t: k as f64 * s.dt_s,
+                x,
+                v,
+                tau: f64::NAN,
+                tau_h: f64::NAN,
+                u_h: f64::NAN,
+                torque_nm: 0.0,
+                robot: RobotTick {
+                    u: f64::NAN,
+                    ..RobotTick::NONE
+                },
+                wake_latency_us: woke.saturating_sub(deadline) as f64 / 1e3,
+                compute_us: f64::NAN,
+                feedback_age_ticks: age,
+                drive_state: self.drive.state.raw(),
+                guard: f64::NAN,
+                ramp: ramp.is_some(),
+            };
+            let torque_nm = match (ramp, self.protocol.sample(k)) {
+                (Some((k0, from)), _) => {
                     let i = k - k0;
                     if i >= ramp_ticks {
                         break StopReason::Signal;
                     }
                     from * (1.0 - (i + 1) as f64 / ramp_ticks.max(1) as f64)
                 }
-                None => {
-                    let out = self.robot.tick_with(k, fresh.then_some((x, v)));
-                    let (tau, tau_h, u_h) = self.partner_torque(k, x, v);
-                    rec[5] = tau;
-                    rec[6] = tau_h;
-                    rec[7] = out.u;
-                    rec[8] = u_h;
-                    rec[2] = out.phase;
-                    rec[10] = out.e_meas;
-                    rec[11..14].copy_from_slice(&out.gains);
-                    rec[14] = out.tau_h_hat;
-                    rec[15] = out.e_hat_own;
-                    rec[16] = out.e_hat_fused;
-                    rec[17] = out.partner_var;
+                (None, Some(sample)) => {
+                    rec.robot = self.robot.tick_at(&sample, fresh.then_some((x, v)));
+                    let (u_h, _) = guard_torque(
+                        feedback_torque(&s.partner_gains, &xi(x, v, sample.tau, sample.tau_h)),
+                        s.partner_torque_limit,
+                    );
+                    (rec.tau, rec.tau_h, rec.u_h) = (sample.tau, sample.tau_h, u_h);
                     // Model torque -> N m: the same factor as position.
-                    let (t, g) = guard_torque((out.u + u_h) * unit, s.torque_limit_nm);
+                    let (t, g) = guard_torque((rec.robot.u + u_h) * unit, s.torque_limit_nm);
                     match g {
                         Guard::Passed => {}
                         Guard::Clamped => self.torque_clamped += 1,
                         Guard::NonFinite => self.non_finite += 1,
                     }
-                    rec[22] = g as u8 as f64;
+                    rec.guard = g as u8 as f64;
                     t
                 }
+                // k < total here, so the protocol has a sample.
+                (None, None) => break StopReason::Completed,
             };
             last_command = torque_nm;
             self.send(&Message::TorqueCommand {
@@ -331,37 +345,14 @@ impl<'a> Rig<'a> {
             });
             let done = os::now_ns();
             self.compute.record(done.saturating_sub(woke));
-
-            rec[0] = k as f64;
-            rec[1] = k as f64 * s.dt_s;
-            rec[3] = x;
-            rec[4] = v;
-            rec[9] = torque_nm;
-            rec[18] = woke.saturating_sub(deadline) as f64 / 1e3;
-            rec[19] = done.saturating_sub(woke) as f64 / 1e3;
-            rec[20] = age as f64;
-            rec[21] = self.drive.state.raw() as f64;
-            rec[23] = if ramp.is_some() { 1.0 } else { 0.0 };
-            log.push(LogRecord(rec));
+            rec.torque_nm = torque_nm;
+            rec.compute_us = done.saturating_sub(woke) as f64 / 1e3;
+            log.push(rec);
             k += 1;
         };
         self.ticks_run = k;
         self.shut_down(reason);
         reason
-    }
-
-    /// The virtual human's torque `u_h = -L_h xi` at tick `k`, with the
-    /// targets of the current phase; `(tau, tau_h, u_h)`.
-    fn partner_torque(&self, k: u64, x: f64, v: f64) -> (f64, f64, f64) {
-        let Some((_, phase, _, _)) = self.protocol.locate(k) else {
-            return (f64::NAN, f64::NAN, 0.0);
-        };
-        let (tau, tau_h, _, _) = self.protocol.targets(phase, k);
-        let (u_h, _) = guard_torque(
-            feedback_torque(&self.settings.partner_gains, &xi(x, v, tau, tau_h)),
-            self.settings.partner_torque_limit,
-        );
-        (tau, tau_h, u_h)
     }
 
     /// After the loop: zero torque and disable (an emergency stop was

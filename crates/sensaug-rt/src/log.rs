@@ -8,6 +8,7 @@
 //! seconds of records, so a healthy writer never lets it fill.
 
 use rtrb::{Consumer, Producer, RingBuffer};
+use sensaug_core::scenario::RobotTick;
 use std::fs::File;
 use std::io::{self, BufWriter, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
@@ -44,10 +45,74 @@ pub const COLUMNS: [&str; 24] = [
     "ramp",
 ];
 
-/// One tick of the real-time loop, all `f64` (the tick counter is exact up
-/// to 2^53).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct LogRecord(pub [f64; COLUMNS.len()]);
+/// One tick of the real-time loop; written as the `f64` row
+/// [`LogRecord::to_row`] (the tick counter is exact up to 2^53).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LogRecord {
+    /// Tick number.
+    pub tick: u64,
+    /// Time of the tick (s).
+    pub t: f64,
+    /// Measured position (controller units).
+    pub x: f64,
+    /// Measured velocity (controller units).
+    pub v: f64,
+    /// Robot target (NaN while ramping down).
+    pub tau: f64,
+    /// Partner target (NaN while ramping down).
+    pub tau_h: f64,
+    /// Virtual human torque (model units; NaN while ramping down).
+    pub u_h: f64,
+    /// Torque sent to the drive (N m).
+    pub torque_nm: f64,
+    /// The controller's log line (its `u` is NaN while ramping down).
+    pub robot: RobotTick,
+    /// Wake-up latency after the deadline (us).
+    pub wake_latency_us: f64,
+    /// Wake-up to command sent (us).
+    pub compute_us: f64,
+    /// Ticks since the last feedback.
+    pub feedback_age_ticks: u64,
+    /// Drive state (raw).
+    pub drive_state: u8,
+    /// What the torque guard did (`agent::Guard` as a number).
+    pub guard: f64,
+    /// Ramping down after a stop request.
+    pub ramp: bool,
+}
+
+impl LogRecord {
+    /// The record as a row in [`COLUMNS`] order.
+    pub fn to_row(&self) -> [f64; COLUMNS.len()] {
+        let r = &self.robot;
+        [
+            self.tick as f64,
+            self.t,
+            r.phase,
+            self.x,
+            self.v,
+            self.tau,
+            self.tau_h,
+            r.u,
+            self.u_h,
+            self.torque_nm,
+            r.e_meas,
+            r.gains[0],
+            r.gains[1],
+            r.gains[2],
+            r.tau_h_hat,
+            r.e_hat_own,
+            r.e_hat_fused,
+            r.partner_var,
+            self.wake_latency_us,
+            self.compute_us,
+            self.feedback_age_ticks as f64,
+            f64::from(self.drive_state),
+            self.guard,
+            if self.ramp { 1.0 } else { 0.0 },
+        ]
+    }
+}
 
 /// The real-time side of the log: a ring producer plus an overflow counter.
 pub struct LogSink {
@@ -153,7 +218,7 @@ fn write_all(file: File, mut consumer: Consumer<LogRecord>, done: &AtomicBool) -
         // set is in the ring now and gets written by this pass.
         let finished = done.load(Ordering::Acquire);
         while let Ok(r) = consumer.pop() {
-            for v in r.0 {
+            for v in r.to_row() {
                 out.write_all(&v.to_le_bytes())?;
             }
             rows += 1;
