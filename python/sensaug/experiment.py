@@ -8,13 +8,12 @@ structured array with one named field per logged quantity.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
-from typing import Any, Iterable
+from typing import Any
 
 import numpy as np
 
-from sensaug import _core
+from sensaug import _core, metrics
 from sensaug.config import PHASE_KINDS, ScenarioConfig, _shape_to_dict
 from sensaug.lqr import agent_gains
 
@@ -130,27 +129,16 @@ class Trial:
     def gain_estimate(self, index: int | None = None, *, last_s: float = 8.0) -> np.ndarray:
         """Mean estimated partner gains ``[Lhx, Lhv, Lhh]`` over the last
         ``last_s`` of a gain phase (the paper reports the final 8 s)."""
-        index = self._default(index, "gains")
-        m = self.phase_mask(index, last_s=last_s)
-        return np.array([self.data[f][m].mean() for f in ("Lhx_hat", "Lhv_hat", "Lhh_hat")])
+        return metrics.gain_estimate(self.data, self.phase_mask(self._default(index, "gains"), last_s=last_s))
 
     def partner_target_rmse(self, index: int | None = None, *, skip_s: float = 2.0) -> float:
         """RMSE of ``tau_h^`` against ``tau_h`` in a trajectory phase, after ``skip_s``."""
-        index = self._default(index, "trajectory")
-        m = self.phase_mask(index, skip_s=skip_s)
-        return float(np.sqrt(np.mean((self.data["tau_h_hat"][m] - self.data["tau_h"][m]) ** 2)))
+        return metrics.partner_target_rmse(self.data, self.phase_mask(self._default(index, "trajectory"), skip_s=skip_s))
 
     def integration_rmse(self, index: int | None = None, *, skip_s: float = 2.0) -> dict[str, float]:
         """RMSE of the robot's ``(x - tau)^`` against the true ``x - tau`` in an
         integration phase: raw measurement, own sensing only, integrated."""
-        index = self._default(index, "integration")
-        m = self.phase_mask(index, skip_s=skip_s)
-        e = self.data["e"][m]
-
-        def rmse(f: str) -> float:
-            return float(np.sqrt(np.mean((self.data[f][m] - e) ** 2)))
-
-        return {"measured": rmse("e_meas"), "own": rmse("e_hat_own"), "integrated": rmse("e_hat_fused")}
+        return metrics.integration_rmse(self.data, self.phase_mask(self._default(index, "integration"), skip_s=skip_s))
 
     def _default(self, index: int | None, kind: str) -> int:
         if index is not None:
@@ -173,8 +161,3 @@ def run(config: ScenarioConfig) -> Trial:
         robot_gains=resolved["robot"]["gains"],
         partner_gains=resolved["partner"]["gains"],
     )
-
-
-def run_many(configs: Iterable[ScenarioConfig]) -> list[Trial]:
-    """Runs several trials one after the other (each crosses into Rust once)."""
-    return [run(c) for c in configs]

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sensaug import metrics
 from sensaug.config import ScenarioConfig
 
 __all__ = ["RigRun", "find_binary", "run_virtual_rig", "read_log"]
@@ -68,22 +69,15 @@ class RigRun:
     def gain_estimate(self, last_s: float | None = None) -> np.ndarray:
         """Mean estimated gains over the last ``last_s`` of the gain phase
         (default: the robot's own window, ``robot.gain_window_s``)."""
-        m = self.phase_mask("gains", last_s=last_s or self.config.robot.gain_window_s)
-        return np.array([self.log[f][m].mean() for f in ("Lhx_hat", "Lhv_hat", "Lhh_hat")])
+        return metrics.gain_estimate(self.log, self.phase_mask("gains", last_s=last_s or self.config.robot.gain_window_s))
 
     def partner_target_rmse(self, skip_s: float = 2.0) -> float:
-        m = self.phase_mask("trajectory", skip_s=skip_s)
-        return float(np.sqrt(np.mean((self.log["tau_h_hat"][m] - self.log["tau_h"][m]) ** 2)))
+        return metrics.partner_target_rmse(self.log, self.phase_mask("trajectory", skip_s=skip_s))
 
     def integration_rmse(self, skip_s: float = 2.0) -> dict[str, float]:
         """RMSE of the robot's (x - tau) estimate against x - tau, with the
         measured x and the true target (the binary injected the noise)."""
-        m = self.phase_mask("integration", skip_s=skip_s)
-        e = self.log["x"][m] - self.log["tau"][m]
-        return {
-            f: float(np.sqrt(np.mean((self.log[col][m] - e) ** 2)))
-            for f, col in (("measured", "e_meas"), ("own", "e_hat_own"), ("integrated", "e_hat_fused"))
-        }
+        return metrics.integration_rmse(self.log, self.phase_mask("integration", skip_s=skip_s))
 
 
 def _free_port() -> int:

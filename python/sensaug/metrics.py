@@ -1,0 +1,38 @@
+"""The paper's headline numbers from a log (simulated trial or rig run).
+
+Both log formats name these columns alike (``x``, ``tau``, ``tau_h``,
+``Lh*_hat``, ``tau_h_hat``, ``e_meas``, ``e_hat_own``, ``e_hat_fused``);
+the caller selects the ticks with a boolean mask.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["gain_estimate", "partner_target_rmse", "integration_rmse"]
+
+GAIN_FIELDS = ("Lhx_hat", "Lhv_hat", "Lhh_hat")
+
+
+def _rmse(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.sqrt(np.mean((a - b) ** 2)))
+
+
+def gain_estimate(data: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Mean estimated partner gains ``[Lhx, Lhv, Lhh]`` over ``mask``."""
+    return np.array([data[f][mask].mean() for f in GAIN_FIELDS])
+
+
+def partner_target_rmse(data: np.ndarray, mask: np.ndarray) -> float:
+    """RMSE of ``tau_h^`` against ``tau_h`` over ``mask``."""
+    return _rmse(data["tau_h_hat"][mask], data["tau_h"][mask])
+
+
+def integration_rmse(data: np.ndarray, mask: np.ndarray) -> dict[str, float]:
+    """RMSE against ``x - tau`` over ``mask`` of the robot's measured error,
+    its own-sensing estimate and its integrated estimate."""
+    e = data["x"][mask] - data["tau"][mask]
+    return {
+        name: _rmse(data[col][mask], e)
+        for name, col in (("measured", "e_meas"), ("own", "e_hat_own"), ("integrated", "e_hat_fused"))
+    }
