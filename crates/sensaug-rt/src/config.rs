@@ -475,6 +475,33 @@ fn non_negative(field: &str, v: f64) -> Result<f64, ConfigError> {
     }
 }
 
+/// A stage-1 (`M = 3`) or stage-2 (`M = 5`) filter from its table, with
+/// the Python side's defaults: `Q = 1e-2 I6`, `R = 1e-7 I_M`,
+/// `P0 = diag(1e-4 x3, 1 x3)`, initial gains 0.
+fn extended_filter<const M: usize>(
+    path: &str,
+    spec: Option<&FilterSpec>,
+    sigma: MerweParams,
+) -> Result<ExtendedFilterConfig<M>, ConfigError> {
+    let cov = |c: Option<&Cov>, default: Vec<f64>| c.cloned().unwrap_or(Cov::Diag(default));
+    let mut x0 = SVector::<f64, 6>::zeros();
+    if let Some(g) = spec.and_then(|s| s.gains0.as_ref()) {
+        let g = gains3(&format!("{path}.gains0"), g)?;
+        x0.fixed_rows_mut::<3>(3).copy_from_slice(&g);
+    }
+    Ok(ExtendedFilterConfig {
+        x0,
+        P0: cov(
+            spec.and_then(|s| s.P0.as_ref()),
+            vec![1e-4, 1e-4, 1e-4, 1.0, 1.0, 1.0],
+        )
+        .matrix::<6>(&format!("{path}.P0"))?,
+        Q: cov(spec.and_then(|s| s.Q.as_ref()), vec![1e-2; 6]).matrix::<6>(&format!("{path}.Q"))?,
+        R: cov(spec.and_then(|s| s.R.as_ref()), vec![1e-7; M]).matrix::<M>(&format!("{path}.R"))?,
+        sigma,
+    })
+}
+
 /// A phase's target from its shapes (validated).
 fn target<'a>(path: &str, name: &str, specs: &'a [ShapeSpec]) -> Result<Target<'a>, ConfigError> {
     if specs.is_empty() || specs.len() > MAX_PARTS {
@@ -667,40 +694,8 @@ impl FileSpec {
         if !(r.sigma.beta.is_finite() && r.sigma.kappa.is_finite() && 6.0 + r.sigma.kappa > 0.0) {
             return Err(err("robot.sigma", "beta, kappa finite with 6 + kappa > 0"));
         }
-        let extended = |name: &str, spec: &Option<FilterSpec>| {
-            let path = format!("robot.{name}");
-            let none = FilterSpec {
-                Q: None,
-                R: None,
-                P0: None,
-                gains0: None,
-            };
-            let s = spec.as_ref().unwrap_or(&none);
-            let q = s.Q.clone().unwrap_or(Cov::Diag(vec![1e-2; 6]));
-            let p0 =
-                s.P0.clone()
-                    .unwrap_or(Cov::Diag(vec![1e-4, 1e-4, 1e-4, 1.0, 1.0, 1.0]));
-            let mut x0 = SVector::<f64, 6>::zeros();
-            if let Some(g) = &s.gains0 {
-                let g = gains3(&format!("{path}.gains0"), g)?;
-                x0.fixed_rows_mut::<3>(3).copy_from_slice(&g);
-            }
-            Ok::<_, ConfigError>((
-                x0,
-                p0.matrix::<6>(&format!("{path}.P0"))?,
-                q.matrix::<6>(&format!("{path}.Q"))?,
-                s.R.clone(),
-                path,
-            ))
-        };
-        let (x1, p1, q1, r1, path1) = extended("stage1", &r.stage1)?;
-        let r1 = r1
-            .unwrap_or(Cov::Diag(vec![1e-7; 3]))
-            .matrix::<3>(&format!("{path1}.R"))?;
-        let (x2, p2, q2, r2, path2) = extended("stage2", &r.stage2)?;
-        let r2 = r2
-            .unwrap_or(Cov::Diag(vec![1e-7; 5]))
-            .matrix::<5>(&format!("{path2}.R"))?;
+        let stage1 = extended_filter::<3>("robot.stage1", r.stage1.as_ref(), sigma)?;
+        let stage2 = extended_filter::<5>("robot.stage2", r.stage2.as_ref(), sigma)?;
         let s3 = r.stage3.clone().unwrap_or(IntegratorSpec {
             Q: None,
             R_sensor: None,
@@ -718,20 +713,8 @@ impl FileSpec {
                 damping,
                 dt_s,
             },
-            stage1: ExtendedFilterConfig {
-                x0: x1,
-                P0: p1,
-                Q: q1,
-                R: r1,
-                sigma,
-            },
-            stage2: ExtendedFilterConfig {
-                x0: x2,
-                P0: p2,
-                Q: q2,
-                R: r2,
-                sigma,
-            },
+            stage1,
+            stage2,
             stage3: GoalIntegratorConfig {
                 x0: Vector2::zeros(),
                 P0: s3
