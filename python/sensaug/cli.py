@@ -9,6 +9,8 @@
 * ``run CONFIG.toml`` runs one simulated trial and saves its log (``.npz``).
 * ``rig CONFIG.toml`` runs one trial on the virtual rig.
 * ``preset {hi5,hi5-rig,simulation}`` prints a preset as TOML.
+* ``check FILE`` validates a configuration exactly as ``sensaug-rt --check``.
+* ``schema`` prints the configuration's JSON Schema.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sensaug import experiment, presets
+from sensaug import _core, experiment, presets
 from sensaug.config import ScenarioConfig
 from sensaug.lqr import agent_gains
 
@@ -173,6 +175,17 @@ def run_config(path: Path, out: Path | None) -> int:
     return 0
 
 
+def check(path: str) -> int:
+    """``valid`` and 0 for a good file; the first bad field on stderr and 2 otherwise."""
+    try:
+        _core.config_check_file(path)
+    except _core.ConfigError as e:
+        print(e, file=sys.stderr)
+        return 2
+    print("valid")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="sensaug", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -192,7 +205,15 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--out", type=Path, default=None, help="log file (.npz); default next to the config")
     p = sub.add_parser("preset", help="print a preset configuration as TOML")
     p.add_argument("name", choices=["hi5", "hi5-rig", "simulation"])
+    c = sub.add_parser("check", help="validate a configuration file exactly as sensaug-rt --check does")
+    c.add_argument("config", help="TOML (or .json) configuration file")
+    sub.add_parser("schema", help="print the configuration's JSON Schema (fields, units, defaults, bounds)")
     args = parser.parse_args(argv)
+    if args.command == "check":
+        return check(args.config)
+    if args.command == "schema":
+        print(_core.config_schema())
+        return 0
     try:
         if args.command == "demo":
             cfg = ScenarioConfig.from_toml(args.config) if args.config else presets.hi5_rig()

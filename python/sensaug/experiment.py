@@ -1,9 +1,10 @@
 """Run whole trials and read their logs as numpy arrays.
 
-``run(config)`` resolves a validated :class:`~sensaug.config.ScenarioConfig`
-(LQR weights to gains, covariances to matrices), crosses into Rust once for
-the whole trial, and returns a :class:`Trial` whose ``data`` is a numpy
-structured array with one named field per logged quantity.
+``run(config)`` hands a :class:`~sensaug.config.ScenarioConfig` to Rust,
+where the one configuration schema resolves it (LQR weights to gains,
+covariances to matrices) and the core runs the whole trial in one call; it
+returns a :class:`Trial` whose ``data`` is a numpy structured array with one
+named field per logged quantity.
 """
 
 from __future__ import annotations
@@ -14,75 +15,14 @@ from typing import Any
 import numpy as np
 
 from sensaug import _core, metrics
-from sensaug.config import PHASE_KINDS, ScenarioConfig, _shape_to_dict
-from sensaug.lqr import agent_gains
+from sensaug.config import ScenarioConfig
 
-__all__ = ["Trial", "run", "resolve", "FIELDS"]
+__all__ = ["Trial", "run", "FIELDS"]
 
 FIELDS: tuple[str, ...] = tuple(_core.RECORD_FIELDS)
 
-
-def _robot_gains(cfg: ScenarioConfig) -> list[float]:
-    k_pos, k_vel = agent_gains(cfg.plant.mass, cfg.plant.damping, cfg.robot.q_pos, cfg.robot.q_vel)
-    return [k_pos, k_vel, 0.0]
-
-
-def _partner_gains(cfg: ScenarioConfig) -> list[float]:
-    p = cfg.partner
-    if p.gains is not None:
-        return list(p.gains)
-    k_pos, k_vel = agent_gains(cfg.plant.mass, cfg.plant.damping, p.q_pos, p.q_vel)
-    return [0.0, k_vel, k_pos]
-
-
-def resolve(cfg: ScenarioConfig) -> dict[str, Any]:
-    """The plain dict the compiled runner takes: gains computed, matrices as arrays."""
-    cfg.validate()
-    r = cfg.robot
-    a = np.asarray
-
-    def extended(fc: Any) -> dict[str, Any]:
-        x0 = np.zeros(6)
-        x0[3:] = fc.gains0
-        return {"x0": x0, "P0": a(fc.P0), "Q": a(fc.Q), "R": a(fc.R)}
-
-    return {
-        "plant": vars(cfg.plant).copy(),
-        "world": vars(cfg.world).copy(),
-        "robot": {
-            "gains": a(_robot_gains(cfg), dtype=float),
-            "model": {"mass": cfg.plant.mass, "damping": cfg.plant.damping},
-            "integrate": r.integrate,
-            "gain_window_s": r.gain_window_s,
-            "torque_limit": r.torque_limit,
-            "seed": r.seed,
-            "prior_partner_gains": None if r.prior_partner_gains is None else a(r.prior_partner_gains, dtype=float),
-            "sigma": vars(r.sigma).copy(),
-            "stage1": extended(r.stage1),
-            "stage2": extended(r.stage2),
-            "stage3": {
-                "Q": a(r.stage3.Q),
-                "R_sensor": a(r.stage3.R_sensor),
-                "P0": a(r.stage3.P0),
-                "partner_window_s": r.stage3.partner_window_s,
-            },
-        },
-        "partner": {
-            "gains": a(_partner_gains(cfg), dtype=float),
-            "torque_limit": cfg.partner.torque_limit,
-            "estimates_robot": cfg.partner.estimates_robot,
-        },
-        "phases": [
-            {
-                "kind": p.kind,
-                "duration_s": p.duration_s,
-                "target_noise_std": p.target_noise_std,
-                "robot_target": [_shape_to_dict(s) for s in p.robot_target],
-                "partner_target": [_shape_to_dict(s) for s in p.partner_target],
-            }
-            for p in cfg.phases
-        ],
-    }
+#: The phase kinds, in the order of their codes in logs.
+PHASE_KINDS: tuple[str, ...] = ("gains", "trajectory", "integration")
 
 
 @dataclass
@@ -151,13 +91,15 @@ class Trial:
 
 def run(config: ScenarioConfig) -> Trial:
     """Runs one whole trial in the compiled core and returns its log."""
-    resolved = resolve(config)
-    rows, summary = _core.run_scenario(resolved)
+    summary: dict[str, Any]
+    rows, summary = _core.run_scenario(config._toml())
     data = np.rec.fromarrays(rows.T, names=list(FIELDS))
+    robot_gains = np.asarray(summary.pop("robot_gains"))
+    partner_gains = np.asarray(summary.pop("partner_gains"))
     return Trial(
         config=config,
         data=np.asarray(data),
-        summary=dict(summary),
-        robot_gains=resolved["robot"]["gains"],
-        partner_gains=resolved["partner"]["gains"],
+        summary=summary,
+        robot_gains=robot_gains,
+        partner_gains=partner_gains,
     )

@@ -11,7 +11,7 @@ import math
 from sensaug.config import (
     Chirp,
     Constant,
-    FilterConfig,
+    GainFilterConfig,
     Harmonics,
     IntegratorConfig,
     PartnerConfig,
@@ -21,6 +21,7 @@ from sensaug.config import (
     RoundedSquare,
     ScenarioConfig,
     Square,
+    TrajectoryFilterConfig,
     WorldConfig,
 )
 
@@ -68,8 +69,8 @@ def hi5_experiment(
             gain_window_s=8.0,
             torque_limit=1e3,
             seed=seed + 1_000_003,
-            stage1=FilterConfig(Q=[1e-2] * 6, R=[sensor_var] * 3, P0=[1e-4] * 3 + [1.0] * 3),
-            stage2=FilterConfig(Q=[1e-2] * 6, R=[sensor_var] * 5, P0=[1e-4] * 3 + [1.0] * 3),
+            stage1=GainFilterConfig(Q=[1e-2] * 6, R=[sensor_var] * 3, P0=[1e-4] * 3 + [1.0] * 3),
+            stage2=TrajectoryFilterConfig(Q=[1e-2] * 6, R=[sensor_var] * 5, P0=[1e-4] * 3 + [1.0] * 3),
             stage3=IntegratorConfig(Q=[1e-2, 1e-2], R_sensor=[sensor_var, sensor_var], P0=[1e-2, 1e-2]),
         ),
         partner=PartnerConfig(gains=[0.0, 0.0, lhh], torque_limit=1e3),
@@ -129,8 +130,8 @@ def simulation_section(
             gain_window_s=8.0,
             torque_limit=1e6,
             seed=seed + 1_000_003,
-            stage1=FilterConfig(Q=[q] * 6, R=[r] * 3, P0=[1e-6] * 3 + [1e4] * 3),
-            stage2=FilterConfig(Q=[q] * 6, R=[r] * 5, P0=[1e-6] * 3 + [1e-2] * 3),
+            stage1=GainFilterConfig(Q=[q] * 6, R=[r] * 3, P0=[1e-6] * 3 + [1e4] * 3),
+            stage2=TrajectoryFilterConfig(Q=[q] * 6, R=[r] * 5, P0=[1e-6] * 3 + [1e-2] * 3),
         ),
         partner=PartnerConfig(gains=None, q_pos=20000.0, q_vel=2.0, torque_limit=1e6, estimates_robot=True),
         phases=[

@@ -1,12 +1,14 @@
-//! `sensaug-rt CONFIG.toml`: runs the paper's Hi5 experiment at 1 kHz over
-//! CAN. Validates the whole configuration before anything moves; prints and
-//! saves the loop statistics at the end. Exit code 0 only when the protocol
-//! completed.
+//! `sensaug-rt CONFIG`: runs the paper's Hi5 experiment at 1 kHz over CAN.
+//! Validates the whole configuration (the one schema, `sensaug-config`)
+//! before anything moves; prints and saves the loop statistics at the end.
+//! Exit code 0 only when the protocol completed; 2 for a configuration or
+//! set-up error.
 
-use sensaug_bridge::protocol::NodeId;
-use sensaug_core::scenario::{Protocol, Robot};
-use sensaug_rt::config::{parse, ConfigError};
-use sensaug_rt::control::{LoopSettings, Rig, StopReason};
+use clap::Parser;
+use sensaug_config::{load_file, validate, ConfigError, ScenarioSpec};
+use sensaug_core::scenario::Robot;
+use sensaug_rt::config::loop_settings;
+use sensaug_rt::control::{Rig, StopReason};
 use sensaug_rt::{log, os};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -14,63 +16,52 @@ use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::Duration;
 
-const USAGE: &str =
-    "usage: sensaug-rt CONFIG.toml [--check] [--can URL] [--log PATH] [--stats PATH]
-
-  CONFIG.toml   the trial: the Python API's TOML plus an optional [rig] table
-  --check       validate the configuration and exit
-  --print-resolved  print every resolved setting (defaults filled in) as JSON and exit
-  --can URL     override rig.can (udp:<port> or socketcan:<ifname>)
-  --log PATH    override rig.log (.npy)
-  --stats PATH  override rig.stats (.json)";
-
+/// The 1 kHz real-time loop of sensaug: the paper's three-phase experiment
+/// over CAN, with the robot controller (and optionally a virtual human)
+/// inside the loop.
+#[derive(Parser, Debug)]
+#[command(version, about)]
 struct Args {
+    /// The trial configuration (TOML, or JSON by extension): the Python API's
+    /// file plus an optional [rig] table. `python -m sensaug schema` prints
+    /// every field.
     config: PathBuf,
+    /// Validate the configuration, print "valid" and exit (exit 2 and the
+    /// first bad field on stderr when it is not).
+    #[arg(long)]
     check: bool,
+    /// Print the configuration with every default filled in, as JSON, and exit.
+    #[arg(long)]
     print_resolved: bool,
+    /// Override rig.can: udp:<port> (loopback virtual bus) or socketcan:<ifname>.
+    #[arg(long, value_name = "URL")]
     can: Option<String>,
-    log: Option<PathBuf>,
-    stats: Option<PathBuf>,
-}
-
-fn parse_args() -> Result<Args, String> {
-    let mut it = std::env::args().skip(1);
-    let mut args = Args {
-        config: PathBuf::new(),
-        check: false,
-        print_resolved: false,
-        can: None,
-        log: None,
-        stats: None,
-    };
-    let mut config = None;
-    while let Some(a) = it.next() {
-        match a.as_str() {
-            "--check" => args.check = true,
-            "--print-resolved" => args.print_resolved = true,
-            "--can" => args.can = Some(it.next().ok_or("--can needs a URL")?),
-            "--log" => args.log = Some(it.next().ok_or("--log needs a path")?.into()),
-            "--stats" => args.stats = Some(it.next().ok_or("--stats needs a path")?.into()),
-            "-h" | "--help" => return Err(USAGE.into()),
-            other if other.starts_with('-') => {
-                return Err(format!("unknown option {other}\n{USAGE}"))
-            }
-            other => config = Some(PathBuf::from(other)),
-        }
-    }
-    args.config = config.ok_or_else(|| USAGE.to_string())?;
-    Ok(args)
+    /// Override rig.log (the CSV log).
+    #[arg(long, value_name = "PATH")]
+    log: Option<String>,
+    /// Override rig.stats (the JSON loop statistics).
+    #[arg(long, value_name = "PATH")]
+    stats: Option<String>,
 }
 
 fn main() -> ExitCode {
-    let args = match parse_args() {
-        Ok(a) => a,
-        Err(msg) => {
-            eprintln!("{msg}");
+    let args = Args::parse();
+    let spec = match load(&args) {
+        Ok(spec) => spec,
+        Err(e) => {
+            eprintln!("{e}");
             return ExitCode::from(2);
         }
     };
-    match run(args) {
+    if args.check {
+        println!("valid");
+        return ExitCode::SUCCESS;
+    }
+    if args.print_resolved {
+        println!("{}", sensaug_config::to_json(&spec));
+        return ExitCode::SUCCESS;
+    }
+    match run(&spec) {
         Ok(StopReason::Completed) => ExitCode::SUCCESS,
         Ok(_) => ExitCode::from(1),
         Err(msg) => {
@@ -80,41 +71,30 @@ fn main() -> ExitCode {
     }
 }
 
-fn run(args: Args) -> Result<StopReason, String> {
-    let text = std::fs::read_to_string(&args.config)
-        .map_err(|e| format!("{}: cannot read: {e}", args.config.display()))?;
-    let spec = parse(&text).map_err(|e: ConfigError| format!("{}: {e}", args.config.display()))?;
-    let mut resolved = spec
-        .resolve()
-        .map_err(|e| format!("{}: {e}", args.config.display()))?;
-    if let Some(url) = args.can {
-        resolved.rig.can = url;
+/// The file, with the command line's overrides applied, validated as a whole.
+fn load(args: &Args) -> Result<ScenarioSpec, ConfigError> {
+    let mut spec = load_file(&args.config)?;
+    if let Some(url) = &args.can {
+        spec.rig.can = url.clone();
     }
-    if let Some(p) = args.log {
-        resolved.rig.log = p;
+    if let Some(p) = &args.log {
+        spec.rig.log = p.clone();
     }
-    if let Some(p) = args.stats {
-        resolved.rig.stats = p;
+    if let Some(p) = &args.stats {
+        spec.rig.stats = p.clone();
     }
-    if args.print_resolved {
-        println!("{}", resolved.to_json());
-        return Ok(StopReason::Completed);
-    }
-    let protocol =
-        Protocol::new(&resolved.phases, resolved.dt_s).map_err(|e| format!("phases: {e:?}"))?;
-    let robot = Robot::new(resolved.robot, protocol).map_err(|e| format!("robot: {e:?}"))?;
-    let node = NodeId::new(resolved.rig.node_id.into()).map_err(|e| format!("rig.node_id: {e}"))?;
-    if args.check {
-        println!(
-            "{}: valid ({} ticks, robot gains {:?}, partner gains {:?})",
-            args.config.display(),
-            protocol.total_ticks(),
-            resolved.robot.gains,
-            resolved.partner_gains
-        );
-        return Ok(StopReason::Completed);
-    }
-    let rig = resolved.rig.clone();
+    validate(&spec)?;
+    Ok(spec)
+}
+
+fn run(spec: &ScenarioSpec) -> Result<StopReason, String> {
+    let resolved = sensaug_config::resolve(spec).map_err(|e| e.to_string())?;
+    let settings = loop_settings(&resolved).map_err(|e| e.to_string())?;
+    let robot = Robot::new(resolved.robot, resolved.protocol()).map_err(|_| {
+        "robot: the controller rejected a configuration that validated; please report this"
+            .to_string()
+    })?;
+    let rig = &spec.rig;
     let transport = sensaug_bridge::open(&rig.can).map_err(|e| format!("rig.can: {e}"))?;
 
     let stop = Arc::new(AtomicBool::new(false));
@@ -122,20 +102,11 @@ fn run(args: Args) -> Result<StopReason, String> {
         signal_hook::flag::register(sig, Arc::clone(&stop))
             .map_err(|e| format!("signal handler: {e}"))?;
     }
-    let (mut sink, writer) = log::start(&rig.log, rig.ring_capacity)
-        .map_err(|e| format!("rig.log: {}: {e}", rig.log.display()))?;
+    let log_path = PathBuf::from(&rig.log);
+    let stats_path = PathBuf::from(&rig.stats);
+    let (mut sink, writer) = log::start(&log_path, rig.ring_capacity as usize)
+        .map_err(|e| format!("rig.log: {}: {e}", log_path.display()))?;
 
-    let settings = LoopSettings {
-        node,
-        dt_s: resolved.dt_s,
-        rad_per_unit: resolved.rad_per_unit,
-        torque_limit_nm: rig.torque_limit_nm,
-        watchdog_ms: rig.watchdog_ms,
-        feedback_timeout_ms: rig.feedback_timeout_ms,
-        ramp_down_s: rig.ramp_down_s,
-        partner_gains: resolved.partner_gains,
-        partner_torque_limit: resolved.partner_torque_limit,
-    };
     let mut rig_loop = Rig::start(settings, transport, robot, Duration::from_secs(5))
         .map_err(|e| e.to_string())?;
 
@@ -154,12 +125,16 @@ fn run(args: Args) -> Result<StopReason, String> {
     if let Some(cpu) = rig.realtime.cpu {
         note(
             &format!("pin to cpu {cpu}"),
-            os::pin_to_cpu(cpu),
+            os::pin_to_cpu(cpu as usize),
             &mut realtime,
         );
     }
     if let Some(p) = rig.realtime.fifo_priority {
-        note(&format!("SCHED_FIFO {p}"), os::set_fifo(p), &mut realtime);
+        note(
+            &format!("SCHED_FIFO {p}"),
+            os::set_fifo(p as i32),
+            &mut realtime,
+        );
     }
 
     let reason = rig_loop.run(&mut sink, &stop);
@@ -172,10 +147,10 @@ fn run(args: Args) -> Result<StopReason, String> {
     report.records_written = written;
     report.realtime = realtime;
     let json = serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?;
-    if let Some(dir) = rig.stats.parent() {
+    if let Some(dir) = stats_path.parent() {
         let _ = std::fs::create_dir_all(dir);
     }
-    std::fs::write(&rig.stats, &json).map_err(|e| format!("rig.stats: {e}"))?;
+    std::fs::write(&stats_path, &json).map_err(|e| format!("rig.stats: {e}"))?;
     println!("{json}");
     Ok(reason)
 }

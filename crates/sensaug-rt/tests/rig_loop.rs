@@ -6,9 +6,9 @@
 use sensaug_bridge::protocol::{decode, encode, DriveState, FaultFlags, Message, NodeId};
 use sensaug_bridge::transport::UdpBus;
 use sensaug_bridge::Transport;
+use sensaug_config::{load_str, resolve, Format};
 use sensaug_core::plant::{Plant, PlantParams};
 use sensaug_core::scenario::{Protocol, Robot};
-use sensaug_rt::config::parse;
 use sensaug_rt::control::{LoopSettings, Rig, StopReason};
 use sensaug_rt::log;
 use std::net::UdpSocket;
@@ -125,8 +125,8 @@ struct Outcome {
 }
 
 fn run_loop(answer_for: u64, stop_after: Option<Duration>) -> Outcome {
-    let spec = parse(CONFIG).unwrap();
-    let resolved = spec.resolve().unwrap();
+    let spec = load_str(CONFIG, Format::Toml).unwrap();
+    let resolved = resolve(&spec).unwrap();
     let port = free_port();
     let drive_stop = Arc::new(AtomicBool::new(false));
     let handle = drive(port, Arc::clone(&drive_stop), answer_for);
@@ -140,7 +140,7 @@ fn run_loop(answer_for: u64, stop_after: Option<Duration>) -> Outcome {
         watchdog_ms: 50,
         feedback_timeout_ms: 50.0,
         ramp_down_s: 0.05,
-        partner_gains: resolved.partner_gains,
+        partner_gains: resolved.partner.gains,
         partner_torque_limit: 1e3,
     };
     let transport = Box::new(UdpBus::open(port).unwrap());

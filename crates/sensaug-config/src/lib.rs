@@ -1,0 +1,237 @@
+//! The one configuration schema of sensaug, read by the Python API (through
+//! the binding), the simulation and the real-time binary `sensaug-rt`.
+//!
+//! * [`schema`]: the types. They parse TOML and JSON (serde), carry every
+//!   default and every bound, and generate the JSON Schema ([`json_schema`]).
+//! * [`load_file`] / [`load_str`]: read, parse and validate; the error names
+//!   the first bad field by its dotted path and says how to fix it.
+//! * [`resolve()`]: cross-field rules, then the core's structs.
+//! * [`to_toml`]: a configuration as TOML with each field's description and
+//!   unit as a comment.
+//!
+//! Set-up only: everything here allocates; the loop gets the core's structs.
+
+pub mod check;
+pub mod cov;
+pub mod error;
+pub mod resolve;
+pub mod schema;
+mod shape;
+mod write;
+
+pub use cov::Cov;
+pub use error::ConfigError;
+pub use resolve::{resolve, Resolved};
+pub use schema::*;
+pub use write::to_toml;
+
+use std::io::Read;
+use std::path::Path;
+use std::sync::OnceLock;
+
+/// The text formats a configuration may be written in.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Format {
+    /// TOML (the usual form).
+    Toml,
+    /// JSON (what editors and scripts often produce).
+    Json,
+}
+
+impl Format {
+    /// By the file's extension: `.json` is JSON, anything else TOML.
+    pub fn of_path(path: &Path) -> Format {
+        match path.extension().and_then(|e| e.to_str()) {
+            Some(e) if e.eq_ignore_ascii_case("json") => Format::Json,
+            _ => Format::Toml,
+        }
+    }
+}
+
+/// The JSON Schema of a configuration file (draft 2020-12), generated from
+/// the types in [`schema`] once per process.
+pub fn json_schema() -> &'static serde_json::Value {
+    static SCHEMA: OnceLock<serde_json::Value> = OnceLock::new();
+    SCHEMA.get_or_init(|| {
+        serde_json::to_value(schemars::schema_for!(ScenarioSpec)).expect("a schema is JSON")
+    })
+}
+
+/// Reads, parses and validates a configuration file. Files over
+/// [`MAX_FILE_BYTES`] are refused before parsing. Errors about the file
+/// itself name it as given.
+pub fn load_file(path: &Path) -> Result<ScenarioSpec, ConfigError> {
+    let name = path.display().to_string();
+    let file = std::fs::File::open(path).map_err(|e| {
+        ConfigError::new(
+            &name,
+            format!("cannot open: {}; check the path", io_reason(&e)),
+        )
+    })?;
+    let mut text = String::new();
+    // Read one byte past the limit to tell "at the limit" from "over it".
+    let read = file
+        .take(MAX_FILE_BYTES + 1)
+        .read_to_string(&mut text)
+        .map_err(|e| {
+            ConfigError::new(
+                &name,
+                format!("cannot read as UTF-8 text: {}", io_reason(&e)),
+            )
+        })?;
+    if read as u64 > MAX_FILE_BYTES {
+        return Err(ConfigError::new(
+            &name,
+            format!(
+                "larger than {} bytes (1 MiB); a configuration is a few kB: give long sampled \
+                 targets a coarser dt_s",
+                MAX_FILE_BYTES
+            ),
+        ));
+    }
+    load_str(&text, Format::of_path(path))
+}
+
+fn io_reason(e: &std::io::Error) -> String {
+    // The OS message without Rust's "(os error N)" suffix.
+    let s = e.to_string();
+    match s.find(" (os error") {
+        Some(i) => s[..i].to_string(),
+        None => s,
+    }
+}
+
+/// Parses and validates configuration text.
+pub fn load_str(text: &str, format: Format) -> Result<ScenarioSpec, ConfigError> {
+    if text.len() as u64 > MAX_FILE_BYTES {
+        return Err(ConfigError::new(
+            "(config)",
+            "larger than 1 MiB; a configuration is a few kB",
+        ));
+    }
+    let spec = match format {
+        Format::Toml => parse_toml(text)?,
+        Format::Json => parse_json(text)?,
+    };
+    validate(&spec)?;
+    Ok(spec)
+}
+
+/// Checks a parsed configuration: every field's bounds, then the cross-field
+/// rules and the core's set-up.
+pub fn validate(spec: &ScenarioSpec) -> Result<(), ConfigError> {
+    let value = serde_json::to_value(spec)
+        .map_err(|e| ConfigError::new("(config)", format!("cannot be represented: {e}")))?;
+    check::bounds(json_schema(), &value)?;
+    resolve(spec).map(|_| ())
+}
+
+/// The configuration, every default filled in, as compact JSON (what the
+/// binding hands to Python).
+pub fn to_json(spec: &ScenarioSpec) -> String {
+    serde_json::to_string(spec).expect("a validated configuration is JSON")
+}
+
+fn path_string(p: &serde_path_to_error::Path) -> String {
+    let s = p.to_string();
+    // "." is the root; "?" a position serde could not name.
+    if s == "." || s == "?" {
+        String::new()
+    } else {
+        s
+    }
+}
+
+fn parse_toml(text: &str) -> Result<ScenarioSpec, ConfigError> {
+    let de = toml::Deserializer::parse(text).map_err(|e| syntax_error(text, &e))?;
+    serde_path_to_error::deserialize(de).map_err(|e| {
+        let path = path_string(e.path());
+        error::from_serde(&path, e.inner().message())
+    })
+}
+
+fn parse_json(text: &str) -> Result<ScenarioSpec, ConfigError> {
+    // serde would also read a struct from a JSON list, by position.
+    if !text.trim_start().starts_with('{') {
+        return Err(ConfigError::new(
+            "(config)",
+            "a JSON configuration is one object ({ \"phases\": [...], ... }); wrap the tables in braces",
+        ));
+    }
+    let mut de = serde_json::Deserializer::from_str(text);
+    let spec: ScenarioSpec = serde_path_to_error::deserialize(&mut de).map_err(|e| {
+        let path = path_string(e.path());
+        let inner = e.into_inner();
+        if inner.is_syntax() || inner.is_eof() {
+            return ConfigError::new(
+                if path.is_empty() {
+                    "(config)".into()
+                } else {
+                    path
+                },
+                format!(
+                    "not valid JSON at line {}, column {}; fix the syntax",
+                    inner.line(),
+                    inner.column()
+                ),
+            );
+        }
+        // serde_json appends " at line L column C" to data errors.
+        let msg = inner.to_string();
+        let msg = msg.split(" at line ").next().unwrap_or(&msg).to_string();
+        error::from_serde(&path, &msg)
+    })?;
+    de.end().map_err(|e| {
+        ConfigError::new(
+            "(config)",
+            format!(
+                "trailing text after the JSON object at line {}; remove it",
+                e.line()
+            ),
+        )
+    })?;
+    Ok(spec)
+}
+
+/// A TOML syntax error, at the dotted path of the key on the offending line
+/// when one can be read off the text (the tables opened before it, the key
+/// at the start of the line), else at the table.
+fn syntax_error(text: &str, e: &toml::de::Error) -> ConfigError {
+    let offset = e.span().map_or(0, |s| s.start).min(text.len());
+    let before = &text[..offset];
+    let line_no = before.matches('\n').count() + 1;
+    let col = offset - before.rfind('\n').map_or(0, |i| i + 1) + 1;
+    let mut table = String::new();
+    let mut counts: std::collections::HashMap<String, usize> = Default::default();
+    for line in text.lines().take(line_no - 1) {
+        let l = line.trim();
+        if let Some(name) = l.strip_prefix("[[").and_then(|r| r.split("]]").next()) {
+            let name = name.trim().to_string();
+            let n = counts.entry(name.clone()).or_insert(0);
+            table = format!("{name}[{n}]");
+            *n += 1;
+        } else if let Some(name) = l.strip_prefix('[').and_then(|r| r.split(']').next()) {
+            table = name.trim().to_string();
+        }
+    }
+    let line = text.lines().nth(line_no - 1).unwrap_or("");
+    let key = line.split_once('=').map(|(k, _)| k.trim()).filter(|k| {
+        !k.is_empty()
+            && k.chars()
+                .all(|c| c.is_ascii_alphanumeric() || "_-.".contains(c))
+    });
+    let on_header = line.trim_start().starts_with('[');
+    let field = match (table.is_empty() || on_header, key) {
+        (true, _) if on_header => "(config)".into(),
+        (_, Some(k)) => error::join(&table, k),
+        (false, None) => table,
+        (true, None) => "(config)".into(),
+    };
+    ConfigError::new(
+        field,
+        format!(
+            "not valid TOML at line {line_no}, column {col}: {}; fix the syntax",
+            e.message().trim_end_matches('\n').replace('\n', "; ")
+        ),
+    )
+}

@@ -1,0 +1,384 @@
+//! From a parsed configuration to the core's structs, checking everything
+//! that is not a single field's bound: phase order, covariances, LQR gains,
+//! the bus URL, and timing settings against the loop period. The core's own
+//! set-up ([`Protocol::new`], [`Robot::new`]) runs last, so a configuration
+//! that passes here also builds.
+
+#![allow(non_snake_case)]
+
+use crate::cov::Cov;
+use crate::error::{num, ConfigError};
+use crate::schema::{
+    PhaseKindSpec, PositionUnit, RigSpec, RobotSpec, ScenarioSpec, ShapeSpec, MAX_PARTS,
+};
+use nalgebra::{SVector, Vector2};
+use sensaug_core::estimator::{ExtendedFilterConfig, GoalIntegratorConfig, HandleModel};
+use sensaug_core::plant::{PlantParams, PlantState};
+use sensaug_core::riccati::agent_gains;
+use sensaug_core::scenario::{
+    PartnerConfig, Phase, PhaseKind, Protocol, Robot, RobotConfig, ScenarioError, WorldConfig,
+};
+use sensaug_core::target::{Shape, Target};
+use sensaug_core::ukf::MerweParams;
+
+/// Everything the simulation and the real-time loop need, validated and
+/// built. Borrows the sampled targets of the configuration it came from.
+#[derive(Clone, Debug)]
+pub struct Resolved<'a> {
+    /// The configuration, every default filled in.
+    pub spec: &'a ScenarioSpec,
+    /// The protocol's phases.
+    pub phases: Vec<Phase<'a>>,
+    /// The robot's controller.
+    pub robot: RobotConfig,
+    /// The partner (virtual human): gains over xi, torque limit.
+    pub partner: PartnerConfig,
+    /// The simulated world (the simulation only).
+    pub world: WorldConfig,
+    /// Loop period (s).
+    pub dt_s: f64,
+    /// rad per controller position unit on the rig (torque scales alike).
+    pub rad_per_unit: f64,
+}
+
+impl Resolved<'_> {
+    /// The core's protocol for these phases (validated at resolution).
+    pub fn protocol(&self) -> Protocol<'_> {
+        Protocol::new(&self.phases, self.dt_s).expect("checked when resolved")
+    }
+}
+
+fn shape(s: &ShapeSpec) -> Shape<'_> {
+    match s {
+        ShapeSpec::Constant(c) => Shape::Constant { value: c.value },
+        ShapeSpec::Square(q) => Shape::Square {
+            amplitude: q.amplitude,
+            period_s: q.period_s,
+        },
+        ShapeSpec::RoundedSquare(q) => Shape::RoundedSquare {
+            amplitude: q.amplitude,
+            period_s: q.period_s,
+        },
+        ShapeSpec::Chirp(c) => Shape::Chirp {
+            amplitude: c.amplitude,
+            f0_hz: c.f0_hz,
+            f1_hz: c.f1_hz,
+            duration_s: c.duration_s,
+        },
+        ShapeSpec::Harmonics(h) => Shape::Harmonics {
+            amplitude: h.amplitude,
+            omega_rad_s: h.omega_rad_s,
+            harmonics: h.harmonics,
+            cosine: h.cosine,
+        },
+        ShapeSpec::Sampled(s) => Shape::Sampled {
+            samples: &s.samples,
+            dt_s: s.dt_s,
+        },
+    }
+}
+
+fn target(specs: &[ShapeSpec]) -> Target<'_> {
+    debug_assert!(specs.len() <= MAX_PARTS, "bounded by the schema");
+    let mut t = Target::default();
+    for (slot, s) in t.parts.iter_mut().zip(specs) {
+        *slot = shape(s);
+    }
+    t
+}
+
+fn kind(k: PhaseKindSpec) -> PhaseKind {
+    match k {
+        PhaseKindSpec::Gains => PhaseKind::Gains,
+        PhaseKindSpec::Trajectory => PhaseKind::Trajectory,
+        PhaseKindSpec::Integration => PhaseKind::Integration,
+    }
+}
+
+/// The 6-state filter's initial state: handle errors 0, the gains' guesses.
+fn extended_x0(field: &str, gains0: &[f64]) -> Result<SVector<f64, 6>, ConfigError> {
+    let mut x0 = SVector::<f64, 6>::zeros();
+    x0.fixed_rows_mut::<3>(3)
+        .copy_from_slice(&gains3(field, gains0)?);
+    Ok(x0)
+}
+
+/// Three gains [Lhx, Lhv, Lhh] (the schema bounds the length; checked again
+/// here for callers that resolve without validating).
+fn gains3(field: &str, v: &[f64]) -> Result<[f64; 3], ConfigError> {
+    <[f64; 3]>::try_from(v)
+        .map_err(|_| ConfigError::new(field, format!("has {} entries; give exactly 3", v.len())))
+}
+
+fn lqr(
+    field: &str,
+    mass: f64,
+    damping: f64,
+    q_pos: f64,
+    q_vel: f64,
+) -> Result<[f64; 2], ConfigError> {
+    agent_gains(mass, damping, q_pos, q_vel).map_err(|e| {
+        ConfigError::new(
+            field,
+            format!(
+                "no stabilizing LQR gains for these weights ({e}); use q_pos > 0 and q_vel >= 0"
+            ),
+        )
+    })
+}
+
+/// A 6-state filter (stage 1: `M = 3`, stage 2: `M = 5`) from its table.
+fn extended<const M: usize>(
+    path: &str,
+    [Q, P0]: [&Cov<6>; 2],
+    R: &Cov<M>,
+    gains0: &[f64],
+    sigma: MerweParams,
+) -> Result<ExtendedFilterConfig<M>, ConfigError> {
+    Ok(ExtendedFilterConfig {
+        x0: extended_x0(&format!("{path}.gains0"), gains0)?,
+        P0: P0.matrix(&format!("{path}.P0"))?,
+        Q: Q.matrix(&format!("{path}.Q"))?,
+        R: R.matrix(&format!("{path}.R"))?,
+        sigma,
+    })
+}
+
+fn robot(r: &RobotSpec, model: HandleModel) -> Result<RobotConfig, ConfigError> {
+    let [k_pos, k_vel] = lqr("robot.q_pos", model.mass, model.damping, r.q_pos, r.q_vel)?;
+    let sigma = MerweParams {
+        alpha: r.sigma.alpha,
+        beta: r.sigma.beta,
+        kappa: r.sigma.kappa,
+    };
+    // Stage 3 has the fewest states (2): n + kappa > 0 must hold there too.
+    if 2.0 + sigma.kappa <= 0.0 {
+        return Err(ConfigError::new(
+            "robot.sigma.kappa",
+            format!(
+                "{} leaves no valid sigma points for the 2-state stage-3 filter; use kappa > -2",
+                num(sigma.kappa)
+            ),
+        ));
+    }
+    let s1 = &r.stage1;
+    let s2 = &r.stage2;
+    let s3 = &r.stage3;
+    Ok(RobotConfig {
+        gains: [k_pos, k_vel, 0.0],
+        model,
+        stage1: extended("robot.stage1", [&s1.Q, &s1.P0], &s1.R, &s1.gains0, sigma)?,
+        stage2: extended("robot.stage2", [&s2.Q, &s2.P0], &s2.R, &s2.gains0, sigma)?,
+        stage3: GoalIntegratorConfig {
+            x0: Vector2::zeros(),
+            P0: s3.P0.matrix("robot.stage3.P0")?,
+            Q: s3.Q.matrix("robot.stage3.Q")?,
+            R_own: s3.R_sensor.matrix("robot.stage3.R_sensor")?,
+            partner_window_s: s3.partner_window_s,
+            sigma,
+        },
+        integrate: r.integrate,
+        gain_window_s: r.gain_window_s,
+        prior_partner_gains: match &r.prior_partner_gains {
+            Some(g) => Some(gains3("robot.prior_partner_gains", g)?),
+            None => None,
+        },
+        torque_limit: r.torque_limit,
+        seed: r.seed,
+    })
+}
+
+fn rig_timing(rig: &RigSpec, dt_s: f64) -> Result<(), ConfigError> {
+    sensaug_bridge::transport::BusUrl::parse(&rig.can)
+        .map_err(|e| ConfigError::new("rig.can", e.to_string()))?;
+    let dt_ms = dt_s * 1e3;
+    if rig.feedback_timeout_ms < dt_ms {
+        return Err(ConfigError::new(
+            "rig.feedback_timeout_ms",
+            format!(
+                "{} ms is shorter than one loop period (plant.dt_s = {} s); use at least {} ms",
+                num(rig.feedback_timeout_ms),
+                num(dt_s),
+                num(dt_ms)
+            ),
+        ));
+    }
+    if f64::from(rig.watchdog_ms) < 2.0 * dt_ms {
+        return Err(ConfigError::new(
+            "rig.watchdog_ms",
+            format!(
+                "{} ms is shorter than two loop periods (plant.dt_s = {} s); the drive would \
+                 trip between commands; use at least {} ms",
+                rig.watchdog_ms,
+                num(dt_s),
+                num((2.0 * dt_ms).ceil())
+            ),
+        ));
+    }
+    if rig.log.is_empty() {
+        return Err(ConfigError::new(
+            "rig.log",
+            "empty; give the log file's path",
+        ));
+    }
+    if rig.stats.is_empty() {
+        return Err(ConfigError::new(
+            "rig.stats",
+            "empty; give the statistics file's path",
+        ));
+    }
+    Ok(())
+}
+
+/// The core's set-up errors, as field errors (the schema and the checks
+/// above catch them first; this maps what remains).
+fn core_error(e: ScenarioError) -> ConfigError {
+    match e {
+        ScenarioError::PhaseCount(n) => {
+            ConfigError::new("phases", format!("has {n} phases; give 1 to 4"))
+        }
+        ScenarioError::InvalidPhase { phase, field } => ConfigError::new(
+            format!("phases[{phase}].{field}"),
+            "out of range for the loop period; check it against plant.dt_s",
+        ),
+        ScenarioError::InvalidTarget {
+            phase,
+            which,
+            error,
+        } => ConfigError::new(
+            format!("phases[{phase}].{which}[{}].{}", error.part, error.field),
+            "out of range; amplitudes finite, periods and durations > 0, frequencies >= 0",
+        ),
+        ScenarioError::NoPartnerGains { phase } => ConfigError::new(
+            format!("phases[{phase}].kind"),
+            "needs an earlier \"gains\" phase or robot.prior_partner_gains",
+        ),
+        ScenarioError::InvalidSetting(name) => {
+            ConfigError::new(name, "out of range; see `sensaug schema` for its bounds")
+        }
+        ScenarioError::Plant(_) => ConfigError::new(
+            "plant",
+            "rejected by the plant model; mass > 0, damping and coulomb >= 0, dt_s > 0",
+        ),
+        ScenarioError::Estimator { stage, .. } => ConfigError::new(
+            format!("robot.{stage}"),
+            "rejected by the filter; check its covariances and robot.sigma",
+        ),
+        ScenarioError::OutputTooShort { .. } => {
+            ConfigError::new("phases", "trial too long for the output buffer")
+        }
+    }
+}
+
+/// Validates the cross-field rules and builds the core's structs.
+pub fn resolve(spec: &ScenarioSpec) -> Result<Resolved<'_>, ConfigError> {
+    let p = &spec.plant;
+    let dt_s = p.dt_s;
+    let model = HandleModel {
+        mass: p.mass,
+        damping: p.damping,
+        dt_s,
+    };
+    let mut gains_known = spec.robot.prior_partner_gains.is_some();
+    let mut phases = Vec::with_capacity(spec.phases.len());
+    for (i, ph) in spec.phases.iter().enumerate() {
+        if ph.duration_s < dt_s {
+            return Err(ConfigError::new(
+                format!("phases[{i}].duration_s"),
+                format!(
+                    "{} s is shorter than one tick (plant.dt_s = {} s); lengthen it",
+                    num(ph.duration_s),
+                    num(dt_s)
+                ),
+            ));
+        }
+        match ph.kind {
+            PhaseKindSpec::Gains => gains_known = true,
+            _ if !gains_known => {
+                return Err(ConfigError::new(
+                    format!("phases[{i}].kind"),
+                    "a \"trajectory\" or \"integration\" phase needs an earlier \"gains\" phase \
+                     or robot.prior_partner_gains; reorder the phases or give the prior gains",
+                ))
+            }
+            _ => {}
+        }
+        phases.push(Phase {
+            kind: kind(ph.kind),
+            duration_s: ph.duration_s,
+            robot_target: target(&ph.robot_target),
+            partner_target: target(&ph.partner_target),
+            target_noise_std: ph.target_noise_std,
+        });
+    }
+    let robot = robot(&spec.robot, model)?;
+
+    let pa = &spec.partner;
+    let partner_gains =
+        match (pa.gains.as_deref(), pa.q_pos, pa.q_vel) {
+            (Some(g), None, None) => gains3("partner.gains", g)?,
+            (None, Some(q_pos), q_vel) => {
+                let [k_pos, k_vel] = lqr(
+                    "partner.q_pos",
+                    p.mass,
+                    p.damping,
+                    q_pos,
+                    q_vel.unwrap_or(0.0),
+                )?;
+                // The partner's own error is x - tau_h: the third entry of xi.
+                [0.0, k_vel, k_pos]
+            }
+            (None, None, Some(_)) => {
+                return Err(ConfigError::new(
+                    "partner.q_vel",
+                    "given without partner.q_pos; add q_pos (LQR partner) or give gains instead",
+                ))
+            }
+            (None, None, None) => {
+                return Err(ConfigError::new(
+                    "partner",
+                    "give either gains = [Lhx, Lhv, Lhh] or the LQR weight q_pos (and q_vel)",
+                ))
+            }
+            (Some(_), _, _) => return Err(ConfigError::new(
+                "partner",
+                "give either gains = [Lhx, Lhv, Lhh] or the LQR weights q_pos and q_vel, not both",
+            )),
+        };
+    rig_timing(&spec.rig, dt_s)?;
+
+    let w = &spec.world;
+    let world = WorldConfig {
+        plant: PlantParams {
+            mass: p.mass,
+            damping: p.damping,
+            coulomb: p.coulomb,
+            dt_s,
+        },
+        initial: PlantState { x: w.x0, v: w.v0 },
+        motor_noise_std: w.motor_noise_std,
+        position_noise_std: w.position_noise_std,
+        velocity_noise_std: w.velocity_noise_std,
+        seed: w.seed,
+    };
+    let resolved = Resolved {
+        spec,
+        phases,
+        robot,
+        partner: PartnerConfig {
+            gains: partner_gains,
+            torque_limit: pa.torque_limit,
+            estimates_robot: pa.estimates_robot,
+        },
+        world,
+        dt_s,
+        rad_per_unit: match spec.rig.position_unit {
+            PositionUnit::Deg => core::f64::consts::PI / 180.0,
+            PositionUnit::Rad => 1.0,
+        },
+    };
+    // The core's own set-up checks, so that a valid file always builds.
+    let protocol = Protocol::new(&resolved.phases, dt_s).map_err(core_error)?;
+    Robot::new(resolved.robot, protocol).map_err(core_error)?;
+    Ok(resolved)
+}

@@ -1,0 +1,551 @@
+//! The configuration's types: one struct per TOML table. They are at once
+//! the parser (serde), the defaults (`#[serde(default)]`), the bounds
+//! (`#[schemars(range)]`, enforced by [`crate::check`]) and the JSON Schema
+//! (schemars). Units are in the field names and doc comments; the doc
+//! comments become the schema's descriptions and the comments of written
+//! TOML files.
+//!
+//! Positions are in the controller's unit: degrees for the Hi5 presets
+//! (`rig.position_unit`), metres for the simulation section; torques in the
+//! matching model unit (docs/model.md, Units).
+#![allow(non_snake_case)]
+
+use crate::cov::Cov;
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+/// Largest magnitude accepted for a gain, a target amplitude, an initial
+/// state or a torque limit in model units: far beyond any physical setting,
+/// small enough that products stay finite.
+pub const MAX_MAGNITUDE: f64 = 1e6;
+/// Longest phase, target period or chirp (s): one hour.
+pub const MAX_DURATION_S: f64 = 3600.0;
+/// Most phases in one trial.
+pub const MAX_PHASES: usize = sensaug_core::scenario::MAX_PHASES;
+/// Most shapes summed into one target.
+pub const MAX_PARTS: usize = sensaug_core::target::MAX_PARTS;
+/// Largest configuration file read (bytes); larger ones are refused before
+/// parsing.
+pub const MAX_FILE_BYTES: u64 = 1 << 20;
+
+/// A whole trial: the protocol's phases, the handle, the simulated world, the
+/// robot, its partner and the real-time rig. Every table but `phases` may be
+/// left out (all defaults).
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+#[schemars(title = "sensaug trial configuration")]
+pub struct ScenarioSpec {
+    /// The protocol: 1 to 4 phases run in order.
+    #[schemars(length(min = 1, max = 4))]
+    pub phases: Vec<PhaseSpec>,
+    /// The handle as the controller models it.
+    #[serde(default)]
+    pub plant: PlantSpec,
+    /// Simulation only: noise, seed and initial state of the simulated world.
+    #[serde(default)]
+    pub world: WorldSpec,
+    /// The robot's controller and estimators.
+    #[serde(default)]
+    pub robot: RobotSpec,
+    /// The partner: the virtual human (simulation, and inside the rig loop).
+    #[serde(default)]
+    pub partner: PartnerSpec,
+    /// The real-time loop and its CAN link (`sensaug-rt`; the simulation ignores it).
+    #[serde(default)]
+    pub rig: RigSpec,
+}
+
+/// What the robot does during a phase.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum PhaseKindSpec {
+    /// Stage 1: both targets known; estimate the partner's gains.
+    Gains,
+    /// Stage 2: the partner's target unknown; estimate it.
+    Trajectory,
+    /// Stage 3: the robot's view of the target noisy; fuse it with the partner's.
+    Integration,
+}
+
+/// One phase (`[[phases]]`).
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct PhaseSpec {
+    /// What the robot estimates: "gains", "trajectory" or "integration".
+    pub kind: PhaseKindSpec,
+    /// Duration (s), at least one tick.
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = MAX_DURATION_S))]
+    pub duration_s: f64,
+    /// The robot's target tau: a sum of 1 to 3 shapes (position unit).
+    #[schemars(length(min = 1, max = 3))]
+    pub robot_target: Vec<ShapeSpec>,
+    /// The partner's target tau_h: a sum of 1 to 3 shapes (position unit).
+    #[schemars(length(min = 1, max = 3))]
+    pub partner_target: Vec<ShapeSpec>,
+    /// Std of the white noise on the robot's view of its target (position
+    /// unit); used in integration phases.
+    #[serde(default)]
+    #[schemars(range(min = 0.0, max = MAX_MAGNITUDE))]
+    pub target_noise_std: f64,
+}
+
+/// A target shape, chosen by `kind` (deserialized in `crate::shape` so that
+/// errors name the field inside the shape).
+#[derive(Clone, Debug, PartialEq, Serialize, JsonSchema)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum ShapeSpec {
+    /// A constant offset.
+    Constant(ConstantSpec),
+    /// +amplitude for the first half of each period, -amplitude after.
+    Square(SquareSpec),
+    /// amplitude * cbrt(sin(2 pi t / period)): the Hi5 target (8 deg, 4 s).
+    RoundedSquare(SquareSpec),
+    /// Linear chirp from f0_hz to f1_hz over duration_s, then at f1_hz.
+    Chirp(ChirpSpec),
+    /// amplitude * sum over k = 1..harmonics of sin(k omega t) (cos if cosine).
+    Harmonics(HarmonicsSpec),
+    /// Samples every dt_s from t = 0, linearly interpolated, held at the ends.
+    Sampled(SampledSpec),
+}
+
+/// `kind = "constant"`.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ConstantSpec {
+    /// Offset (position unit).
+    #[schemars(range(min = -MAX_MAGNITUDE, max = MAX_MAGNITUDE))]
+    pub value: f64,
+}
+
+/// `kind = "square"` or `"rounded_square"`.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SquareSpec {
+    /// Amplitude (position unit).
+    #[schemars(range(min = -MAX_MAGNITUDE, max = MAX_MAGNITUDE))]
+    pub amplitude: f64,
+    /// Period (s).
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = MAX_DURATION_S))]
+    pub period_s: f64,
+}
+
+/// `kind = "chirp"`.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ChirpSpec {
+    /// Amplitude (position unit).
+    #[schemars(range(min = -MAX_MAGNITUDE, max = MAX_MAGNITUDE))]
+    pub amplitude: f64,
+    /// Start frequency (Hz).
+    #[schemars(range(min = 0.0, max = 500.0))]
+    pub f0_hz: f64,
+    /// End frequency (Hz).
+    #[schemars(range(min = 0.0, max = 500.0))]
+    pub f1_hz: f64,
+    /// Sweep duration (s).
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = MAX_DURATION_S))]
+    pub duration_s: f64,
+}
+
+/// `kind = "harmonics"`.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct HarmonicsSpec {
+    /// Amplitude of each harmonic (position unit).
+    #[schemars(range(min = -MAX_MAGNITUDE, max = MAX_MAGNITUDE))]
+    pub amplitude: f64,
+    /// Fundamental angular frequency (rad/s).
+    #[schemars(range(min = -3200.0, max = 3200.0))]
+    pub omega_rad_s: f64,
+    /// Number of harmonics.
+    #[serde(default = "three")]
+    #[schemars(range(min = 1, max = 32))]
+    pub harmonics: u32,
+    /// Cosines instead of sines.
+    #[serde(default)]
+    pub cosine: bool,
+}
+
+fn three() -> u32 {
+    3
+}
+
+/// `kind = "sampled"`.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SampledSpec {
+    /// The samples (position unit).
+    #[schemars(length(min = 1, max = 100000), inner(range(min = -MAX_MAGNITUDE, max = MAX_MAGNITUDE)))]
+    pub samples: Vec<f64>,
+    /// Sample spacing (s).
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = MAX_DURATION_S))]
+    pub dt_s: f64,
+}
+
+/// `[plant]`: the handle, `M xdd + C xd = u + u_h + eps` (eq.dynamics).
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct PlantSpec {
+    /// Inertia M (model mass unit: 0.0035 for the Hi5 in degrees, kg in the
+    /// simulation section).
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = 1e3))]
+    pub mass: f64,
+    /// Viscous damping C (model torque unit per position unit per s).
+    #[schemars(range(min = 0.0, max = 1e3))]
+    pub damping: f64,
+    /// Coulomb friction of the simulated handle (model torque unit).
+    #[schemars(range(min = 0.0, max = 1e3))]
+    pub coulomb: f64,
+    /// Control period dt (s): 1e-4 to 0.1.
+    #[schemars(range(min = 1e-4, max = 0.1))]
+    pub dt_s: f64,
+}
+
+impl Default for PlantSpec {
+    fn default() -> Self {
+        PlantSpec {
+            mass: sensaug_core::plant::PlantParams::HI5.mass,
+            damping: 0.0,
+            coulomb: 0.0,
+            dt_s: 1e-3,
+        }
+    }
+}
+
+/// `[world]`: simulation only (the rig is the world and ignores it).
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct WorldSpec {
+    /// Std of the motor noise eps added to the summed torque (model torque unit).
+    #[schemars(range(min = 0.0, max = MAX_MAGNITUDE))]
+    pub motor_noise_std: f64,
+    /// Std of the position sensor noise (position unit).
+    #[schemars(range(min = 0.0, max = MAX_MAGNITUDE))]
+    pub position_noise_std: f64,
+    /// Std of the velocity sensor noise (position unit/s).
+    #[schemars(range(min = 0.0, max = MAX_MAGNITUDE))]
+    pub velocity_noise_std: f64,
+    /// Seed of the motor and sensor noise.
+    pub seed: u64,
+    /// Initial position (position unit).
+    #[schemars(range(min = -MAX_MAGNITUDE, max = MAX_MAGNITUDE))]
+    pub x0: f64,
+    /// Initial velocity (position unit/s).
+    #[schemars(range(min = -MAX_MAGNITUDE, max = MAX_MAGNITUDE))]
+    pub v0: f64,
+}
+
+impl Default for WorldSpec {
+    fn default() -> Self {
+        // Sensor variance 1e-7 per step: the paper's R.
+        let sensor_std = 1e-7f64.sqrt();
+        WorldSpec {
+            motor_noise_std: 1e-3,
+            position_noise_std: sensor_std,
+            velocity_noise_std: sensor_std,
+            seed: 0,
+            x0: 0.0,
+            v0: 0.0,
+        }
+    }
+}
+
+/// `[robot.sigma]`: Merwe scaled sigma points of every UKF.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct SigmaSpec {
+    /// Spread alpha.
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = 1.0))]
+    pub alpha: f64,
+    /// Prior-knowledge beta (2 for Gaussians).
+    #[schemars(range(min = 0.0, max = 10.0))]
+    pub beta: f64,
+    /// Secondary scaling kappa; n + kappa must be > 0.
+    #[schemars(range(min = -5.0, max = 100.0))]
+    pub kappa: f64,
+}
+
+impl Default for SigmaSpec {
+    fn default() -> Self {
+        SigmaSpec {
+            alpha: 1.0,
+            beta: 2.0,
+            kappa: 0.0,
+        }
+    }
+}
+
+/// `[robot.stage1]`: the gain-estimation UKF (eq.system-extended; 6 states,
+/// measurements [x - tau, xdot, x - tau_h]). Covariances are per step.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct GainFilterSpec {
+    /// Process noise Q (6 diagonal entries or a 6x6 matrix).
+    pub Q: Cov<6>,
+    /// Measurement noise R (3 diagonal entries or a 3x3 matrix).
+    pub R: Cov<3>,
+    /// Initial covariance P0 (6 diagonal entries or a 6x6 matrix).
+    pub P0: Cov<6>,
+    /// Initial guesses of the partner gains [Lhx, Lhv, Lhh].
+    #[schemars(length(min = 3, max = 3), inner(range(min = -MAX_MAGNITUDE, max = MAX_MAGNITUDE)))]
+    pub gains0: Vec<f64>,
+}
+
+impl Default for GainFilterSpec {
+    fn default() -> Self {
+        GainFilterSpec {
+            Q: Cov::diagonal([1e-2; 6]),
+            R: Cov::diagonal([1e-7; 3]),
+            P0: Cov::diagonal([1e-4, 1e-4, 1e-4, 1.0, 1.0, 1.0]),
+            gains0: vec![0.0; 3],
+        }
+    }
+}
+
+/// `[robot.stage2]`: the trajectory-estimation UKF (6 states, measurements
+/// [x - tau, xdot] and the three gains as pseudo-measurements).
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrajectoryFilterSpec {
+    /// Process noise Q (6 diagonal entries or a 6x6 matrix).
+    pub Q: Cov<6>,
+    /// Measurement noise R (5 diagonal entries or a 5x5 matrix).
+    pub R: Cov<5>,
+    /// Initial covariance P0 (6 diagonal entries or a 6x6 matrix).
+    pub P0: Cov<6>,
+    /// Unused (stage 2 starts from the stage-1 posterior); kept so one
+    /// filter table fits both stages.
+    #[schemars(length(min = 3, max = 3), inner(range(min = -MAX_MAGNITUDE, max = MAX_MAGNITUDE)))]
+    pub gains0: Vec<f64>,
+}
+
+impl Default for TrajectoryFilterSpec {
+    fn default() -> Self {
+        TrajectoryFilterSpec {
+            Q: Cov::diagonal([1e-2; 6]),
+            R: Cov::diagonal([1e-7; 5]),
+            P0: Cov::diagonal([1e-4, 1e-4, 1e-4, 1.0, 1.0, 1.0]),
+            gains0: vec![0.0; 3],
+        }
+    }
+}
+
+/// `[robot.stage3]`: the goal-integration filters on [x - tau, xdot].
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct IntegratorSpec {
+    /// Process noise Q (2 diagonal entries or a 2x2 matrix).
+    pub Q: Cov<2>,
+    /// Own sensor noise on [x - tau, xdot] before the phase's target noise is
+    /// added (2 diagonal entries or a 2x2 matrix).
+    pub R_sensor: Cov<2>,
+    /// Initial covariance P0 (2 diagonal entries or a 2x2 matrix).
+    pub P0: Cov<2>,
+    /// Window of the partner channel's online variance estimate (s).
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = MAX_DURATION_S))]
+    pub partner_window_s: f64,
+}
+
+impl Default for IntegratorSpec {
+    fn default() -> Self {
+        IntegratorSpec {
+            Q: Cov::diagonal([1e-2; 2]),
+            R_sensor: Cov::diagonal([1e-7; 2]),
+            P0: Cov::diagonal([1e-2; 2]),
+            partner_window_s: 0.2,
+        }
+    }
+}
+
+/// `[robot]`: LQR weights, estimators and the goal-integration switch.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct RobotSpec {
+    /// LQR weight on the position error (its gains come from the reduced
+    /// 2-state CARE, docs/model.md).
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = MAX_MAGNITUDE))]
+    pub q_pos: f64,
+    /// LQR weight on the velocity.
+    #[schemars(range(min = 0.0, max = MAX_MAGNITUDE))]
+    pub q_vel: f64,
+    /// Let the integrated estimate drive control in integration phases.
+    pub integrate: bool,
+    /// Stage 2's gain pseudo-measurement is the mean of the stage-1 estimate
+    /// over the last gain_window_s of the gain phase (s).
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = MAX_DURATION_S))]
+    pub gain_window_s: f64,
+    /// Torque limit of the controller (model torque unit).
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = MAX_MAGNITUDE))]
+    pub torque_limit: f64,
+    /// Seed of the injected target-view noise.
+    pub seed: u64,
+    /// Partner gains [Lhx, Lhv, Lhh] to use when no gain phase precedes.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schemars(length(min = 3, max = 3), inner(range(min = -MAX_MAGNITUDE, max = MAX_MAGNITUDE)))]
+    pub prior_partner_gains: Option<Vec<f64>>,
+    /// Sigma points of every filter.
+    pub sigma: SigmaSpec,
+    /// Stage 1 (partner gains).
+    pub stage1: GainFilterSpec,
+    /// Stage 2 (partner trajectory).
+    pub stage2: TrajectoryFilterSpec,
+    /// Stage 3 (goal integration).
+    pub stage3: IntegratorSpec,
+}
+
+impl Default for RobotSpec {
+    fn default() -> Self {
+        RobotSpec {
+            q_pos: 1.0,
+            q_vel: 0.0,
+            integrate: true,
+            gain_window_s: 8.0,
+            torque_limit: 1e3,
+            seed: 1,
+            prior_partner_gains: None,
+            sigma: SigmaSpec::default(),
+            stage1: GainFilterSpec::default(),
+            stage2: TrajectoryFilterSpec::default(),
+            stage3: IntegratorSpec::default(),
+        }
+    }
+}
+
+/// `[partner]`: the virtual human, with imposed gains or LQR weights (give
+/// one, not both).
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct PartnerSpec {
+    /// Imposed gains [Lhx, Lhv, Lhh] over xi = [x - tau, xdot, x - tau_h]
+    /// (the Hi5 virtual human: [0, 0, Lhh]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schemars(length(min = 3, max = 3), inner(range(min = -MAX_MAGNITUDE, max = MAX_MAGNITUDE)))]
+    pub gains: Option<Vec<f64>>,
+    /// LQR weight on the partner's own position error (instead of gains).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = MAX_MAGNITUDE))]
+    pub q_pos: Option<f64>,
+    /// LQR weight on the velocity (with q_pos; default 0).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schemars(range(min = 0.0, max = MAX_MAGNITUDE))]
+    pub q_vel: Option<f64>,
+    /// Torque limit (model torque unit).
+    #[serde(default = "default_torque_limit")]
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = MAX_MAGNITUDE))]
+    pub torque_limit: f64,
+    /// The partner also identifies the robot (the simulation section).
+    #[serde(default)]
+    pub estimates_robot: bool,
+}
+
+fn default_torque_limit() -> f64 {
+    1e3
+}
+
+impl Default for PartnerSpec {
+    /// Without a `[partner]` table: the Hi5 virtual human with Lhh = 2.
+    fn default() -> Self {
+        PartnerSpec {
+            gains: Some(vec![0.0, 0.0, 2.0]),
+            q_pos: None,
+            q_vel: None,
+            torque_limit: default_torque_limit(),
+            estimates_robot: false,
+        }
+    }
+}
+
+/// Unit of the controller's positions on the rig.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum PositionUnit {
+    /// Degrees (the paper's Hi5 numbers).
+    Deg,
+    /// Radians.
+    Rad,
+}
+
+/// `[rig.realtime]`: thread settings of the loop; each falls back with a
+/// warning if the OS refuses it.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct RealtimeSpec {
+    /// SCHED_FIFO priority 1..99; absent keeps the default scheduler.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schemars(range(min = 1, max = 99))]
+    pub fifo_priority: Option<u32>,
+    /// CPU to pin the loop thread to; absent: no pinning.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schemars(range(max = 1023))]
+    pub cpu: Option<u32>,
+    /// Lock all memory (mlockall) before the loop.
+    pub mlockall: bool,
+}
+
+impl Default for RealtimeSpec {
+    fn default() -> Self {
+        RealtimeSpec {
+            fifo_priority: None,
+            cpu: None,
+            mlockall: true,
+        }
+    }
+}
+
+/// `[rig]`: the real-time loop, its CAN link, its safety limits and outputs.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct RigSpec {
+    /// CAN link: "udp:<port>" (loopback virtual bus, port 1..65535) or
+    /// "socketcan:<ifname>".
+    pub can: String,
+    /// Drive node id.
+    #[schemars(range(max = 15))]
+    pub node_id: u32,
+    /// Unit of the controller's positions; the drive speaks rad and N m, and
+    /// torque is scaled by the same factor (docs/model.md, Units).
+    pub position_unit: PositionUnit,
+    /// Torque limit at the drive (N m).
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = 10.0))]
+    pub torque_limit_nm: f64,
+    /// Drive command watchdog (ms): the drive disables itself when commands
+    /// stop for this long.
+    #[schemars(range(min = 5, max = 300))]
+    pub watchdog_ms: u32,
+    /// Feedback older than this stops the loop with an emergency stop (ms).
+    #[schemars(range(min = 1.0, max = 300.0))]
+    pub feedback_timeout_ms: f64,
+    /// Ramp from the last command to zero on SIGINT/SIGTERM (s).
+    #[schemars(range(min = 0.0, max = 2.0))]
+    pub ramp_down_s: f64,
+    /// Run the virtual human inside the loop (false: a person holds the handle).
+    pub virtual_human: bool,
+    /// Log file (CSV with metadata, docs/logs.md).
+    pub log: String,
+    /// Loop statistics (JSON).
+    pub stats: String,
+    /// Log ring capacity (records).
+    #[schemars(range(min = 1024, max = 4194304))]
+    pub ring_capacity: u64,
+    /// Thread settings.
+    pub realtime: RealtimeSpec,
+}
+
+impl Default for RigSpec {
+    fn default() -> Self {
+        RigSpec {
+            can: "udp:47100".into(),
+            node_id: 1,
+            position_unit: PositionUnit::Deg,
+            torque_limit_nm: 3.0,
+            watchdog_ms: 50,
+            feedback_timeout_ms: 20.0,
+            ramp_down_s: 0.2,
+            virtual_human: true,
+            log: "out/rig_log.csv".into(),
+            stats: "out/rig_stats.json".into(),
+            ring_capacity: 1 << 16,
+            realtime: RealtimeSpec::default(),
+        }
+    }
+}

@@ -1,0 +1,109 @@
+//! The schema crate on its own: the committed files load, written TOML reads
+//! back to the same configuration, TOML and JSON agree, and the bounds the
+//! schema publishes are the ones enforced.
+
+use sensaug_config::{json_schema, load_file, load_str, to_json, to_toml, Format, ScenarioSpec};
+use std::path::Path;
+
+const MINIMAL: &str = r#"
+[[phases]]
+kind = "gains"
+duration_s = 1.0
+robot_target = [{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }]
+partner_target = [{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }]
+"#;
+
+fn repo() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .unwrap()
+        .parent()
+        .unwrap()
+}
+
+#[test]
+fn committed_configs_load() {
+    for entry in std::fs::read_dir(repo().join("configs")).unwrap() {
+        let path = entry.unwrap().path();
+        let spec = load_file(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        assert!(!spec.phases.is_empty());
+    }
+}
+
+#[test]
+fn defaults_fill_every_table() {
+    let spec = load_str(MINIMAL, Format::Toml).unwrap();
+    assert_eq!(spec.plant.dt_s, 1e-3);
+    assert_eq!(spec.rig.watchdog_ms, 50);
+    assert_eq!(spec.partner.gains, Some(vec![0.0, 0.0, 2.0]));
+    assert_eq!(
+        spec.robot.stage2.R,
+        sensaug_config::Cov::diagonal([1e-7; 5])
+    );
+}
+
+#[test]
+fn written_toml_reads_back_the_same() {
+    let spec = load_file(&repo().join("configs/hi5_rig.toml")).unwrap();
+    let text = to_toml(&spec);
+    assert!(text.contains("# Torque limit at the drive (N m)."));
+    let back: ScenarioSpec = load_str(&text, Format::Toml).unwrap();
+    assert_eq!(back, spec);
+}
+
+#[test]
+fn json_and_toml_are_one_schema() {
+    let spec = load_str(MINIMAL, Format::Toml).unwrap();
+    let from_json = load_str(&to_json(&spec), Format::Json).unwrap();
+    assert_eq!(from_json, spec);
+}
+
+#[test]
+fn full_covariances_are_kept_as_written() {
+    let text = format!("{MINIMAL}\n[robot.stage3]\nQ = [[0.01, 0.001], [0.001, 0.01]]\n");
+    let spec = load_str(&text, Format::Toml).unwrap();
+    let back = load_str(&to_toml(&spec), Format::Toml).unwrap();
+    assert_eq!(back.robot.stage3.Q, spec.robot.stage3.Q);
+    assert!(to_toml(&spec).contains("[0.01, 0.001]"));
+}
+
+/// Every numeric bound in the schema rejects a value just past it and
+/// accepts the bound itself (checked on the rig's safety settings).
+#[test]
+fn published_bounds_are_enforced() {
+    let rig = &json_schema()["$defs"]["RigSpec"]["properties"];
+    for key in [
+        "watchdog_ms",
+        "ramp_down_s",
+        "feedback_timeout_ms",
+        "ring_capacity",
+        "torque_limit_nm",
+    ] {
+        let max = rig[key]["maximum"].as_f64().unwrap();
+        let int = rig[key]["type"] == "integer";
+        let fmt = |v: f64| {
+            if int {
+                format!("{}", v as u64)
+            } else {
+                format!("{v:?}")
+            }
+        };
+        let at = format!("{MINIMAL}\n[rig]\n{key} = {}\n", fmt(max));
+        assert!(
+            load_str(&at, Format::Toml).is_ok(),
+            "{key} = {max} must be valid"
+        );
+        let past = if int { max + 1.0 } else { max * 1.0001 };
+        let over = format!("{MINIMAL}\n[rig]\n{key} = {}\n", fmt(past));
+        let err = load_str(&over, Format::Toml).unwrap_err();
+        assert_eq!(err.field, format!("rig.{key}"), "{key}");
+        assert!(err.message.contains("out of range"), "{}", err.message);
+    }
+}
+
+#[test]
+fn oversized_text_is_refused_before_parsing() {
+    let text = "#".repeat((1 << 20) + 1);
+    let err = load_str(&text, Format::Toml).unwrap_err();
+    assert!(err.message.contains("1 MiB"), "{err}");
+}

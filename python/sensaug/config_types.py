@@ -1,0 +1,475 @@
+"""Typed configuration tables, generated from the JSON Schema of
+crates/sensaug-config by scripts/gen_config_types.py: do not edit.
+
+Every field, default and description comes from the Rust schema; the
+bounds are enforced there (``sensaug.config`` validates through it).
+"""
+
+# ruff: noqa: E501
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, ClassVar, Literal, Sequence, Union
+
+import numpy as np
+
+#: A covariance: N diagonal entries or an N x N nested list (or array).
+Covariance = Union[Sequence[float], Sequence[Sequence[float]], np.ndarray]
+
+
+@dataclass
+class Constant:
+    """A constant offset."""
+
+    kind: ClassVar[str] = 'constant'
+    value: float
+    """Offset (position unit)."""
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Constant:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        kw.pop("kind", None)
+        return cls(**kw)
+
+
+@dataclass
+class Square:
+    """+amplitude for the first half of each period, -amplitude after."""
+
+    kind: ClassVar[str] = 'square'
+    amplitude: float
+    """Amplitude (position unit)."""
+    period_s: float
+    """Period (s)."""
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Square:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        kw.pop("kind", None)
+        return cls(**kw)
+
+
+@dataclass
+class RoundedSquare:
+    """amplitude * cbrt(sin(2 pi t / period)): the Hi5 target (8 deg, 4 s)."""
+
+    kind: ClassVar[str] = 'rounded_square'
+    amplitude: float
+    """Amplitude (position unit)."""
+    period_s: float
+    """Period (s)."""
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> RoundedSquare:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        kw.pop("kind", None)
+        return cls(**kw)
+
+
+@dataclass
+class Chirp:
+    """Linear chirp from f0_hz to f1_hz over duration_s, then at f1_hz."""
+
+    kind: ClassVar[str] = 'chirp'
+    amplitude: float
+    """Amplitude (position unit)."""
+    f0_hz: float
+    """Start frequency (Hz)."""
+    f1_hz: float
+    """End frequency (Hz)."""
+    duration_s: float
+    """Sweep duration (s)."""
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Chirp:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        kw.pop("kind", None)
+        return cls(**kw)
+
+
+@dataclass
+class Harmonics:
+    """amplitude * sum over k = 1..harmonics of sin(k omega t) (cos if cosine)."""
+
+    kind: ClassVar[str] = 'harmonics'
+    amplitude: float
+    """Amplitude of each harmonic (position unit)."""
+    omega_rad_s: float
+    """Fundamental angular frequency (rad/s)."""
+    cosine: bool = False
+    """Cosines instead of sines."""
+    harmonics: int = 3
+    """Number of harmonics."""
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Harmonics:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        kw.pop("kind", None)
+        return cls(**kw)
+
+
+@dataclass
+class Sampled:
+    """Samples every dt_s from t = 0, linearly interpolated, held at the ends."""
+
+    kind: ClassVar[str] = 'sampled'
+    samples: list[float]
+    """The samples (position unit)."""
+    dt_s: float
+    """Sample spacing (s)."""
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Sampled:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        kw.pop("kind", None)
+        return cls(**kw)
+
+
+Shape = Union[Constant, Square, RoundedSquare, Chirp, Harmonics, Sampled]
+#: Shape class by its ``kind``.
+SHAPES: dict[str, type] = {'constant': Constant, 'square': Square, 'rounded_square': RoundedSquare, 'chirp': Chirp, 'harmonics': Harmonics, 'sampled': Sampled}
+
+
+def _shapes(items: list[Any]) -> list[Shape]:
+    out = []
+    for s in items:
+        if isinstance(s, dict):
+            s = SHAPES[s["kind"]].from_dict(s)
+        out.append(s)
+    return out
+
+
+def _list_of(conv: Callable[[dict[str, Any]], Any]) -> Callable[[list[Any]], list[Any]]:
+    return lambda items: [conv(x) if isinstance(x, dict) else x for x in items]
+
+
+@dataclass
+class PartnerConfig:
+    """`[partner]`: the virtual human, with imposed gains or LQR weights (give one, not both)."""
+
+    estimates_robot: bool = False
+    """The partner also identifies the robot (the simulation section)."""
+    gains: list[float] | None = None
+    """Imposed gains [Lhx, Lhv, Lhh] over xi = [x - tau, xdot, x - tau_h] (the Hi5 virtual human:
+    [0, 0, Lhh]).
+    """
+    q_pos: float | None = None
+    """LQR weight on the partner's own position error (instead of gains)."""
+    q_vel: float | None = None
+    """LQR weight on the velocity (with q_pos; default 0)."""
+    torque_limit: float = 1000.0
+    """Torque limit (model torque unit)."""
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> PartnerConfig:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        return cls(**kw)
+
+
+@dataclass
+class PhaseConfig:
+    """One phase (`[[phases]]`)."""
+
+    kind: Literal["gains", "trajectory", "integration"]
+    """What the robot estimates: "gains", "trajectory" or "integration"."""
+    duration_s: float
+    """Duration (s), at least one tick."""
+    robot_target: list[Shape]
+    """The robot's target tau: a sum of 1 to 3 shapes (position unit)."""
+    partner_target: list[Shape]
+    """The partner's target tau_h: a sum of 1 to 3 shapes (position unit)."""
+    target_noise_std: float = 0.0
+    """Std of the white noise on the robot's view of its target (position unit); used in
+    integration phases.
+    """
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> PhaseConfig:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        if 'robot_target' in kw:
+            kw['robot_target'] = _shapes(kw['robot_target'])
+        if 'partner_target' in kw:
+            kw['partner_target'] = _shapes(kw['partner_target'])
+        return cls(**kw)
+
+
+@dataclass
+class PlantConfig:
+    """`[plant]`: the handle, `M xdd + C xd = u + u_h + eps` (eq.dynamics)."""
+
+    coulomb: float = 0.0
+    """Coulomb friction of the simulated handle (model torque unit)."""
+    damping: float = 0.0
+    """Viscous damping C (model torque unit per position unit per s)."""
+    dt_s: float = 0.001
+    """Control period dt (s): 1e-4 to 0.1."""
+    mass: float = 0.0035
+    """Inertia M (model mass unit: 0.0035 for the Hi5 in degrees, kg in the simulation section)."""
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> PlantConfig:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        return cls(**kw)
+
+
+@dataclass
+class RealtimeConfig:
+    """`[rig.realtime]`: thread settings of the loop; each falls back with a warning if the OS
+    refuses it.
+    """
+
+    cpu: int | None = None
+    """CPU to pin the loop thread to; absent: no pinning."""
+    fifo_priority: int | None = None
+    """SCHED_FIFO priority 1..99; absent keeps the default scheduler."""
+    mlockall: bool = True
+    """Lock all memory (mlockall) before the loop."""
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> RealtimeConfig:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        return cls(**kw)
+
+
+@dataclass
+class RigConfig:
+    """`[rig]`: the real-time loop, its CAN link, its safety limits and outputs."""
+
+    can: str = 'udp:47100'
+    """CAN link: "udp:<port>" (loopback virtual bus, port 1..65535) or "socketcan:<ifname>"."""
+    feedback_timeout_ms: float = 20.0
+    """Feedback older than this stops the loop with an emergency stop (ms)."""
+    log: str = 'out/rig_log.csv'
+    """Log file (CSV with metadata, docs/logs.md)."""
+    node_id: int = 1
+    """Drive node id."""
+    position_unit: Literal["deg", "rad"] = 'deg'
+    """Unit of the controller's positions; the drive speaks rad and N m, and torque is scaled by
+    the same factor (docs/model.md, Units).
+    """
+    ramp_down_s: float = 0.2
+    """Ramp from the last command to zero on SIGINT/SIGTERM (s)."""
+    realtime: RealtimeConfig = field(default_factory=lambda: RealtimeConfig.from_dict({'mlockall': True}))
+    """Thread settings."""
+    ring_capacity: int = 65536
+    """Log ring capacity (records)."""
+    stats: str = 'out/rig_stats.json'
+    """Loop statistics (JSON)."""
+    torque_limit_nm: float = 3.0
+    """Torque limit at the drive (N m)."""
+    virtual_human: bool = True
+    """Run the virtual human inside the loop (false: a person holds the handle)."""
+    watchdog_ms: int = 50
+    """Drive command watchdog (ms): the drive disables itself when commands stop for this long."""
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> RigConfig:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        if 'realtime' in kw:
+            kw['realtime'] = RealtimeConfig.from_dict(kw['realtime'])
+        return cls(**kw)
+
+
+@dataclass
+class SigmaConfig:
+    """`[robot.sigma]`: Merwe scaled sigma points of every UKF."""
+
+    alpha: float = 1.0
+    """Spread alpha."""
+    beta: float = 2.0
+    """Prior-knowledge beta (2 for Gaussians)."""
+    kappa: float = 0.0
+    """Secondary scaling kappa; n + kappa must be > 0."""
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> SigmaConfig:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        return cls(**kw)
+
+
+@dataclass
+class GainFilterConfig:
+    """`[robot.stage1]`: the gain-estimation UKF (eq.system-extended; 6 states, measurements [x -
+    tau, xdot, x - tau_h]). Covariances are per step.
+    """
+
+    P0: Covariance = field(default_factory=lambda: [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0])
+    """Initial covariance P0 (6 diagonal entries or a 6x6 matrix)."""
+    Q: Covariance = field(default_factory=lambda: [0.01, 0.01, 0.01, 0.01, 0.01, 0.01])
+    """Process noise Q (6 diagonal entries or a 6x6 matrix)."""
+    R: Covariance = field(default_factory=lambda: [1e-07, 1e-07, 1e-07])
+    """Measurement noise R (3 diagonal entries or a 3x3 matrix)."""
+    gains0: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    """Initial guesses of the partner gains [Lhx, Lhv, Lhh]."""
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> GainFilterConfig:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        return cls(**kw)
+
+
+@dataclass
+class TrajectoryFilterConfig:
+    """`[robot.stage2]`: the trajectory-estimation UKF (6 states, measurements [x - tau, xdot]
+    and the three gains as pseudo-measurements).
+    """
+
+    P0: Covariance = field(default_factory=lambda: [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0])
+    """Initial covariance P0 (6 diagonal entries or a 6x6 matrix)."""
+    Q: Covariance = field(default_factory=lambda: [0.01, 0.01, 0.01, 0.01, 0.01, 0.01])
+    """Process noise Q (6 diagonal entries or a 6x6 matrix)."""
+    R: Covariance = field(default_factory=lambda: [1e-07, 1e-07, 1e-07, 1e-07, 1e-07])
+    """Measurement noise R (5 diagonal entries or a 5x5 matrix)."""
+    gains0: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    """Unused (stage 2 starts from the stage-1 posterior); kept so one filter table fits both
+    stages.
+    """
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> TrajectoryFilterConfig:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        return cls(**kw)
+
+
+@dataclass
+class IntegratorConfig:
+    """`[robot.stage3]`: the goal-integration filters on [x - tau, xdot]."""
+
+    P0: Covariance = field(default_factory=lambda: [0.01, 0.01])
+    """Initial covariance P0 (2 diagonal entries or a 2x2 matrix)."""
+    Q: Covariance = field(default_factory=lambda: [0.01, 0.01])
+    """Process noise Q (2 diagonal entries or a 2x2 matrix)."""
+    R_sensor: Covariance = field(default_factory=lambda: [1e-07, 1e-07])
+    """Own sensor noise on [x - tau, xdot] before the phase's target noise is added (2 diagonal
+    entries or a 2x2 matrix).
+    """
+    partner_window_s: float = 0.2
+    """Window of the partner channel's online variance estimate (s)."""
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> IntegratorConfig:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        return cls(**kw)
+
+
+@dataclass
+class RobotConfig:
+    """`[robot]`: LQR weights, estimators and the goal-integration switch."""
+
+    gain_window_s: float = 8.0
+    """Stage 2's gain pseudo-measurement is the mean of the stage-1 estimate over the last
+    gain_window_s of the gain phase (s).
+    """
+    integrate: bool = True
+    """Let the integrated estimate drive control in integration phases."""
+    prior_partner_gains: list[float] | None = None
+    """Partner gains [Lhx, Lhv, Lhh] to use when no gain phase precedes."""
+    q_pos: float = 1.0
+    """LQR weight on the position error (its gains come from the reduced 2-state CARE,
+    docs/model.md).
+    """
+    q_vel: float = 0.0
+    """LQR weight on the velocity."""
+    seed: int = 1
+    """Seed of the injected target-view noise."""
+    sigma: SigmaConfig = field(default_factory=lambda: SigmaConfig.from_dict({'alpha': 1.0, 'beta': 2.0, 'kappa': 0.0}))
+    """Sigma points of every filter."""
+    stage1: GainFilterConfig = field(default_factory=lambda: GainFilterConfig.from_dict({'P0': [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0], 'Q': [0.01, 0.01, 0.01, 0.01, 0.01, 0.01], 'R': [1e-07, 1e-07, 1e-07], 'gains0': [0.0, 0.0, 0.0]}))
+    """Stage 1 (partner gains)."""
+    stage2: TrajectoryFilterConfig = field(default_factory=lambda: TrajectoryFilterConfig.from_dict({'P0': [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0], 'Q': [0.01, 0.01, 0.01, 0.01, 0.01, 0.01], 'R': [1e-07, 1e-07, 1e-07, 1e-07, 1e-07], 'gains0': [0.0, 0.0, 0.0]}))
+    """Stage 2 (partner trajectory)."""
+    stage3: IntegratorConfig = field(default_factory=lambda: IntegratorConfig.from_dict({'P0': [0.01, 0.01], 'Q': [0.01, 0.01], 'R_sensor': [1e-07, 1e-07], 'partner_window_s': 0.2}))
+    """Stage 3 (goal integration)."""
+    torque_limit: float = 1000.0
+    """Torque limit of the controller (model torque unit)."""
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> RobotConfig:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        if 'sigma' in kw:
+            kw['sigma'] = SigmaConfig.from_dict(kw['sigma'])
+        if 'stage1' in kw:
+            kw['stage1'] = GainFilterConfig.from_dict(kw['stage1'])
+        if 'stage2' in kw:
+            kw['stage2'] = TrajectoryFilterConfig.from_dict(kw['stage2'])
+        if 'stage3' in kw:
+            kw['stage3'] = IntegratorConfig.from_dict(kw['stage3'])
+        return cls(**kw)
+
+
+@dataclass
+class WorldConfig:
+    """`[world]`: simulation only (the rig is the world and ignores it)."""
+
+    motor_noise_std: float = 0.001
+    """Std of the motor noise eps added to the summed torque (model torque unit)."""
+    position_noise_std: float = 0.00031622776601683794
+    """Std of the position sensor noise (position unit)."""
+    seed: int = 0
+    """Seed of the motor and sensor noise."""
+    v0: float = 0.0
+    """Initial velocity (position unit/s)."""
+    velocity_noise_std: float = 0.00031622776601683794
+    """Std of the velocity sensor noise (position unit/s)."""
+    x0: float = 0.0
+    """Initial position (position unit)."""
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> WorldConfig:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        return cls(**kw)
+
+
+@dataclass
+class ScenarioConfig:
+    """A whole trial: the protocol's phases, the handle, the simulated world, the robot, its
+    partner and the real-time rig. Every table but `phases` may be left out (all defaults).
+    """
+
+    phases: list[PhaseConfig]
+    """The protocol: 1 to 4 phases run in order."""
+    partner: PartnerConfig = field(default_factory=lambda: PartnerConfig.from_dict({'estimates_robot': False, 'gains': [0.0, 0.0, 2.0], 'torque_limit': 1000.0}))
+    """The partner: the virtual human (simulation, and inside the rig loop)."""
+    plant: PlantConfig = field(default_factory=lambda: PlantConfig.from_dict({'coulomb': 0.0, 'damping': 0.0, 'dt_s': 0.001, 'mass': 0.0035}))
+    """The handle as the controller models it."""
+    rig: RigConfig = field(default_factory=lambda: RigConfig.from_dict({'can': 'udp:47100', 'feedback_timeout_ms': 20.0, 'log': 'out/rig_log.csv', 'node_id': 1, 'position_unit': 'deg', 'ramp_down_s': 0.2, 'realtime': {'mlockall': True}, 'ring_capacity': 65536, 'stats': 'out/rig_stats.json', 'torque_limit_nm': 3.0, 'virtual_human': True, 'watchdog_ms': 50}))
+    """The real-time loop and its CAN link (`sensaug-rt`; the simulation ignores it)."""
+    robot: RobotConfig = field(default_factory=lambda: RobotConfig.from_dict({'gain_window_s': 8.0, 'integrate': True, 'q_pos': 1.0, 'q_vel': 0.0, 'seed': 1, 'sigma': {'alpha': 1.0, 'beta': 2.0, 'kappa': 0.0}, 'stage1': {'P0': [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0], 'Q': [0.01, 0.01, 0.01, 0.01, 0.01, 0.01], 'R': [1e-07, 1e-07, 1e-07], 'gains0': [0.0, 0.0, 0.0]}, 'stage2': {'P0': [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0], 'Q': [0.01, 0.01, 0.01, 0.01, 0.01, 0.01], 'R': [1e-07, 1e-07, 1e-07, 1e-07, 1e-07], 'gains0': [0.0, 0.0, 0.0]}, 'stage3': {'P0': [0.01, 0.01], 'Q': [0.01, 0.01], 'R_sensor': [1e-07, 1e-07], 'partner_window_s': 0.2}, 'torque_limit': 1000.0}))
+    """The robot's controller and estimators."""
+    world: WorldConfig = field(default_factory=lambda: WorldConfig.from_dict({'motor_noise_std': 0.001, 'position_noise_std': 0.00031622776601683794, 'seed': 0, 'v0': 0.0, 'velocity_noise_std': 0.00031622776601683794, 'x0': 0.0}))
+    """Simulation only: noise, seed and initial state of the simulated world."""
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> ScenarioConfig:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        if 'phases' in kw:
+            kw['phases'] = _list_of(PhaseConfig.from_dict)(kw['phases'])
+        if 'partner' in kw:
+            kw['partner'] = PartnerConfig.from_dict(kw['partner'])
+        if 'plant' in kw:
+            kw['plant'] = PlantConfig.from_dict(kw['plant'])
+        if 'rig' in kw:
+            kw['rig'] = RigConfig.from_dict(kw['rig'])
+        if 'robot' in kw:
+            kw['robot'] = RobotConfig.from_dict(kw['robot'])
+        if 'world' in kw:
+            kw['world'] = WorldConfig.from_dict(kw['world'])
+        return cls(**kw)

@@ -1,0 +1,330 @@
+"""Writes the configuration corpus: malformed and edge-case files, each with
+the field its first error must name (or "valid"), in EXPECTED.json.
+
+tests/test_config_corpus.py runs every file through `python -m sensaug check`
+and `sensaug-rt --check` and asserts identical verdicts and messages, and that
+the message names the expected field. Run this script to regenerate the files
+after changing the cases below.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+
+PHASE = """[[phases]]
+kind = "{kind}"
+duration_s = {duration}
+robot_target = [{{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }}]
+partner_target = [{{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }}]
+target_noise_std = {noise}
+"""
+
+
+def phases(*kinds: str, duration: str = "2.0", noise: str = "0.5") -> str:
+    return "\n".join(PHASE.format(kind=k, duration=duration, noise=noise) for k in kinds)
+
+
+BASE = phases("gains", "trajectory", "integration")
+TABLES = {
+    "plant": "mass = 0.0035\ndamping = 0.0\ncoulomb = 0.0\ndt_s = 0.001\n",
+    "world": "motor_noise_std = 0.001\nposition_noise_std = 0.0003\nvelocity_noise_std = 0.0003\nseed = 0\nx0 = 0.0\nv0 = 0.0\n",
+    "robot": "q_pos = 1.0\nq_vel = 0.0\nintegrate = true\ngain_window_s = 1.0\ntorque_limit = 1000.0\nseed = 1\n",
+    "robot.sigma": "alpha = 1.0\nbeta = 2.0\nkappa = 0.0\n",
+    "robot.stage1": "Q = [0.01, 0.01, 0.01, 0.01, 0.01, 0.01]\nR = [1e-7, 1e-7, 1e-7]\nP0 = [1e-4, 1e-4, 1e-4, 1.0, 1.0, 1.0]\ngains0 = [0.0, 0.0, 0.0]\n",
+    "robot.stage2": "Q = [0.01, 0.01, 0.01, 0.01, 0.01, 0.01]\nR = [1e-7, 1e-7, 1e-7, 1e-7, 1e-7]\n",
+    "robot.stage3": "Q = [0.01, 0.01]\nR_sensor = [1e-7, 1e-7]\nP0 = [0.01, 0.01]\npartner_window_s = 0.2\n",
+    "partner": "gains = [0.0, 0.0, 2.0]\ntorque_limit = 1000.0\nestimates_robot = false\n",
+    "rig": 'can = "udp:47100"\nnode_id = 1\nposition_unit = "deg"\ntorque_limit_nm = 3.0\nwatchdog_ms = 50\n'
+    'feedback_timeout_ms = 20.0\nramp_down_s = 0.2\nvirtual_human = true\nlog = "out/rig_log.csv"\n'
+    'stats = "out/rig_stats.json"\nring_capacity = 65536\n',
+    "rig.realtime": "mlockall = true\n",
+}
+
+
+def full(tables: dict[str, str] | None = None, head: str = BASE) -> str:
+    t = dict(TABLES)
+    t.update(tables or {})
+    return head + "\n" + "\n".join(f"[{name}]\n{body}" for name, body in t.items() if body is not None)
+
+
+def setting(table: str, key: str, value: str) -> str:
+    """The base with `key = value` in `table` (replacing it, or added)."""
+    lines = [ln for ln in TABLES[table].splitlines() if not ln.startswith(f"{key} =")]
+    lines.append(f"{key} = {value}")
+    return full({table: "\n".join(lines) + "\n"})
+
+
+CASES: dict[str, tuple[str, str]] = {}
+
+
+def case(name: str, text: str, field: str, ext: str = "toml") -> None:
+    assert name not in CASES, name
+    CASES[f"{name}.{ext}"] = (text, field)
+
+
+# --- valid files and edge values ---------------------------------------------
+case("valid_full", full(), "valid")
+case("valid_minimal", phases("gains"), "valid")
+case("valid_defaults_only_tables", BASE + "\n[robot]\n[partner]\ngains = [0.0, 0.0, 1.0]\n[rig]\n", "valid")
+case("valid_prior_gains", phases("trajectory") + "\n[robot]\nprior_partner_gains = [0.0, 0.0, 2.0]\n", "valid")
+case("valid_lqr_partner", full({"partner": "q_pos = 20000.0\nq_vel = 2.0\n"}), "valid")
+case("valid_full_cov", setting("robot.stage3", "Q", "[[0.01, 0.001], [0.001, 0.01]]"), "valid")
+case("valid_watchdog_min", setting("rig", "watchdog_ms", "5"), "valid")
+case("valid_watchdog_max", setting("rig", "watchdog_ms", "300"), "valid")
+case("valid_ramp_zero", setting("rig", "ramp_down_s", "0.0"), "valid")
+case("valid_ramp_max", setting("rig", "ramp_down_s", "2.0"), "valid")
+case("valid_torque_max", setting("rig", "torque_limit_nm", "10.0"), "valid")
+case("valid_ring_min", setting("rig", "ring_capacity", "1024"), "valid")
+case("valid_socketcan", setting("rig", "can", '"socketcan:vcan0"'), "valid")
+case("valid_udp_max_port", setting("rig", "can", '"udp:65535"'), "valid")
+case("valid_dt_10ms", full({"plant": "dt_s = 0.01\n", "rig": "watchdog_ms = 200\nfeedback_timeout_ms = 100.0\n"}), "valid")
+case("valid_fifo", setting("rig.realtime", "fifo_priority", "80"), "valid")
+case("valid_node_15", setting("rig", "node_id", "15"), "valid")
+case("valid_rad", setting("rig", "position_unit", '"rad"'), "valid")
+case("valid_harmonics_defaults", BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
+     '{ kind = "harmonics", amplitude = 1e-4, omega_rad_s = 1.0 }', 1), "valid")
+case("valid_sampled", BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
+     '{ kind = "sampled", samples = [0.0, 1.0, 0.5], dt_s = 0.5 }', 1), "valid")
+case("valid_three_parts", BASE.replace('robot_target = [{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }]',
+     'robot_target = [{ kind = "constant", value = 1.0 }, { kind = "square", amplitude = 1.0, period_s = 2.0 },'
+     ' { kind = "chirp", amplitude = 2.0, f0_hz = 0.0, f1_hz = 2.0, duration_s = 2.0 }]', 1), "valid")
+case("valid_four_phases", phases("gains", "trajectory", "integration", "integration"), "valid")
+case("valid_json", json.dumps({"phases": [{"kind": "gains", "duration_s": 1.0,
+     "robot_target": [{"kind": "square", "amplitude": 1.0, "period_s": 2.0}],
+     "partner_target": [{"kind": "square", "amplitude": 1.0, "period_s": 2.0}]}]}), "valid", "json")
+
+# --- syntax -------------------------------------------------------------------
+case("syntax_unquoted_url", setting("rig", "can", "udp:47100"), "rig.can")
+case("syntax_double_equals", full({"plant": "mass = = 0.0035\n"}), "plant.mass")
+case("syntax_unclosed_table", full().replace("[plant]", "[plant"), "(config)")
+case("syntax_duplicate_key", full({"plant": "mass = 1.0\nmass = 2.0\n"}), "plant.mass")
+case("syntax_empty_file", "", "phases")
+case("syntax_binary_garbage", "\x00\x01\x02 = ]]", "(config)")
+case("syntax_json_trailing_comma", '{"phases": [],}', "(config)", "json")
+case("syntax_json_not_object", "[1, 2, 3]", "(config)", "json")
+
+# --- unknown and missing fields -----------------------------------------------
+case("unknown_root", "foo = 1\n" + full(), "foo")
+case("unknown_plant", setting("plant", "masss", "1.0"), "plant.masss")
+case("unknown_robot", setting("robot", "qpos", "1.0"), "robot.qpos")
+case("unknown_stage1", setting("robot.stage1", "q", "[1.0]"), "robot.stage1.q")
+case("unknown_stage3", setting("robot.stage3", "R", "[1e-7, 1e-7]"), "robot.stage3.R")
+case("unknown_rig", setting("rig", "watchdog", "50"), "rig.watchdog")
+case("unknown_realtime", setting("rig.realtime", "priority", "50"), "rig.realtime.priority")
+case("unknown_partner", setting("partner", "gain", "[0.0, 0.0, 2.0]"), "partner.gain")
+case("unknown_world", setting("world", "sed", "1"), "world.sed")
+case("unknown_phase_field", full(head=BASE.replace("target_noise_std = 0.5", "target_noise = 0.5", 1)),
+     "phases[0].target_noise")
+case("unknown_shape_field", full(head=BASE.replace("period_s = 4.0 }", "period_s = 4.0, phase = 1.0 }", 1)),
+     "phases[0].robot_target[0].phase")
+case("unknown_table", full({"robots": "q_pos = 1.0\n"}), "robots")
+case("missing_phases", "\n".join(f"[{n}]\n{b}" for n, b in TABLES.items()), "phases")
+case("missing_phase_kind", full(head=BASE.replace('kind = "gains"\n', "", 1)), "phases[0].kind")
+case("missing_phase_duration", full(head=BASE.replace("duration_s = 2.0\n", "", 1)), "phases[0].duration_s")
+case("missing_robot_target", full(head=BASE.replace(
+    'robot_target = [{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }]\n', "", 1)), "phases[0].robot_target")
+case("missing_shape_kind", full(head=BASE.replace('{ kind = "rounded_square", amplitude', "{ amplitude", 1)),
+     "phases[0].robot_target[0].kind")
+case("missing_shape_period", full(head=BASE.replace(", period_s = 4.0 }", " }", 1)),
+     "phases[0].robot_target[0].period_s")
+case("missing_partner_law", full({"partner": "torque_limit = 10.0\n"}), "partner")
+
+# --- wrong types -------------------------------------------------------------
+for table, key, value, name in [
+    ("rig", "can", "5", "can_int"),
+    ("rig", "can", "[1]", "can_list"),
+    ("rig", "node_id", '"1"', "node_string"),
+    ("rig", "node_id", "1.5", "node_float"),
+    ("rig", "watchdog_ms", "50.0", "watchdog_float"),
+    ("rig", "virtual_human", '"yes"', "virtual_human_string"),
+    ("rig", "position_unit", '"degree"', "position_unit_bad"),
+    ("rig", "position_unit", "1", "position_unit_int"),
+    ("rig", "log", "3", "log_int"),
+    ("rig", "ring_capacity", "1e12", "ring_float"),
+    ("rig.realtime", "mlockall", "1", "mlockall_int"),
+    ("rig.realtime", "cpu", '"0"', "cpu_string"),
+    ("plant", "mass", '"heavy"', "mass_string"),
+    ("plant", "dt_s", "true", "dt_bool"),
+    ("world", "seed", "-3", "seed_negative"),
+    ("world", "seed", "1.5", "seed_float"),
+    ("robot", "integrate", '"true"', "integrate_string"),
+    ("robot", "seed", '"1"', "robot_seed_string"),
+    ("robot.stage1", "Q", "0.01", "stage1_Q_scalar"),
+    ("robot.stage1", "R", '["a", "b", "c"]', "stage1_R_strings"),
+    ("robot.stage1", "gains0", "[0.0, 0.0]", "gains0_short"),
+    ("robot.stage2", "R", "[[1e-7, 0.0], 1e-7, 1e-7, 1e-7, 1e-7]", "stage2_R_mixed"),
+    ("robot.stage3", "P0", "{ a = 1 }", "stage3_P0_table"),
+    ("partner", "gains", "[0.0, 1.0]", "partner_gains_short"),
+    ("partner", "gains", "[0.0, 1.0, 2.0, 3.0]", "partner_gains_long"),
+    ("partner", "gains", '"0, 0, 2"', "partner_gains_string"),
+    ("partner", "estimates_robot", "0", "estimates_robot_int"),
+    ("robot.sigma", "alpha", '"1"', "alpha_string"),
+]:
+    case(f"type_{name}", setting(table, key, value), f"{table}.{key}")
+case("type_plant_not_table", full({"plant": None}).replace("[rig]", "plant = 5\n[rig]", 1).replace("plant = 5\n[rig]", "[rig]", 1)
+     if False else "plant = 5\n" + BASE, "plant")
+case("type_phases_table", "[phases]\nkind = \"gains\"\n", "phases")
+case("type_phase_kind_int", full(head=BASE.replace('kind = "gains"', "kind = 3", 1)), "phases[0].kind")
+case("type_target_not_list", full(head=BASE.replace(
+    'robot_target = [{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }]',
+    'robot_target = "square"', 1)), "phases[0].robot_target")
+case("type_shape_string", full(head=BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
+     '"rounded_square"', 1)), "phases[0].robot_target[0]")
+case("type_shape_amplitude_string", full(head=BASE.replace("amplitude = 8.0", 'amplitude = "8"', 1)),
+     "phases[0].robot_target[0].amplitude")
+case("type_shape_kind_int", full(head=BASE.replace('kind = "rounded_square"', "kind = 2", 1)),
+     "phases[0].robot_target[0].kind")
+case("type_shape_unknown_kind", full(head=BASE.replace('kind = "rounded_square"', 'kind = "triangle"', 1)),
+     "phases[0].robot_target[0].kind")
+case("type_harmonics_float", full(head=BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
+     '{ kind = "harmonics", amplitude = 1.0, omega_rad_s = 1.0, harmonics = 2.5 }', 1)),
+     "phases[0].robot_target[0].harmonics")
+case("type_phase_kind_unknown", full(head=BASE.replace('kind = "trajectory"', 'kind = "trajectry"', 1)), "phases[1].kind")
+case("type_json_string_number", json.dumps({"phases": [{"kind": "gains", "duration_s": "1",
+     "robot_target": [{"kind": "square", "amplitude": 1.0, "period_s": 2.0}],
+     "partner_target": [{"kind": "square", "amplitude": 1.0, "period_s": 2.0}]}]}), "phases[0].duration_s", "json")
+case("type_json_null", json.dumps({"phases": [{"kind": "gains", "duration_s": 1.0,
+     "robot_target": [{"kind": "square", "amplitude": None, "period_s": 2.0}],
+     "partner_target": [{"kind": "square", "amplitude": 1.0, "period_s": 2.0}]}]}),
+     "phases[0].robot_target[0].amplitude", "json")
+
+# --- out of range and non-finite ---------------------------------------------
+for table, key, value, name in [
+    ("rig", "torque_limit_nm", "0.0", "torque_zero"),
+    ("rig", "torque_limit_nm", "-3.0", "torque_negative"),
+    ("rig", "torque_limit_nm", "50.0", "torque_huge"),
+    ("rig", "torque_limit_nm", "nan", "torque_nan"),
+    ("rig", "torque_limit_nm", "inf", "torque_inf"),
+    ("rig", "watchdog_ms", "0", "watchdog_zero"),
+    ("rig", "watchdog_ms", "65535", "watchdog_65535"),
+    ("rig", "watchdog_ms", "301", "watchdog_301"),
+    ("rig", "watchdog_ms", "4", "watchdog_4"),
+    ("rig", "feedback_timeout_ms", "1e300", "feedback_timeout_1e300"),
+    ("rig", "feedback_timeout_ms", "0.0", "feedback_timeout_zero"),
+    ("rig", "feedback_timeout_ms", "nan", "feedback_timeout_nan"),
+    ("rig", "ramp_down_s", "1e300", "ramp_1e300"),
+    ("rig", "ramp_down_s", "-0.1", "ramp_negative"),
+    ("rig", "ramp_down_s", "inf", "ramp_inf"),
+    ("rig", "ring_capacity", "1000000000000", "ring_1e12"),
+    ("rig", "ring_capacity", "1023", "ring_small"),
+    ("rig", "node_id", "16", "node_16"),
+    ("rig", "node_id", "-1", "node_negative"),
+    ("rig.realtime", "fifo_priority", "0", "fifo_zero"),
+    ("rig.realtime", "fifo_priority", "100", "fifo_100"),
+    ("plant", "dt_s", "0.0", "dt_zero"),
+    ("plant", "dt_s", "1.0", "dt_one_second"),
+    ("plant", "dt_s", "1e-6", "dt_tiny"),
+    ("plant", "mass", "-1.0", "mass_negative"),
+    ("plant", "mass", "0.0", "mass_zero"),
+    ("plant", "mass", "nan", "mass_nan"),
+    ("plant", "damping", "-0.1", "damping_negative"),
+    ("world", "motor_noise_std", "-1.0", "motor_noise_negative"),
+    ("world", "position_noise_std", "inf", "position_noise_inf"),
+    ("world", "x0", "nan", "x0_nan"),
+    ("robot", "q_pos", "0.0", "q_pos_zero"),
+    ("robot", "q_vel", "-1.0", "q_vel_negative"),
+    ("robot", "gain_window_s", "0.0", "gain_window_zero"),
+    ("robot", "torque_limit", "inf", "robot_torque_inf"),
+    ("robot", "torque_limit", "-1.0", "robot_torque_negative"),
+    ("robot", "prior_partner_gains", "[0.0, nan, 2.0]", "prior_nan"),
+    ("robot.sigma", "alpha", "0.0", "alpha_zero"),
+    ("robot.sigma", "alpha", "2.0", "alpha_two"),
+    ("robot.sigma", "kappa", "-10.0", "kappa_very_negative"),
+    ("robot.sigma", "kappa", "-3.0", "kappa_stage3"),
+    ("robot.sigma", "beta", "nan", "beta_nan"),
+    ("robot.stage1", "Q", "[0.01, 0.01, 0.01, 0.01, 0.01]", "Q_five"),
+    ("robot.stage1", "R", "[1e-7, -1e-7, 1e-7]", "R_negative"),
+    ("robot.stage1", "R", "[1e-7, nan, 1e-7]", "R_nan"),
+    ("robot.stage1", "P0", "[1e-4, 1e-4, 1e-4, 1.0, 1.0, 1e9]", "P0_huge"),
+    ("robot.stage1", "gains0", "[0.0, inf, 0.0]", "gains0_inf"),
+    ("robot.stage2", "P0", "[[1.0, 2.0], [0.0, 1.0]]", "stage2_P0_2x2"),
+    ("robot.stage3", "Q", "[[0.01, 0.02], [0.0, 0.01]]", "stage3_Q_asymmetric"),
+    ("robot.stage3", "Q", "[[0.01, 0.02], [0.02, 0.01]]", "stage3_Q_indefinite"),
+    ("robot.stage3", "R_sensor", "[0.0, 1e-7]", "stage3_R_singular"),
+    ("robot.stage3", "partner_window_s", "0.0", "partner_window_zero"),
+    ("partner", "torque_limit", "0.0", "partner_torque_zero"),
+    ("partner", "gains", "[0.0, 0.0, inf]", "partner_gain_inf"),
+    ("partner", "gains", "[0.0, 0.0, 1e9]", "partner_gain_huge"),
+]:
+    case(f"range_{name}", setting(table, key, value), f"{table}.{key}")
+case("range_timeout_below_period", full({"plant": "dt_s = 0.01\n", "rig": "watchdog_ms = 200\nfeedback_timeout_ms = 5.0\n"}),
+     "rig.feedback_timeout_ms")
+case("range_watchdog_below_two_periods", full({"plant": "dt_s = 0.01\n", "rig": "watchdog_ms = 15\nfeedback_timeout_ms = 50.0\n"}),
+     "rig.watchdog_ms")
+case("range_phase_duration_zero", full(head=BASE.replace("duration_s = 2.0", "duration_s = 0.0", 1)), "phases[0].duration_s")
+case("range_phase_duration_subtick", full(head=BASE.replace("duration_s = 2.0", "duration_s = 0.0001", 1)),
+     "phases[0].duration_s")
+case("range_phase_duration_day", full(head=BASE.replace("duration_s = 2.0", "duration_s = 86400.0", 1)), "phases[0].duration_s")
+case("range_phase_duration_nan", full(head=BASE.replace("duration_s = 2.0", "duration_s = nan", 1)), "phases[0].duration_s")
+case("range_target_noise_negative", full(head=BASE.replace("target_noise_std = 0.5", "target_noise_std = -1.0", 1)),
+     "phases[0].target_noise_std")
+case("range_amplitude_inf", full(head=BASE.replace("amplitude = 8.0", "amplitude = inf", 1)),
+     "phases[0].robot_target[0].amplitude")
+case("range_period_negative", full(head=BASE.replace("period_s = 4.0", "period_s = -4.0", 1)),
+     "phases[0].robot_target[0].period_s")
+case("range_chirp_negative_f0", full(head=BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
+     '{ kind = "chirp", amplitude = 2.0, f0_hz = -1.0, f1_hz = 2.0, duration_s = 2.0 }', 1)),
+     "phases[0].robot_target[0].f0_hz")
+case("range_harmonics_zero", full(head=BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
+     '{ kind = "harmonics", amplitude = 1.0, omega_rad_s = 1.0, harmonics = 0 }', 1)),
+     "phases[0].robot_target[0].harmonics")
+case("range_sampled_empty", full(head=BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
+     '{ kind = "sampled", samples = [], dt_s = 0.1 }', 1)), "phases[0].robot_target[0].samples")
+case("range_sampled_nan", full(head=BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
+     '{ kind = "sampled", samples = [0.0, nan], dt_s = 0.1 }', 1)), "phases[0].robot_target[0].samples[1]")
+case("range_four_shapes", full(head=BASE.replace(
+    'robot_target = [{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }]',
+    "robot_target = [" + ", ".join(['{ kind = "constant", value = 1.0 }'] * 4) + "]", 1)), "phases[0].robot_target")
+case("range_no_shapes", full(head=BASE.replace(
+    'partner_target = [{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }]', "partner_target = []", 1)),
+     "phases[0].partner_target")
+
+# --- bad URLs ------------------------------------------------------------------
+for value, name in [
+    ('"tcp:1"', "tcp"), ('"udp:0"', "udp_zero"), ('"udp:70000"', "udp_70000"), ('"udp:abc"', "udp_abc"),
+    ('""', "empty"), ('"udp:"', "udp_empty"), ('"socketcan:"', "socketcan_empty"),
+    ('"socketcan:averyveryverylongname"', "socketcan_long"), ('"socketcan:can 0"', "socketcan_space"),
+    ('"udp:-1"', "udp_negative"), ('"UDP:47100"', "udp_upper"), ('"udp:47100 "', "udp_trailing_space"),
+]:
+    case(f"url_{name}", setting("rig", "can", value), "rig.can")
+case("url_log_empty", setting("rig", "log", '""'), "rig.log")
+
+# --- phase orders and counts ---------------------------------------------------
+case("order_trajectory_first", phases("trajectory", "gains"), "phases[0].kind")
+case("order_integration_only", phases("integration"), "phases[0].kind")
+case("order_gains_after_integration", phases("integration", "gains"), "phases[0].kind")
+case("order_five_phases", phases("gains", "gains", "trajectory", "integration", "integration"), "phases")
+case("order_zero_phases", "phases = []\n", "phases")
+case("lqr_partner_and_gains", full({"partner": "gains = [0.0, 0.0, 2.0]\nq_pos = 1.0\n"}), "partner")
+case("lqr_q_vel_alone", full({"partner": "q_vel = 1.0\n"}), "partner.q_vel")
+case("lqr_partner_nan", full({"partner": "q_pos = nan\n"}), "partner.q_pos")
+
+# --- sizes ------------------------------------------------------------------------
+big = ", ".join(["0.0"] * 250_000)
+case("size_over_1mib", BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
+     f'{{ kind = "sampled", samples = [{big}], dt_s = 0.001 }}', 1), "(file)")
+
+case("size_many_samples", BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
+     "{ kind = \"sampled\", samples = [" + ", ".join(["1.0"] * 100_001) + "], dt_s = 0.001 }", 1),
+     "phases[0].robot_target[0].samples")
+
+
+def main() -> None:
+    for old in HERE.glob("*.toml"):
+        old.unlink()
+    for old in HERE.glob("*.json"):
+        if old.name != "EXPECTED.json":
+            old.unlink()
+    expected = {}
+    for name, (text, field) in sorted(CASES.items()):
+        (HERE / name).write_text(text)
+        expected[name] = field
+    (HERE / "EXPECTED.json").write_text(json.dumps(expected, indent=1, sort_keys=True) + "\n")
+    print(f"{len(CASES)} files")
+
+
+if __name__ == "__main__":
+    main()
