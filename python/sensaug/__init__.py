@@ -5,7 +5,7 @@ the Python API for scripting experiments around it.
 """
 from sensaug import _core
 from sensaug._core import GainEstimator, GoalIntegrator, Plant, TrajectoryEstimator
-from sensaug.config import PhaseConfig, ScenarioConfig
+from sensaug.config import ConfigError, PhaseConfig, ScenarioConfig
 from sensaug.experiment import Trial, run
 from sensaug.lqr import (
     RiccatiConvergenceError,
@@ -16,10 +16,12 @@ from sensaug.lqr import (
     partner_gain_vector,
     robot_gain_vector,
 )
+from sensaug.sweep import sweep
 from sensaug.ukf import PendulumUKF, UkfStepError
 
 __all__ = [
     "_core",
+    "ConfigError",
     "GainEstimator",
     "GoalIntegrator",
     "PendulumUKF",
@@ -37,4 +39,5 @@ __all__ = [
     "partner_gain_vector",
     "robot_gain_vector",
     "run",
+    "sweep",
 ]
