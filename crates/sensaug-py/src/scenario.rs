@@ -8,14 +8,14 @@ use numpy::{PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
+use sensaug_core::controller::RobotConfig;
 use sensaug_core::estimator::{ExtendedFilterConfig, GoalIntegratorConfig, HandleModel};
 use sensaug_core::plant::{PlantParams, PlantState};
-use sensaug_core::scenario::{
-    PartnerConfig, Phase, PhaseKind, RobotConfig, Scenario, ScenarioError, TickRecord, WorldConfig,
-    FIELDS,
-};
+use sensaug_core::protocol::{Phase, PhaseKind};
 use sensaug_core::target::{Shape, Target, MAX_PARTS};
 use sensaug_core::ukf::MerweParams;
+use sensaug_core::world::{PartnerConfig, Scenario, TickRecord, WorldConfig, FIELDS};
+use sensaug_core::ScenarioError;
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(run_scenario, m)?)?;

@@ -7,9 +7,10 @@
 
 use core::f64::consts::PI;
 use nalgebra::{SMatrix, SVector, Vector2};
+use sensaug_core::controller::RobotConfig;
 use sensaug_core::estimator::{ExtendedFilterConfig, GoalIntegratorConfig, HandleModel};
+use sensaug_core::protocol::PhaseKind;
 use sensaug_core::riccati::agent_gains;
-use sensaug_core::scenario::{PhaseKind, RobotConfig};
 use sensaug_core::target::{Shape, Target, MAX_PARTS};
 use sensaug_core::ukf::MerweParams;
 use serde::{Deserialize, Serialize};
@@ -534,7 +535,7 @@ fn gains3(field: &str, v: &[f64]) -> Result<[f64; 3], ConfigError> {
 #[derive(Debug, Clone)]
 pub struct Resolved<'a> {
     /// Phases for the core protocol.
-    pub phases: Vec<sensaug_core::scenario::Phase<'a>>,
+    pub phases: Vec<sensaug_core::protocol::Phase<'a>>,
     /// The robot's controller settings.
     pub robot: RobotConfig,
     /// The virtual human's gains over `xi` (zeros without a virtual human).
@@ -557,7 +558,7 @@ impl FileSpec {
         let damping = non_negative("plant.damping", p.damping)?;
         non_negative("plant.coulomb", p.coulomb)?;
         let dt_s = positive("plant.dt_s", p.dt_s)?;
-        if self.phases.is_empty() || self.phases.len() > sensaug_core::scenario::MAX_PHASES {
+        if self.phases.is_empty() || self.phases.len() > sensaug_core::protocol::MAX_PHASES {
             return Err(err("phases", "needs 1 to 4 [[phases]] tables"));
         }
         let mut phases = Vec::with_capacity(self.phases.len());
@@ -576,7 +577,7 @@ impl FileSpec {
             };
             positive(&format!("{path}.duration_s"), ph.duration_s)?;
             non_negative(&format!("{path}.target_noise_std"), ph.target_noise_std)?;
-            phases.push(sensaug_core::scenario::Phase {
+            phases.push(sensaug_core::protocol::Phase {
                 kind,
                 duration_s: ph.duration_s,
                 robot_target: target(&path, "robot_target", &ph.robot_target)?,

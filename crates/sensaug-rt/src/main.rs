@@ -4,7 +4,8 @@
 //! completed.
 
 use sensaug_bridge::protocol::NodeId;
-use sensaug_core::scenario::{Protocol, Robot};
+use sensaug_core::controller::Robot;
+use sensaug_core::protocol::Protocol;
 use sensaug_rt::config::{parse, ConfigError};
 use sensaug_rt::control::{LoopSettings, Rig, StopReason};
 use sensaug_rt::{log, os};
