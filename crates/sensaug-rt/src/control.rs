@@ -601,3 +601,104 @@ impl<'a> Rig<'a> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::{Checks, Safety, StopReason};
+
+    /// Tick 10 of a running protocol, nothing wrong, a 5-tick ramp.
+    fn calm() -> Checks {
+        Checks {
+            tick: 10,
+            feedback_timed_out: false,
+            drive_fault: None,
+            stop_requested: false,
+            protocol_done: false,
+            last_torque_nm: 0.7,
+            ramp_ticks: 5,
+        }
+    }
+
+    const RAMP: Safety = Safety::RampingDown {
+        from_tick: 8,
+        from_torque_nm: 0.5,
+    };
+
+    #[test]
+    fn running_stays_running_when_nothing_happens() {
+        assert_eq!(Safety::Running.next(&calm()), Safety::Running);
+        assert_eq!(RAMP.next(&calm()), RAMP);
+    }
+
+    #[test]
+    fn a_timeout_then_a_fault_stop_at_once_even_while_ramping() {
+        let both = Checks {
+            feedback_timed_out: true,
+            drive_fault: Some(3),
+            stop_requested: true,
+            ..calm()
+        };
+        for s in [Safety::Running, RAMP] {
+            let timeout = Safety::Stopped(StopReason::FeedbackTimeout);
+            assert_eq!(s.next(&both), timeout);
+            let fault = Checks {
+                feedback_timed_out: false,
+                ..both
+            };
+            assert_eq!(s.next(&fault), Safety::Stopped(StopReason::DriveFault(3)));
+        }
+    }
+
+    #[test]
+    fn a_stop_request_ramps_from_the_last_command_and_wins_over_completion() {
+        let stop = Checks {
+            stop_requested: true,
+            protocol_done: true,
+            ..calm()
+        };
+        let ramp = Safety::Running.next(&stop);
+        assert_eq!(
+            ramp,
+            Safety::RampingDown {
+                from_tick: 10,
+                from_torque_nm: 0.7
+            }
+        );
+        // A second request does not restart the ramp.
+        let later = Checks { tick: 12, ..stop };
+        assert_eq!(ramp.next(&later), ramp);
+    }
+
+    #[test]
+    fn the_ramp_ends_after_ramp_ticks_and_a_zero_ramp_at_once() {
+        let at = |tick| Checks { tick, ..calm() };
+        assert_eq!(RAMP.next(&at(12)), RAMP);
+        assert_eq!(RAMP.next(&at(13)), Safety::Stopped(StopReason::Signal));
+        let zero = Checks {
+            stop_requested: true,
+            ramp_ticks: 0,
+            ..calm()
+        };
+        assert_eq!(
+            Safety::Running.next(&zero),
+            Safety::Stopped(StopReason::Signal)
+        );
+    }
+
+    #[test]
+    fn the_protocols_end_completes() {
+        let done = Checks {
+            protocol_done: true,
+            ..calm()
+        };
+        assert_eq!(
+            Safety::Running.next(&done),
+            Safety::Stopped(StopReason::Completed)
+        );
+        // While ramping, the protocol's end does not cut the ramp short.
+        assert_eq!(RAMP.next(&done), RAMP);
+        // A stopped loop stays stopped.
+        let stopped = Safety::Stopped(StopReason::Completed);
+        assert_eq!(stopped.next(&calm()), stopped);
+    }
+}
