@@ -5,7 +5,8 @@
 //! Written from the robot's side: "own" is the agent running the estimator,
 //! "partner" the agent being identified. The same code serves a human model
 //! that estimates the robot: give it the mirrored state order
-//! (`[x - tau_h, xdot, x - tau]`), its own torque and the targets swapped.
+//! (`[x - tau_h, xdot, x - tau]`), its own torque and the targets swapped
+//! (`identifier::Identifier` runs stages 1 and 2 this way for either agent).
 //!
 //! Per tick the caller runs: `update` with `y_k`, reads the posterior,
 //! computes its command `u_k`, then `predict` with `u_k` and the targets'

@@ -125,8 +125,8 @@ pub struct Identifier {
 impl Identifier {
     /// Set-up: builds both filters on `model`. The gain window is the last
     /// `gain_window_s` of a gain phase, in whole ticks of the loop period
-    /// `dt_s`; `prior_gains` stand in for the window when no gain phase
-    /// precedes.
+    /// `dt_s` (both > 0); `prior_gains` (finite) stand in for the window
+    /// when no gain phase precedes.
     pub fn new(
         model: HandleModel,
         stage1: &ExtendedFilterConfig<3>,
@@ -135,13 +135,20 @@ impl Identifier {
         dt_s: f64,
         prior_gains: Option<[f64; 3]>,
     ) -> Result<Self, ScenarioError> {
+        let window_ticks = gain_window_s / dt_s;
+        if !(gain_window_s > 0.0 && dt_s > 0.0 && window_ticks.is_finite()) {
+            return Err(ScenarioError::InvalidSetting("robot.gain_window_s"));
+        }
+        if prior_gains.is_some_and(|g| g.iter().any(|v| !v.is_finite())) {
+            return Err(ScenarioError::InvalidSetting("robot.prior_partner_gains"));
+        }
         let est = |stage| move |error| ScenarioError::Estimator { stage, error };
         Ok(Identifier {
             stage1: GainEstimator::new(model, stage1).map_err(est("stage1"))?,
             stage2: TrajectoryEstimator::new(model, stage2).map_err(est("stage2"))?,
             stage2_P0: stage2.P0,
             window: GainWindow {
-                ticks: (gain_window_s / dt_s) as u64,
+                ticks: window_ticks as u64,
                 sum: [0.0; 3],
                 count: 0,
             },

@@ -190,3 +190,39 @@ fn virtual_human_errors_name_the_field() {
         assert_eq!(VirtualHuman::new([0.0; 3], limit), Err(bad_limit));
     }
 }
+
+#[test]
+fn identifier_errors_name_the_field() {
+    let cfg = common::robot();
+    let window = Err(ScenarioError::InvalidSetting("robot.gain_window_s"));
+    for (window_s, dt_s) in [
+        (0.0, 1e-3),
+        (f64::NAN, 1e-3),
+        (1.0, 0.0),
+        (f64::INFINITY, 1e-3),
+    ] {
+        let mut c = cfg;
+        c.gain_window_s = window_s;
+        assert_eq!(
+            c.identifier(dt_s, None).map(|_| ()),
+            window,
+            "{window_s} {dt_s}"
+        );
+    }
+    let prior = Err(ScenarioError::InvalidSetting("robot.prior_partner_gains"));
+    let got = cfg.identifier(common::DT, Some([0.0, f64::NAN, 1.0]));
+    assert_eq!(got.map(|_| ()), prior);
+    let mut c = cfg;
+    c.stage2.P0[(0, 0)] = f64::NAN;
+    let got = c.identifier(common::DT, None).map(|_| ());
+    assert!(
+        matches!(
+            got,
+            Err(ScenarioError::Estimator {
+                stage: "stage2",
+                ..
+            })
+        ),
+        "{got:?}"
+    );
+}
