@@ -15,9 +15,10 @@ use nalgebra::{SVector, Vector2};
 use sensaug_core::estimator::{ExtendedFilterConfig, GoalIntegratorConfig, HandleModel};
 use sensaug_core::plant::{PlantParams, PlantState};
 use sensaug_core::riccati::agent_gains;
-use sensaug_core::scenario::{
-    PartnerConfig, Phase, PhaseKind, Protocol, Robot, RobotConfig, ScenarioError, WorldConfig,
-};
+use sensaug_core::controller::{Robot, RobotConfig};
+use sensaug_core::protocol::{Phase, PhaseKind, Protocol};
+use sensaug_core::world::{PartnerConfig, WorldConfig};
+use sensaug_core::ScenarioError;
 use sensaug_core::target::{Shape, Target};
 use sensaug_core::ukf::MerweParams;
 

@@ -21,7 +21,7 @@ pub const MAX_MAGNITUDE: f64 = 1e6;
 /// Longest phase, target period or chirp (s): one hour.
 pub const MAX_DURATION_S: f64 = 3600.0;
 /// Most phases in one trial.
-pub const MAX_PHASES: usize = sensaug_core::scenario::MAX_PHASES;
+pub const MAX_PHASES: usize = sensaug_core::protocol::MAX_PHASES;
 /// Most shapes summed into one target.
 pub const MAX_PARTS: usize = sensaug_core::target::MAX_PARTS;
 /// Largest configuration file read (bytes); larger ones are refused before

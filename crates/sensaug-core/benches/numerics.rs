@@ -8,9 +8,10 @@ mod common;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector3};
+use sensaug_core::controller::Robot;
 use sensaug_core::estimator::{GainEstimator, TrajectoryEstimator};
+use sensaug_core::protocol::Protocol;
 use sensaug_core::riccati::{care, dare};
-use sensaug_core::scenario::{Protocol, Robot};
 use std::hint::black_box;
 
 /// The 3-state system timed here and in `benches/compare_oracles.py`.
@@ -49,7 +50,7 @@ fn ukf_steps(c: &mut Criterion) {
 
 fn riccati(c: &mut Criterion) {
     let A2 = Matrix2::new(0.0, 1.0, 0.0, -0.5);
-    let B2 = SMatrix::<f64, 2, 1>::new(0.0, 1.0 / 0.0035);
+    let B2 = SMatrix::<f64, 2, 1>::new(0.0, 1.0 / common::M);
     let R = SMatrix::<f64, 1, 1>::identity();
     let (A3, B3) = system3();
     let Ad2 = Matrix2::new(1.0, 1e-3, 0.0, 1.0);

@@ -5,6 +5,11 @@
 //! an LQR partner `L_h = [0, k_vel, k_pos]` (from the reduced 2-state
 //! problem, `docs/model.md`), and the Hi5 experiment's virtual human has the
 //! imposed `L_h = [0, 0, Lhh]`.
+//!
+//! [`VirtualHuman`] is the partner's whole torque law, the one the simulated
+//! world and the rig loop both run.
+
+use crate::ScenarioError;
 
 /// `xi = [x - tau, xdot, x - tau_h]` (eq.system).
 pub fn xi(x: f64, v: f64, tau: f64, tau_h: f64) -> [f64; 3] {
@@ -14,16 +19,6 @@ pub fn xi(x: f64, v: f64, tau: f64, tau_h: f64) -> [f64; 3] {
 /// `u = -L xi` (eq.LQRrobot; eq.LQRhuman with `L_h`).
 pub fn feedback_torque(gains: &[f64; 3], xi: &[f64; 3]) -> f64 {
     -(gains[0] * xi[0] + gains[1] * xi[1] + gains[2] * xi[2])
-}
-
-/// Robot gains over `xi` from the reduced LQR gains `[k_pos, k_vel]`.
-pub fn robot_gains(k: [f64; 2]) -> [f64; 3] {
-    [k[0], k[1], 0.0]
-}
-
-/// Partner gains over `xi` from its reduced LQR gains `[k_pos, k_vel]`.
-pub fn partner_gains(k: [f64; 2]) -> [f64; 3] {
-    [0.0, k[1], k[0]]
 }
 
 /// A gain vector seen from the other agent: `xi` with its first and third
@@ -55,5 +50,45 @@ pub fn guard_torque(u: f64, limit: f64) -> (f64, Guard) {
         (-limit, Guard::Clamped)
     } else {
         (u, Guard::Passed)
+    }
+}
+
+/// The virtual human: the partner agent's torque law in a simulated trial and
+/// inside the rig loop (eq.LQRhuman, guarded):
+/// `u_h = guard(-L_h xi(x, v, tau, tau_h), torque_limit)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VirtualHuman {
+    gains: [f64; 3],
+    torque_limit: f64,
+}
+
+impl VirtualHuman {
+    /// Set-up: `gains` (`L_h` over `xi`) must be finite, `torque_limit` > 0
+    /// (errors name `partner.gains` / `partner.torque_limit`).
+    pub fn new(gains: [f64; 3], torque_limit: f64) -> Result<Self, ScenarioError> {
+        if gains.iter().any(|g| !g.is_finite()) {
+            return Err(ScenarioError::InvalidSetting("partner.gains"));
+        }
+        if torque_limit.is_nan() || torque_limit <= 0.0 {
+            return Err(ScenarioError::InvalidSetting("partner.torque_limit"));
+        }
+        Ok(VirtualHuman {
+            gains,
+            torque_limit,
+        })
+    }
+
+    /// Its gains `L_h` over `xi`.
+    pub fn gains(&self) -> [f64; 3] {
+        self.gains
+    }
+
+    /// Per tick: the guarded torque at the sensed `(x, v)` with the robot's
+    /// target `tau` and its own `tau_h`, and what the guard did.
+    pub fn torque(&self, x: f64, v: f64, tau: f64, tau_h: f64) -> (f64, Guard) {
+        guard_torque(
+            feedback_torque(&self.gains, &xi(x, v, tau, tau_h)),
+            self.torque_limit,
+        )
     }
 }

@@ -5,7 +5,8 @@
 //! Written from the robot's side: "own" is the agent running the estimator,
 //! "partner" the agent being identified. The same code serves a human model
 //! that estimates the robot: give it the mirrored state order
-//! (`[x - tau_h, xdot, x - tau]`), its own torque and the targets swapped.
+//! (`[x - tau_h, xdot, x - tau]`), its own torque and the targets swapped
+//! (`identifier::Identifier` runs stages 1 and 2 this way for either agent).
 //!
 //! Per tick the caller runs: `update` with `y_k`, reads the posterior,
 //! computes its command `u_k`, then `predict` with `u_k` and the targets'
@@ -255,15 +256,17 @@ pub fn fused_measurement(s: &Vector2<f64>) -> Vector3<f64> {
     Vector3::new(s[0], s[1], s[0])
 }
 
-/// Online variance of the partner channel `x - tau_h^`.
+/// Online variance of the partner channel `x - tau_h^` (a Mehra-style
+/// covariance matching, `docs/model.md`).
 ///
-/// The discrepancy `d = (x - tau_h^) - (x - tau)_meas` has variance
-/// `var(channel) + r_own` when the channel error and the own sensor noise
-/// are independent, so `var(channel) = E[d^2] - r_own`. `E[d^2]` is tracked
-/// by an exponentially weighted mean with time constant `window_s`, short
-/// enough to follow the spikes of the stage-2 error at fast target motion.
-/// The result is floored by the stage-2 posterior variance of `x - tau_h`
-/// (the channel is never trusted beyond what stage 2 itself claims).
+/// The channel's innovation against the integrated filter's prior,
+/// `d = (x - tau_h^) - e^-`, has variance `var(channel) + P-_ee` when the
+/// channel error and the prior error are independent, so
+/// `var(channel) = E[d^2] - P-_ee`. `E[d^2]` is tracked by an exponentially
+/// weighted mean with time constant `window_s`, short enough to follow the
+/// spikes of the stage-2 error at fast target motion. The result is floored
+/// by the stage-2 posterior variance of `x - tau_h` (the channel is never
+/// trusted beyond what stage 2 itself claims).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PartnerVariance {
     weight: f64,
@@ -285,16 +288,16 @@ impl PartnerVariance {
         }
     }
 
-    /// Feeds one discrepancy `d` and returns
-    /// `max(E[d^2] - r_own, floor)`.
-    pub fn observe(&mut self, d: f64, r_own: f64, floor: f64) -> f64 {
+    /// Feeds one innovation `d` and returns
+    /// `max(E[d^2] - prior_var, floor)`, `prior_var` being `P-_ee`.
+    pub fn observe(&mut self, d: f64, prior_var: f64, floor: f64) -> f64 {
         let d2 = d * d;
         let m = match self.mean_sq {
             None => d2,
             Some(m) => m + self.weight * (d2 - m),
         };
         self.mean_sq = Some(m);
-        (m - r_own).max(floor)
+        (m - prior_var).max(floor)
     }
 }
 

@@ -11,10 +11,11 @@
 //! Optional Coulomb friction is a torque of magnitude `coulomb` opposing the
 //! motion (or, at rest, opposing the applied torque up to `coulomb`: stiction),
 //! held constant over a step like the input. Viscous friction is the paper's
-//! `C` (`damping`). `FrictionCompensation` is the controller-side term the
-//! paper's Hi5 experiment adds to cancel both.
+//! `C` (`damping`). The paper models the Hi5 *after* friction compensation
+//! (`C = 0`, no Coulomb term: [`PlantParams::HI5`]); compensating a real
+//! handle's friction is the drive's job, not the controller's.
 
-use libm::{exp, expm1, fabs, tanh};
+use libm::{exp, expm1, fabs};
 
 /// Physical parameters of the handle and the loop period.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -31,7 +32,8 @@ pub struct PlantParams {
 
 impl PlantParams {
     /// The Hi5 wrist interface of the paper's experiment: `M = 0.0035 kg m^2`,
-    /// `C = 0` (after friction compensation), 1 kHz.
+    /// `C = 0` (after friction compensation), 1 kHz. The one place the Hi5
+    /// numbers live in Rust.
     pub const HI5: PlantParams = PlantParams {
         mass: 0.0035,
         damping: 0.0,
@@ -202,30 +204,5 @@ impl Plant {
             v: v_next,
         };
         Ok(self.state)
-    }
-}
-
-/// Controller-side friction compensation, as in the paper's Hi5 experiment:
-/// `u_comp = coulomb tanh(v / v_smooth) + viscous v`.
-///
-/// `tanh` replaces `sign` so the command stays continuous through zero
-/// velocity (a hard sign chatters on a noisy velocity estimate).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct FrictionCompensation {
-    /// Estimated Coulomb torque (N m).
-    pub coulomb: f64,
-    /// Estimated viscous coefficient (N m s/rad).
-    pub viscous: f64,
-    /// Velocity scale of the smoothed sign (rad/s); must be > 0.
-    pub v_smooth: f64,
-}
-
-impl FrictionCompensation {
-    /// The compensating torque at velocity `v`; 0 for a non-finite `v`.
-    pub fn torque(&self, v: f64) -> f64 {
-        if !v.is_finite() {
-            return 0.0;
-        }
-        self.coulomb * tanh(v / self.v_smooth) + self.viscous * v
     }
 }

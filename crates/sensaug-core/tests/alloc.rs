@@ -13,7 +13,7 @@ use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector2, Vector3};
 use sensaug_core::estimator::{GainEstimator, GoalIntegrator, TrajectoryEstimator};
 use sensaug_core::plant::{Plant, PlantParams};
 use sensaug_core::riccati::{care, dare};
-use sensaug_core::scenario::{Scenario, TickRecord};
+use sensaug_core::world::{Scenario, TickRecord};
 
 #[test]
 fn the_counter_sees_an_allocation() {
@@ -27,10 +27,9 @@ fn the_counter_sees_an_allocation() {
 #[test]
 fn plant_steps_do_not_allocate() {
     let mut p = Plant::new(PlantParams {
-        mass: 0.0035,
         damping: 0.01,
         coulomb: 0.002,
-        dt_s: 1e-3,
+        ..PlantParams::HI5
     })
     .unwrap();
     let n = allocations(|| {

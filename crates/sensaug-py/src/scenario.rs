@@ -8,7 +8,7 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use sensaug_config::{Format, ScenarioSpec};
-use sensaug_core::scenario::{Scenario, TickRecord, FIELDS};
+use sensaug_core::world::{Scenario, TickRecord, FIELDS};
 use std::path::Path;
 
 create_exception!(

@@ -4,15 +4,22 @@
 //! Set-up (`Rig::start`) talks to the drive until it is ENABLED and reads the
 //! first feedback; `Rig::run` is the real-time part: every buffer it touches
 //! exists before it starts, and a tick performs no allocation and no blocking
-//! call other than the deadline sleep (proven by `tests/alloc.rs`).
+//! call other than the deadline sleep (proven by `tests/rig_loop.rs`).
+//!
+//! A tick reads sense -> decide -> actuate -> record; the decision starts
+//! with the loop's [`Safety`] state, a small state machine
+//! ([`Safety::next`]) that says whether the controller commands, the torque
+//! ramps down, or the loop stops.
 
 use crate::log::{LogRecord, LogSink};
 use crate::os;
 use crate::stats::{CanCounters, Histogram, LoopReport};
 use sensaug_bridge::protocol::{decode, encode, DriveState, FaultFlags, Message, NodeId};
 use sensaug_bridge::{Frame, Transport};
-use sensaug_core::agent::{feedback_torque, guard_torque, xi, Guard};
-use sensaug_core::scenario::{Protocol, Robot, RobotTick, ScenarioError};
+use sensaug_core::agent::{guard_torque, Guard, VirtualHuman};
+use sensaug_core::controller::{Robot, RobotTick};
+use sensaug_core::protocol::{Protocol, Sample};
+use sensaug_core::ScenarioError;
 use std::fmt;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
@@ -43,10 +50,152 @@ impl fmt::Display for StopReason {
     }
 }
 
+/// The loop's safety state: who sets the next torque command.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Safety {
+    /// The protocol runs: the controller commands.
+    Running,
+    /// A stop was requested at `from_tick`: the command ramps linearly from
+    /// `from_torque_nm` (the last command sent) to 0.
+    RampingDown {
+        /// First tick of the ramp.
+        from_tick: u64,
+        /// The last command before the ramp (N m).
+        from_torque_nm: f64,
+    },
+    /// The loop ends for this reason.
+    Stopped(StopReason),
+}
+
+/// What the safety state machine looks at in one tick.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Checks {
+    /// The tick.
+    pub tick: u64,
+    /// No feedback for longer than the timeout.
+    pub feedback_timed_out: bool,
+    /// The drive reported FAULT (its flags).
+    pub drive_fault: Option<u16>,
+    /// SIGINT/SIGTERM (the stop flag).
+    pub stop_requested: bool,
+    /// Every tick of the protocol ran.
+    pub protocol_done: bool,
+    /// The last command sent (N m).
+    pub last_torque_nm: f64,
+    /// Length of the ramp-down (ticks).
+    pub ramp_ticks: u64,
+}
+
+impl Safety {
+    /// The state for this tick. A feedback timeout, then a drive fault, stop
+    /// at once; a stop request starts the ramp (it wins over completion);
+    /// the ramp stops after `ramp_ticks`; the protocol's end completes.
+    pub fn next(self, c: &Checks) -> Safety {
+        if let Safety::Stopped(_) = self {
+            return self;
+        }
+        if c.feedback_timed_out {
+            return Safety::Stopped(StopReason::FeedbackTimeout);
+        }
+        if let Some(flags) = c.drive_fault {
+            return Safety::Stopped(StopReason::DriveFault(flags));
+        }
+        let state = match self {
+            Safety::Running if c.stop_requested => Safety::RampingDown {
+                from_tick: c.tick,
+                from_torque_nm: c.last_torque_nm,
+            },
+            Safety::Running if c.protocol_done => Safety::Stopped(StopReason::Completed),
+            other => other,
+        };
+        match state {
+            Safety::RampingDown { from_tick, .. } if c.tick - from_tick >= c.ramp_ticks => {
+                Safety::Stopped(StopReason::Signal)
+            }
+            other => other,
+        }
+    }
+}
+
+/// Tick timing, derived once from the settings before the first tick.
+#[derive(Clone, Copy, Debug)]
+struct Timing {
+    /// Absolute time of tick 0 (ns, `CLOCK_MONOTONIC`).
+    start_ns: u64,
+    period_ns: u64,
+    /// Feedback older than this many ticks trips the timeout.
+    timeout_ticks: u64,
+    ramp_ticks: u64,
+}
+
+impl Timing {
+    fn new(s: &LoopSettings) -> Self {
+        let period_ns = (s.dt_s * 1e9).round() as u64;
+        Timing {
+            start_ns: os::now_ns() + period_ns,
+            period_ns,
+            timeout_ticks: (s.feedback_timeout_ms * 1e-3 / s.dt_s).ceil() as u64,
+            ramp_ticks: (s.ramp_down_s / s.dt_s).round() as u64,
+        }
+    }
+}
+
+/// When a tick was due and when it woke (ns).
+#[derive(Clone, Copy, Debug)]
+struct Wake {
+    deadline_ns: u64,
+    woke_ns: u64,
+}
+
+/// What a tick sensed.
+#[derive(Clone, Copy, Debug)]
+struct Sensed {
+    wake: Wake,
+    /// Last position received (controller units).
+    x: f64,
+    /// Last velocity received (controller units).
+    v: f64,
+    /// The feedback answers the previous command.
+    fresh: bool,
+    /// Ticks since the last feedback.
+    age_ticks: u64,
+}
+
+/// What a tick decided: the torque to send and the controller's part of the
+/// log record (NaN while ramping down).
+#[derive(Clone, Copy, Debug)]
+struct Command {
+    torque_nm: f64,
+    robot: RobotTick,
+    tau: f64,
+    tau_h: f64,
+    u_h: f64,
+    guard: f64,
+}
+
+impl Command {
+    /// Tick `i` of a ramp of `ramp_ticks` from `from_torque_nm`:
+    /// `from (1 - (i + 1) / ramp_ticks)`.
+    fn ramp(from_torque_nm: f64, i: u64, ramp_ticks: u64) -> Command {
+        Command {
+            torque_nm: from_torque_nm * (1.0 - (i + 1) as f64 / ramp_ticks.max(1) as f64),
+            robot: RobotTick {
+                u: f64::NAN,
+                ..RobotTick::NONE
+            },
+            tau: f64::NAN,
+            tau_h: f64::NAN,
+            u_h: f64::NAN,
+            guard: f64::NAN,
+        }
+    }
+}
+
 /// Set-up failures, before anything moved.
 #[derive(Debug)]
 pub enum StartError {
-    /// The controller's configuration was rejected by the core.
+    /// The virtual human's settings were rejected by the core (names the
+    /// field).
     Scenario(ScenarioError),
     /// The drive did not reach the wanted state in time.
     Drive(String),
@@ -55,7 +204,7 @@ pub enum StartError {
 impl fmt::Display for StartError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            StartError::Scenario(e) => write!(f, "controller configuration: {e:?}"),
+            StartError::Scenario(e) => write!(f, "virtual human: {e:?}"),
             StartError::Drive(s) => write!(f, "drive: {s}"),
         }
     }
@@ -102,6 +251,7 @@ pub struct Rig<'a> {
     settings: LoopSettings,
     transport: Box<dyn Transport + Send>,
     robot: Robot<'a>,
+    partner: VirtualHuman,
     protocol: Protocol<'a>,
     drive: DriveView,
     wake: Histogram,
@@ -114,7 +264,7 @@ pub struct Rig<'a> {
 }
 
 impl<'a> Rig<'a> {
-    /// Set-up: builds the controller, then brings the drive from BOOT or
+    /// Set-up: checks the virtual human, then brings the drive from BOOT or
     /// DISABLED (clearing faults if needed) to ENABLED, and reads the first
     /// feedback with a zero-torque command.
     pub fn start(
@@ -124,10 +274,13 @@ impl<'a> Rig<'a> {
         timeout: Duration,
     ) -> Result<Self, StartError> {
         let protocol = *robot.protocol();
+        let partner = VirtualHuman::new(settings.partner_gains, settings.partner_torque_limit)
+            .map_err(StartError::Scenario)?;
         let mut rig = Rig {
             settings,
             transport,
             robot,
+            partner,
             protocol,
             drive: DriveView {
                 state: DriveState::Boot,
@@ -246,108 +399,35 @@ impl<'a> Rig<'a> {
 
     /// The real-time loop. Runs every tick of the protocol unless `stop` is
     /// raised (ramp down), feedback times out or the drive faults.
+    ///
+    /// Each tick: wait for its deadline, **sense** (drain the feedback, its
+    /// freshness and age), **decide** (the safety state, then the controller
+    /// or the ramp), **actuate** (one torque command), **record** (one log
+    /// record).
     pub fn run(&mut self, log: &mut LogSink, stop: &AtomicBool) -> StopReason {
-        let s = self.settings;
-        let period_ns = (s.dt_s * 1e9).round() as u64;
-        let total = self.protocol.total_ticks();
-        let timeout_ticks = (s.feedback_timeout_ms * 1e-3 / s.dt_s).ceil() as u64;
-        let ramp_ticks = (s.ramp_down_s / s.dt_s).round() as u64;
-        let unit = s.rad_per_unit;
-        let start_ns = os::now_ns() + period_ns;
-        let mut last_command = 0.0;
-        let mut ramp: Option<(u64, f64)> = None;
+        let timing = Timing::new(&self.settings);
+        let mut safety = Safety::Running;
+        let mut last_torque_nm = 0.0;
         let mut k = 0u64;
         let reason = loop {
-            let deadline = start_ns + k * period_ns;
-            os::sleep_until(deadline);
-            let woke = os::now_ns();
-            self.wake.record(woke.saturating_sub(deadline));
-            if woke > deadline + period_ns {
-                self.deadline_misses += 1;
-            }
-
-            self.drain(k);
-            let expected = (k.wrapping_sub(1) & 0xff) as u8;
-            let fresh = k == 0 || self.drive.last_seq == Some(expected);
-            if !fresh {
-                self.can.missing_feedback += 1;
-            }
-            let age = k.saturating_sub(self.drive.last_feedback_tick);
-            if k > 0 && age > timeout_ticks {
-                self.send(&Message::EmergencyStop);
-                break StopReason::FeedbackTimeout;
-            }
-            if self.drive.state == DriveState::Fault {
-                break StopReason::DriveFault(self.drive.faults.bits());
-            }
-            if ramp.is_none() && stop.load(Ordering::Relaxed) {
-                ramp = Some((k, last_command));
-            }
-            if ramp.is_none() && k >= total {
-                break StopReason::Completed;
-            }
-
-            // Controller units: positions in `unit`s, torques in model units.
-            let x = self.drive.x_rad / unit;
-            let v = self.drive.v_rad_s / unit;
-            let mut rec = LogRecord {
-                tick: k,
-                t: k as f64 * s.dt_s,
-                x,
-                v,
-                tau: f64::NAN,
-                tau_h: f64::NAN,
-                u_h: f64::NAN,
-                torque_nm: 0.0,
-                robot: RobotTick {
-                    u: f64::NAN,
-                    ..RobotTick::NONE
+            let wake = self.wait_for_tick(&timing, k);
+            let sensed = self.sense(k, wake);
+            safety = safety.next(&self.checks(&timing, k, &sensed, stop, last_torque_nm));
+            let command = match safety {
+                Safety::Stopped(reason) => break reason,
+                Safety::Running => match self.protocol.sample(k) {
+                    Some(sample) => self.control(&sample, &sensed),
+                    // k < total while running, so the protocol has a sample.
+                    None => break StopReason::Completed,
                 },
-                wake_latency_us: woke.saturating_sub(deadline) as f64 / 1e3,
-                compute_us: f64::NAN,
-                feedback_age_ticks: age,
-                drive_state: self.drive.state.raw(),
-                guard: f64::NAN,
-                ramp: ramp.is_some(),
+                Safety::RampingDown {
+                    from_tick,
+                    from_torque_nm,
+                } => Command::ramp(from_torque_nm, k - from_tick, timing.ramp_ticks),
             };
-            let torque_nm = match (ramp, self.protocol.sample(k)) {
-                (Some((k0, from)), _) => {
-                    let i = k - k0;
-                    if i >= ramp_ticks {
-                        break StopReason::Signal;
-                    }
-                    from * (1.0 - (i + 1) as f64 / ramp_ticks.max(1) as f64)
-                }
-                (None, Some(sample)) => {
-                    rec.robot = self.robot.tick_at(&sample, fresh.then_some((x, v)));
-                    let (u_h, _) = guard_torque(
-                        feedback_torque(&s.partner_gains, &xi(x, v, sample.tau, sample.tau_h)),
-                        s.partner_torque_limit,
-                    );
-                    (rec.tau, rec.tau_h, rec.u_h) = (sample.tau, sample.tau_h, u_h);
-                    // Model torque -> N m: the same factor as position.
-                    let (t, g) = guard_torque((rec.robot.u + u_h) * unit, s.torque_limit_nm);
-                    match g {
-                        Guard::Passed => {}
-                        Guard::Clamped => self.torque_clamped += 1,
-                        Guard::NonFinite => self.non_finite += 1,
-                    }
-                    rec.guard = g as u8 as f64;
-                    t
-                }
-                // k < total here, so the protocol has a sample.
-                (None, None) => break StopReason::Completed,
-            };
-            last_command = torque_nm;
-            self.send(&Message::TorqueCommand {
-                torque_nm,
-                sequence: (k & 0xff) as u8,
-            });
-            let done = os::now_ns();
-            self.compute.record(done.saturating_sub(woke));
-            rec.torque_nm = torque_nm;
-            rec.compute_us = done.saturating_sub(woke) as f64 / 1e3;
-            log.push(rec);
+            self.actuate(k, command.torque_nm);
+            last_torque_nm = command.torque_nm;
+            self.record(log, k, &sensed, &command, safety);
             k += 1;
         };
         self.ticks_run = k;
@@ -355,10 +435,135 @@ impl<'a> Rig<'a> {
         reason
     }
 
-    /// After the loop: zero torque and disable (an emergency stop was
-    /// already sent on a feedback timeout).
+    /// Sleeps until tick `k`'s absolute deadline; records the wake-up
+    /// latency and counts a miss when the next deadline has already passed.
+    fn wait_for_tick(&mut self, timing: &Timing, k: u64) -> Wake {
+        let deadline_ns = timing.start_ns + k * timing.period_ns;
+        os::sleep_until(deadline_ns);
+        let woke_ns = os::now_ns();
+        self.wake.record(woke_ns.saturating_sub(deadline_ns));
+        if woke_ns > deadline_ns + timing.period_ns {
+            self.deadline_misses += 1;
+        }
+        Wake {
+            deadline_ns,
+            woke_ns,
+        }
+    }
+
+    /// Sense: drain the received frames; the feedback is fresh when it
+    /// answers command `k - 1` (tick 0 uses the set-up's feedback).
+    fn sense(&mut self, k: u64, wake: Wake) -> Sensed {
+        self.drain(k);
+        let expected = (k.wrapping_sub(1) & 0xff) as u8;
+        let fresh = k == 0 || self.drive.last_seq == Some(expected);
+        if !fresh {
+            self.can.missing_feedback += 1;
+        }
+        // Controller units: positions in `unit`s, torques in model units.
+        let unit = self.settings.rad_per_unit;
+        Sensed {
+            wake,
+            x: self.drive.x_rad / unit,
+            v: self.drive.v_rad_s / unit,
+            fresh,
+            age_ticks: k.saturating_sub(self.drive.last_feedback_tick),
+        }
+    }
+
+    /// What the safety state machine looks at in tick `k`.
+    fn checks(
+        &self,
+        timing: &Timing,
+        k: u64,
+        sensed: &Sensed,
+        stop: &AtomicBool,
+        last_torque_nm: f64,
+    ) -> Checks {
+        Checks {
+            tick: k,
+            feedback_timed_out: k > 0 && sensed.age_ticks > timing.timeout_ticks,
+            drive_fault: (self.drive.state == DriveState::Fault).then(|| self.drive.faults.bits()),
+            stop_requested: stop.load(Ordering::Relaxed),
+            protocol_done: k >= self.protocol.total_ticks(),
+            last_torque_nm,
+            ramp_ticks: timing.ramp_ticks,
+        }
+    }
+
+    /// Decide, while running: the robot's tick (predict-only without fresh
+    /// feedback), the virtual human's torque, their sum in N m guarded at the
+    /// drive's limit.
+    fn control(&mut self, sample: &Sample<'_>, sensed: &Sensed) -> Command {
+        let (x, v) = (sensed.x, sensed.v);
+        let robot = self.robot.tick_at(sample, sensed.fresh.then_some((x, v)));
+        let (u_h, _) = self.partner.torque(x, v, sample.tau, sample.tau_h);
+        // Model torque -> N m: the same factor as position.
+        let unit = self.settings.rad_per_unit;
+        let (torque_nm, g) = guard_torque((robot.u + u_h) * unit, self.settings.torque_limit_nm);
+        match g {
+            Guard::Passed => {}
+            Guard::Clamped => self.torque_clamped += 1,
+            Guard::NonFinite => self.non_finite += 1,
+        }
+        Command {
+            torque_nm,
+            robot,
+            tau: sample.tau,
+            tau_h: sample.tau_h,
+            u_h,
+            guard: g as u8 as f64,
+        }
+    }
+
+    /// Actuate: one torque command, sequence `k mod 256`.
+    fn actuate(&mut self, k: u64, torque_nm: f64) {
+        self.send(&Message::TorqueCommand {
+            torque_nm,
+            sequence: (k & 0xff) as u8,
+        });
+    }
+
+    /// Record: the tick's compute time and its log record.
+    fn record(
+        &mut self,
+        log: &mut LogSink,
+        k: u64,
+        sensed: &Sensed,
+        command: &Command,
+        safety: Safety,
+    ) {
+        let Wake {
+            deadline_ns,
+            woke_ns,
+        } = sensed.wake;
+        let compute_ns = os::now_ns().saturating_sub(woke_ns);
+        self.compute.record(compute_ns);
+        log.push(LogRecord {
+            tick: k,
+            t: k as f64 * self.settings.dt_s,
+            x: sensed.x,
+            v: sensed.v,
+            tau: command.tau,
+            tau_h: command.tau_h,
+            u_h: command.u_h,
+            torque_nm: command.torque_nm,
+            robot: command.robot,
+            wake_latency_us: woke_ns.saturating_sub(deadline_ns) as f64 / 1e3,
+            compute_us: compute_ns as f64 / 1e3,
+            feedback_age_ticks: sensed.age_ticks,
+            drive_state: self.drive.state.raw(),
+            guard: command.guard,
+            ramp: matches!(safety, Safety::RampingDown { .. }),
+        });
+    }
+
+    /// After the loop: an emergency stop on a feedback timeout, else zero
+    /// torque; then disable.
     fn shut_down(&mut self, reason: StopReason) {
-        if reason != StopReason::FeedbackTimeout {
+        if reason == StopReason::FeedbackTimeout {
+            self.send(&Message::EmergencyStop);
+        } else {
             self.send(&Message::TorqueCommand {
                 torque_nm: 0.0,
                 sequence: 0,
@@ -394,5 +599,106 @@ impl<'a> Rig<'a> {
             partner_gains_true: self.settings.partner_gains,
             realtime: Vec::new(),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{Checks, Safety, StopReason};
+
+    /// Tick 10 of a running protocol, nothing wrong, a 5-tick ramp.
+    fn calm() -> Checks {
+        Checks {
+            tick: 10,
+            feedback_timed_out: false,
+            drive_fault: None,
+            stop_requested: false,
+            protocol_done: false,
+            last_torque_nm: 0.7,
+            ramp_ticks: 5,
+        }
+    }
+
+    const RAMP: Safety = Safety::RampingDown {
+        from_tick: 8,
+        from_torque_nm: 0.5,
+    };
+
+    #[test]
+    fn running_stays_running_when_nothing_happens() {
+        assert_eq!(Safety::Running.next(&calm()), Safety::Running);
+        assert_eq!(RAMP.next(&calm()), RAMP);
+    }
+
+    #[test]
+    fn a_timeout_then_a_fault_stop_at_once_even_while_ramping() {
+        let both = Checks {
+            feedback_timed_out: true,
+            drive_fault: Some(3),
+            stop_requested: true,
+            ..calm()
+        };
+        for s in [Safety::Running, RAMP] {
+            let timeout = Safety::Stopped(StopReason::FeedbackTimeout);
+            assert_eq!(s.next(&both), timeout);
+            let fault = Checks {
+                feedback_timed_out: false,
+                ..both
+            };
+            assert_eq!(s.next(&fault), Safety::Stopped(StopReason::DriveFault(3)));
+        }
+    }
+
+    #[test]
+    fn a_stop_request_ramps_from_the_last_command_and_wins_over_completion() {
+        let stop = Checks {
+            stop_requested: true,
+            protocol_done: true,
+            ..calm()
+        };
+        let ramp = Safety::Running.next(&stop);
+        assert_eq!(
+            ramp,
+            Safety::RampingDown {
+                from_tick: 10,
+                from_torque_nm: 0.7
+            }
+        );
+        // A second request does not restart the ramp.
+        let later = Checks { tick: 12, ..stop };
+        assert_eq!(ramp.next(&later), ramp);
+    }
+
+    #[test]
+    fn the_ramp_ends_after_ramp_ticks_and_a_zero_ramp_at_once() {
+        let at = |tick| Checks { tick, ..calm() };
+        assert_eq!(RAMP.next(&at(12)), RAMP);
+        assert_eq!(RAMP.next(&at(13)), Safety::Stopped(StopReason::Signal));
+        let zero = Checks {
+            stop_requested: true,
+            ramp_ticks: 0,
+            ..calm()
+        };
+        assert_eq!(
+            Safety::Running.next(&zero),
+            Safety::Stopped(StopReason::Signal)
+        );
+    }
+
+    #[test]
+    fn the_protocols_end_completes() {
+        let done = Checks {
+            protocol_done: true,
+            ..calm()
+        };
+        assert_eq!(
+            Safety::Running.next(&done),
+            Safety::Stopped(StopReason::Completed)
+        );
+        // While ramping, the protocol's end does not cut the ramp short.
+        assert_eq!(RAMP.next(&done), RAMP);
+        // A stopped loop stays stopped.
+        let stopped = Safety::Stopped(StopReason::Completed);
+        assert_eq!(stopped.next(&calm()), stopped);
     }
 }

@@ -8,10 +8,10 @@
 //! seconds of records, so a healthy writer never lets it fill.
 
 use rtrb::{Consumer, Producer, RingBuffer};
-use sensaug_core::scenario::RobotTick;
+use sensaug_core::controller::RobotTick;
 use std::fs::File;
 use std::io::{self, BufWriter, Seek, SeekFrom, Write};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
@@ -138,7 +138,6 @@ impl LogSink {
 pub struct LogWriter {
     done: Arc<AtomicBool>,
     handle: JoinHandle<io::Result<u64>>,
-    path: PathBuf,
 }
 
 impl LogWriter {
@@ -149,11 +148,6 @@ impl LogWriter {
         self.handle
             .join()
             .map_err(|_| io::Error::other("log writer thread panicked"))?
-    }
-
-    /// The log file.
-    pub fn path(&self) -> &Path {
-        &self.path
     }
 }
 
@@ -177,11 +171,7 @@ pub fn start(path: &Path, capacity: usize) -> io::Result<(LogSink, LogWriter)> {
             producer,
             overflows: 0,
         },
-        LogWriter {
-            done,
-            handle,
-            path: path.to_path_buf(),
-        },
+        LogWriter { done, handle },
     ))
 }
 

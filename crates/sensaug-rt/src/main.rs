@@ -6,7 +6,7 @@
 
 use clap::Parser;
 use sensaug_config::{load_file, validate, ConfigError, ScenarioSpec};
-use sensaug_core::scenario::Robot;
+use sensaug_core::controller::Robot;
 use sensaug_rt::config::loop_settings;
 use sensaug_rt::control::{Rig, StopReason};
 use sensaug_rt::{log, os};

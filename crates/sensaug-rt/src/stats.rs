@@ -90,8 +90,6 @@ pub struct CanCounters {
     pub decode_errors: u64,
     /// Ticks whose previous command had no feedback yet.
     pub missing_feedback: u64,
-    /// Feedback frames with an unexpected sequence number.
-    pub stale_feedback: u64,
     /// Frames the transport sent.
     pub bus_sent: u64,
     /// Frames the transport received.

@@ -6,9 +6,10 @@
 use sensaug_bridge::protocol::{decode, encode, DriveState, FaultFlags, Message, NodeId};
 use sensaug_bridge::transport::UdpBus;
 use sensaug_bridge::Transport;
-use sensaug_config::{load_str, resolve, Format};
+use sensaug_core::controller::Robot;
 use sensaug_core::plant::{Plant, PlantParams};
-use sensaug_core::scenario::{Protocol, Robot};
+use sensaug_core::protocol::Protocol;
+use sensaug_config::{load_str, resolve, Format};
 use sensaug_rt::control::{LoopSettings, Rig, StopReason};
 use sensaug_rt::log;
 use std::net::UdpSocket;
@@ -59,13 +60,7 @@ fn drive(port: u16, stop: Arc<AtomicBool>, answer_for: u64) -> JoinHandle<()> {
     std::thread::spawn(move || {
         let node = NodeId::new(1).unwrap();
         let mut bus = UdpBus::open(port).unwrap();
-        let mut plant = Plant::new(PlantParams {
-            mass: 0.0035,
-            damping: 0.0,
-            coulomb: 0.0,
-            dt_s: 1e-3,
-        })
-        .unwrap();
+        let mut plant = Plant::new(PlantParams::HI5).unwrap();
         let mut state = DriveState::Disabled;
         let mut answered = 0u64;
         let mut last_beat = Instant::now() - Duration::from_secs(1);

@@ -2,14 +2,16 @@
 //! the benches (same numbers as `python/sensaug/presets.py::hi5_experiment`).
 #![allow(dead_code)]
 use nalgebra::{SMatrix, SVector, Vector2};
+use sensaug_core::controller::RobotConfig;
 use sensaug_core::estimator::{ExtendedFilterConfig, GoalIntegratorConfig, HandleModel};
 use sensaug_core::plant::{PlantParams, PlantState};
-use sensaug_core::scenario::{PartnerConfig, Phase, PhaseKind, RobotConfig, WorldConfig};
+use sensaug_core::protocol::{Phase, PhaseKind};
 use sensaug_core::target::{Shape, Target};
 use sensaug_core::ukf::MerweParams;
+use sensaug_core::world::{PartnerConfig, WorldConfig};
 
-pub const M: f64 = 0.0035;
-pub const DT: f64 = 1e-3;
+pub const M: f64 = PlantParams::HI5.mass;
+pub const DT: f64 = PlantParams::HI5.dt_s;
 
 pub fn phases(phase_s: f64, noise: f64) -> [Phase<'static>; 3] {
     let rs = Target::single(Shape::RoundedSquare {
@@ -98,12 +100,7 @@ pub fn partner(lhh: f64) -> PartnerConfig {
 
 pub fn world(seed: u64) -> WorldConfig {
     WorldConfig {
-        plant: PlantParams {
-            mass: M,
-            damping: 0.0,
-            coulomb: 0.0,
-            dt_s: DT,
-        },
+        plant: PlantParams::HI5,
         initial: PlantState::default(),
         motor_noise_std: 1e-3,
         position_noise_std: 1e-7f64.sqrt(),

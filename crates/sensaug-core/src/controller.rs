@@ -1,0 +1,375 @@
+//! The robot's controller, the piece the real-time loop runs: one
+//! [`Robot::tick_at`] per sample updates the estimators with the
+//! measurement, computes the guarded command, then predicts with it.
+//!
+//! The partner identification (stages 1 and 2) is an [`Identifier`]; the
+//! goal integration (stage 3) and the control law are here. Everything is
+//! built and validated at set-up; a tick allocates nothing, and estimator
+//! trouble is counted, never a panic.
+
+use crate::agent::{feedback_torque, guard_torque, xi, Guard};
+use crate::estimator::{
+    ExtendedFilterConfig, GoalIntegrator, GoalIntegratorConfig, HandleModel, E_H,
+};
+use crate::identifier::{FilterTally, Identifier, PartnerEstimate};
+use crate::protocol::{PhaseKind, Protocol, Sample};
+use crate::rng::Noise;
+use crate::ukf::Status;
+use crate::ScenarioError;
+use nalgebra::{SMatrix, Vector2, Vector3};
+
+/// Settings of the robot's controller.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RobotConfig {
+    /// Feedback gains over `xi = [x - tau, xdot, x - tau_h]` (an LQR robot's
+    /// are `[k_pos, k_vel, 0]`, `docs/model.md`).
+    pub gains: [f64; 3],
+    /// The estimators' model of the handle.
+    pub model: HandleModel,
+    /// Stage-1 filter (gains). `x0` holds the initial guesses.
+    pub stage1: ExtendedFilterConfig<3>,
+    /// Stage-2 filter (trajectory). Its `x0` is replaced at start by the
+    /// stage-1 posterior, gains by their pseudo-measurement; `P0` is used.
+    pub stage2: ExtendedFilterConfig<5>,
+    /// Stage-3 filters (goal integration). `x0` is replaced at start by the
+    /// current own measurement; `P0` is used. `R_own` is the sensor noise on
+    /// `[x - tau, xdot]`; the phase's `target_noise_std^2` is added to its
+    /// first entry at the phase start.
+    pub stage3: GoalIntegratorConfig,
+    /// Let the integrated estimate drive control in integration phases
+    /// (both filters always run, for the comparison).
+    pub integrate: bool,
+    /// Stage-2's gain pseudo-measurement is the mean of the stage-1
+    /// estimate over the last `gain_window_s` of the gain phase (8 s in the
+    /// paper).
+    pub gain_window_s: f64,
+    /// Partner gains to use when no gain phase precedes (skips stage 1).
+    pub prior_partner_gains: Option<[f64; 3]>,
+    /// Torque limit (model units), > 0.
+    pub torque_limit: f64,
+    /// Seed of the injected target-view noise.
+    pub seed: u64,
+}
+
+/// Counters of everything unusual in the robot's loop.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RobotCounters {
+    /// Commands clamped to the torque limit.
+    pub clamped: u64,
+    /// Non-finite commands replaced by 0.
+    pub non_finite: u64,
+    /// Estimator calls that returned an error (each already handled by the
+    /// filter: state restored or covariance reset).
+    pub estimator_errors: u64,
+    /// Estimator calls that needed a re-symmetrised covariance.
+    pub resymmetrised: u64,
+    /// Ticks without a fresh measurement (predict only).
+    pub missing_measurements: u64,
+}
+
+/// What the robot did in one tick (its log line).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RobotTick {
+    /// Guarded torque command.
+    pub u: f64,
+    /// Phase code (`PhaseKind::code`); NaN after the protocol ended.
+    pub phase: f64,
+    /// The robot's (possibly noisy) view of `x - tau`.
+    pub e_meas: f64,
+    /// Estimated partner gains (stage 1 or 2, whichever runs).
+    pub gains: [f64; 3],
+    /// Their posterior variances.
+    pub gains_var: [f64; 3],
+    /// Estimated partner target `tau_h^` (stages 2-3), NaN otherwise.
+    pub tau_h_hat: f64,
+    /// Posterior variance of `x - tau_h^`.
+    pub tau_h_var: f64,
+    /// Stage 3: `(x - tau)^` from own sensing only.
+    pub e_hat_own: f64,
+    /// Stage 3: `(x - tau)^` with the partner channel.
+    pub e_hat_fused: f64,
+    /// Posterior variance of `e_hat_own`.
+    pub e_hat_own_var: f64,
+    /// Posterior variance of `e_hat_fused`.
+    pub e_hat_fused_var: f64,
+    /// Stage 3: the partner-channel variance used.
+    pub partner_var: f64,
+}
+
+impl RobotTick {
+    /// No estimate anywhere (NaN), zero command: the start of every tick's
+    /// log line, and the whole of it after the protocol's end.
+    pub const NONE: RobotTick = RobotTick {
+        u: 0.0,
+        phase: f64::NAN,
+        e_meas: f64::NAN,
+        gains: [f64::NAN; 3],
+        gains_var: [f64::NAN; 3],
+        tau_h_hat: f64::NAN,
+        tau_h_var: f64::NAN,
+        e_hat_own: f64::NAN,
+        e_hat_fused: f64::NAN,
+        e_hat_own_var: f64::NAN,
+        e_hat_fused_var: f64::NAN,
+        partner_var: f64::NAN,
+    };
+}
+
+impl RobotTick {
+    /// Fills the partner-identification fields from `est`.
+    fn set_partner(&mut self, est: PartnerEstimate) {
+        self.gains = est.gains;
+        self.gains_var = est.gains_var;
+        self.tau_h_hat = est.target;
+        self.tau_h_var = est.target_var;
+    }
+}
+
+/// The robot's controller: estimators and control law.
+#[derive(Clone, Debug)]
+pub struct Robot<'a> {
+    cfg: RobotConfig,
+    protocol: Protocol<'a>,
+    /// Stages 1 and 2.
+    identifier: Identifier,
+    /// Stage 3.
+    stage3: GoalIntegrator,
+    /// The integration phase stage 3 was last started for.
+    integration_phase: Option<usize>,
+    noise: Noise,
+    /// Guard and measurement counters (the estimator counts are the
+    /// identifier's tally plus `stage3_tally`).
+    counters: RobotCounters,
+    stage3_tally: FilterTally,
+    last_measurement: (f64, f64),
+    /// Stage 2's measurement covariance with the integration phase's
+    /// target-view noise added, set when that phase starts.
+    stage2_R_noisy: SMatrix<f64, 5, 5>,
+}
+
+fn check_finite_positive(v: f64, name: &'static str) -> Result<(), ScenarioError> {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err(ScenarioError::InvalidSetting(name))
+    }
+}
+
+impl<'a> Robot<'a> {
+    /// Set-up: validates the settings against the protocol and builds all
+    /// estimators.
+    pub fn new(cfg: RobotConfig, protocol: Protocol<'a>) -> Result<Self, ScenarioError> {
+        if cfg.gains.iter().any(|g| !g.is_finite()) {
+            return Err(ScenarioError::InvalidSetting("robot.gains"));
+        }
+        check_finite_positive(cfg.gain_window_s, "robot.gain_window_s")?;
+        if cfg.torque_limit.is_nan() || cfg.torque_limit <= 0.0 {
+            return Err(ScenarioError::InvalidSetting("robot.torque_limit"));
+        }
+        if let Some(g) = cfg.prior_partner_gains {
+            if g.iter().any(|v| !v.is_finite()) {
+                return Err(ScenarioError::InvalidSetting("robot.prior_partner_gains"));
+            }
+        }
+        if (cfg.model.dt_s - protocol.dt_s()).abs() > 1e-12 * protocol.dt_s() {
+            return Err(ScenarioError::InvalidSetting("robot.model.dt_s"));
+        }
+        let mut gains_known = cfg.prior_partner_gains.is_some();
+        for (i, p) in protocol.phases().iter().enumerate() {
+            match p.kind {
+                PhaseKind::Gains => gains_known = true,
+                _ if !gains_known => return Err(ScenarioError::NoPartnerGains { phase: i }),
+                _ => {}
+            }
+        }
+        let identifier = cfg.identifier(protocol.dt_s(), cfg.prior_partner_gains)?;
+        Ok(Robot {
+            identifier,
+            stage3: GoalIntegrator::new(cfg.model, &cfg.stage3).map_err(|error| {
+                ScenarioError::Estimator {
+                    stage: "stage3",
+                    error,
+                }
+            })?,
+            cfg,
+            protocol,
+            integration_phase: None,
+            noise: Noise::new(cfg.seed),
+            counters: RobotCounters::default(),
+            stage3_tally: FilterTally::default(),
+            last_measurement: (0.0, 0.0),
+            stage2_R_noisy: cfg.stage2.R,
+        })
+    }
+
+    /// The protocol this robot follows.
+    pub fn protocol(&self) -> &Protocol<'a> {
+        &self.protocol
+    }
+
+    /// Counters so far.
+    pub fn counters(&self) -> RobotCounters {
+        let (a, b) = (self.identifier.tally(), self.stage3_tally);
+        RobotCounters {
+            estimator_errors: a.errors + b.errors,
+            resymmetrised: a.resymmetrised + b.resymmetrised,
+            ..self.counters
+        }
+    }
+
+    /// The gains stage 2 is given as pseudo-measurements
+    /// ([`Identifier::pseudo_gains`]).
+    pub fn pseudo_gains(&self) -> [f64; 3] {
+        self.identifier.pseudo_gains()
+    }
+
+    /// One control period: fuse the measurement `(x, v)` of tick `k`,
+    /// compute the command, then propagate the estimators with it. After
+    /// the protocol's end the command is 0.
+    pub fn tick(&mut self, k: u64, x: f64, v: f64) -> RobotTick {
+        self.tick_with(k, Some((x, v)))
+    }
+
+    /// [`Robot::tick_at`] for tick `k` (samples the protocol itself).
+    pub fn tick_with(&mut self, k: u64, measurement: Option<(f64, f64)>) -> RobotTick {
+        match self.protocol.sample(k) {
+            Some(sample) => self.tick_at(&sample, measurement),
+            None => RobotTick::NONE,
+        }
+    }
+
+    /// One control period with a possibly missing measurement (a feedback
+    /// frame that did not arrive in time, or a non-finite one). Without a
+    /// fresh measurement the estimators skip their update and only predict,
+    /// and the command uses the last measurement received: a stale sample
+    /// fed to the filters as if new would corrupt them.
+    pub fn tick_at(&mut self, sample: &Sample<'_>, measurement: Option<(f64, f64)>) -> RobotTick {
+        let fresh = measurement.filter(|(x, v)| x.is_finite() && v.is_finite());
+        if let Some(m) = fresh {
+            self.last_measurement = m;
+        } else {
+            self.counters.missing_measurements += 1;
+        }
+        let (x, v) = self.last_measurement;
+        let fresh = fresh.is_some();
+        let mut out = RobotTick {
+            phase: sample.phase.kind.code(),
+            e_meas: x - sample.tau,
+            ..RobotTick::NONE
+        };
+        out.u = match sample.phase.kind {
+            PhaseKind::Gains | PhaseKind::Trajectory => {
+                self.identification_tick(sample, fresh, (x, v), &mut out)
+            }
+            PhaseKind::Integration => self.integration_tick(sample, fresh, (x, v), &mut out),
+        };
+        out
+    }
+
+    /// Stages 1 and 2: update the identifier, the command on the true
+    /// targets, predict.
+    fn identification_tick(
+        &mut self,
+        s: &Sample<'_>,
+        fresh: bool,
+        (x, v): (f64, f64),
+        out: &mut RobotTick,
+    ) -> f64 {
+        let y = fresh.then(|| Vector3::new(x - s.tau, v, x - s.tau_h));
+        out.set_partner(self.identifier.update(s, y, x, None));
+        let u = self.guard(feedback_torque(&self.cfg.gains, &xi(x, v, s.tau, s.tau_h)));
+        self.identifier.predict(s.phase.kind, u, s.dtau, s.dtau_h);
+        u
+    }
+
+    /// Stage 3: the robot sees its target through noise; stage 2 keeps
+    /// running (its `x - tau_h^` is the partner channel), both stage-3
+    /// filters update, the command uses the own or the integrated estimate,
+    /// and everything predicts with the target motion unknown (0).
+    fn integration_tick(
+        &mut self,
+        s: &Sample<'_>,
+        fresh: bool,
+        (x, v): (f64, f64),
+        out: &mut RobotTick,
+    ) -> f64 {
+        let std = s.phase.target_noise_std;
+        let e_meas = x - (s.tau + self.noise.normal(std));
+        out.e_meas = e_meas;
+        if self.integration_phase != Some(s.index) {
+            self.start_integration(s.index, std, Vector2::new(e_meas, v));
+        }
+        // The partner's target is unknown here (stage 2 does not read it).
+        let y = fresh.then(|| Vector3::new(e_meas, v, f64::NAN));
+        let R = self.stage2_R_noisy;
+        out.set_partner(self.identifier.update(s, y, x, Some(&R)));
+        let stage2 = self.identifier.trajectory();
+        let channel = stage2.filter().x()[E_H];
+        let floor = stage2.partner_error_variance();
+        if fresh {
+            let r = self
+                .stage3
+                .update(&Vector2::new(e_meas, v), Some((channel, floor)));
+            self.stage3_tally.note(r);
+        }
+        out.e_hat_own = self.stage3.estimate(false)[0];
+        out.e_hat_fused = self.stage3.estimate(true)[0];
+        out.e_hat_own_var = self.stage3.own_filter().P()[(0, 0)];
+        out.e_hat_fused_var = self.stage3.fused_filter().P()[(0, 0)];
+        out.partner_var = self.stage3.partner_variance();
+        let e_hat = self.stage3.estimate(self.cfg.integrate)[0];
+        let u = self.guard(feedback_torque(&self.cfg.gains, &[e_hat, v, 0.0]));
+        let u_h_hat = self.identifier.trajectory().partner_torque();
+        // The target is unknown to the robot here: its increments are 0.
+        self.identifier.predict(s.phase.kind, u, 0.0, 0.0);
+        let r = self.stage3.predict(u + u_h_hat, 0.0);
+        self.stage3_tally.note(r);
+        u
+    }
+
+    /// Start of an integration phase: the phase's target-view noise enters
+    /// stage 2's and stage 3's measurement covariances (computed here, once),
+    /// and stage 3 restarts from the current measurement.
+    fn start_integration(&mut self, phase_index: usize, std: f64, y: Vector2<f64>) {
+        self.stage2_R_noisy = self.cfg.stage2.R;
+        self.stage2_R_noisy[(0, 0)] += std * std;
+        let mut R_own = self.cfg.stage3.R_own;
+        R_own[(0, 0)] += std * std;
+        let r = self
+            .stage3
+            .set_own_noise(R_own)
+            .and_then(|()| self.stage3.reset(y));
+        self.stage3_tally.note(r.map(|()| Status::Nominal));
+        self.integration_phase = Some(phase_index);
+    }
+
+    fn guard(&mut self, u: f64) -> f64 {
+        let (u, g) = guard_torque(u, self.cfg.torque_limit);
+        match g {
+            Guard::Passed => {}
+            Guard::Clamped => self.counters.clamped += 1,
+            Guard::NonFinite => self.counters.non_finite += 1,
+        }
+        u
+    }
+}
+
+impl RobotConfig {
+    /// Set-up: an [`Identifier`] with these filter settings, model and gain
+    /// window at loop period `dt_s` (the robot's own, and the mirrored
+    /// partner's of the simulation section).
+    pub fn identifier(
+        &self,
+        dt_s: f64,
+        prior_gains: Option<[f64; 3]>,
+    ) -> Result<Identifier, ScenarioError> {
+        Identifier::new(
+            self.model,
+            &self.stage1,
+            &self.stage2,
+            self.gain_window_s,
+            dt_s,
+            prior_gains,
+        )
+    }
+}

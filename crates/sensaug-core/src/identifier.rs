@@ -1,0 +1,284 @@
+//! One agent's identification of its partner (sections "Estimation of
+//! human's control gain" and "Estimation of the partner's desired
+//! trajectory"): stage 1 estimates the partner's gains, the gain window
+//! averages them, and the hand-off starts stage 2 on the partner's target.
+//!
+//! The robot runs one [`Identifier`] on `[x - tau, xdot, x - tau_h]`; the
+//! mirrored partner of the simulation section runs another on
+//! `[x - tau_h, xdot, x - tau]` with its own torque. Written from the side of
+//! the agent running it: "own" is that agent, "partner" the one identified.
+//!
+//! Per tick the owner calls [`Identifier::update`] with its measurement,
+//! computes its command, then [`Identifier::predict`] with it; the phase
+//! picks the stage. Built at set-up; a tick allocates
+//! nothing, and filter trouble is counted ([`FilterTally`]), never a panic.
+
+use crate::agent::mirrored;
+use crate::estimator::{
+    Cov6, ExtendedFilterConfig, GainEstimator, HandleModel, TrajectoryEstimator, GAINS,
+};
+use crate::protocol::{PhaseKind, Sample};
+use crate::ukf::{Status, UkfError};
+use crate::ScenarioError;
+use nalgebra::{SMatrix, SVector, Vector3};
+
+/// Counts of what the filters reported in their calls.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct FilterTally {
+    /// Calls that returned an error (each already handled by the filter:
+    /// state restored or covariance reset).
+    pub errors: u64,
+    /// Calls that needed a re-symmetrised covariance.
+    pub resymmetrised: u64,
+}
+
+impl FilterTally {
+    /// Counts one filter call's outcome.
+    pub fn note(&mut self, r: Result<Status, UkfError>) {
+        match r {
+            Ok(Status::Nominal) => {}
+            Ok(Status::Resymmetrised { .. }) => self.resymmetrised += 1,
+            Err(_) => self.errors += 1,
+        }
+    }
+}
+
+/// What an identifier says about the partner after a tick's update.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PartnerEstimate {
+    /// The partner's gains (the owner's `xi` order, unless [`mirrored`](PartnerEstimate::mirrored)).
+    pub gains: [f64; 3],
+    /// Their posterior variances.
+    pub gains_var: [f64; 3],
+    /// The partner's target `x - (x - target)^` (stage 2), NaN in stage 1.
+    pub target: f64,
+    /// Posterior variance of `(x - target)^`, NaN in stage 1.
+    pub target_var: f64,
+}
+
+impl PartnerEstimate {
+    /// No estimate (NaN).
+    pub const NONE: PartnerEstimate = PartnerEstimate {
+        gains: [f64::NAN; 3],
+        gains_var: [f64::NAN; 3],
+        target: f64::NAN,
+        target_var: f64::NAN,
+    };
+
+    /// The gains (and their variances) in the other agent's `xi` order
+    /// ([`mirrored`]): how the mirrored partner reports the robot's gains.
+    pub fn mirrored(self) -> PartnerEstimate {
+        PartnerEstimate {
+            gains: mirrored(self.gains),
+            gains_var: mirrored(self.gains_var),
+            ..self
+        }
+    }
+}
+
+/// The stage-1 estimates at the end of a gain phase, summed for their mean
+/// (stage 2's gain pseudo-measurement, `docs/model.md`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct GainWindow {
+    /// Ticks at the end of a gain phase whose estimates are averaged.
+    ticks: u64,
+    sum: [f64; 3],
+    count: u64,
+}
+
+impl GainWindow {
+    /// Whether tick `k` of a phase ending before tick `end` is in the window:
+    /// `k + ticks >= end`.
+    fn contains(&self, k: u64, end: u64) -> bool {
+        k + self.ticks >= end
+    }
+
+    fn add(&mut self, gains: [f64; 3]) {
+        for (s, g) in self.sum.iter_mut().zip(gains) {
+            *s += g;
+        }
+        self.count += 1;
+    }
+
+    /// `sum / count`, `None` before the first estimate.
+    fn mean(&self) -> Option<[f64; 3]> {
+        let n = self.count as f64;
+        (self.count > 0).then(|| [self.sum[0] / n, self.sum[1] / n, self.sum[2] / n])
+    }
+}
+
+/// Stage 1 and stage 2 of one agent, with the gain window and the hand-off.
+#[derive(Clone, Debug)]
+pub struct Identifier {
+    stage1: GainEstimator,
+    stage2: TrajectoryEstimator,
+    /// Stage 2's covariance at the hand-off.
+    stage2_P0: Cov6,
+    window: GainWindow,
+    prior_gains: Option<[f64; 3]>,
+    /// Stage 2's gain pseudo-measurement, fixed at the hand-off; `None`
+    /// until stage 2 starts.
+    pseudo_gains: Option<[f64; 3]>,
+    tally: FilterTally,
+}
+
+impl Identifier {
+    /// Set-up: builds both filters on `model`. The gain window is the last
+    /// `gain_window_s` of a gain phase, in whole ticks of the loop period
+    /// `dt_s` (both > 0); `prior_gains` (finite) stand in for the window
+    /// when no gain phase precedes.
+    pub fn new(
+        model: HandleModel,
+        stage1: &ExtendedFilterConfig<3>,
+        stage2: &ExtendedFilterConfig<5>,
+        gain_window_s: f64,
+        dt_s: f64,
+        prior_gains: Option<[f64; 3]>,
+    ) -> Result<Self, ScenarioError> {
+        let window_ticks = gain_window_s / dt_s;
+        if !(gain_window_s > 0.0 && dt_s > 0.0 && window_ticks.is_finite()) {
+            return Err(ScenarioError::InvalidSetting("robot.gain_window_s"));
+        }
+        if prior_gains.is_some_and(|g| g.iter().any(|v| !v.is_finite())) {
+            return Err(ScenarioError::InvalidSetting("robot.prior_partner_gains"));
+        }
+        let est = |stage| move |error| ScenarioError::Estimator { stage, error };
+        Ok(Identifier {
+            stage1: GainEstimator::new(model, stage1).map_err(est("stage1"))?,
+            stage2: TrajectoryEstimator::new(model, stage2).map_err(est("stage2"))?,
+            stage2_P0: stage2.P0,
+            window: GainWindow {
+                ticks: window_ticks as u64,
+                sum: [0.0; 3],
+                count: 0,
+            },
+            prior_gains,
+            pseudo_gains: None,
+            tally: FilterTally::default(),
+        })
+    }
+
+    /// Per tick, first: fuse the measurement `y = [x - tau_own, xdot,
+    /// x - tau_partner]` when there is one (its third entry is only used in
+    /// gain phases) and return the estimate at the handle position `x`.
+    /// Gain phases run stage 1 and its window; later phases run stage 2
+    /// (after the hand-off at its first tick), with this tick's measurement
+    /// covariance `R` if given, else the configured one.
+    pub fn update(
+        &mut self,
+        sample: &Sample<'_>,
+        y: Option<Vector3<f64>>,
+        x: f64,
+        R: Option<&SMatrix<f64, 5, 5>>,
+    ) -> PartnerEstimate {
+        match sample.phase.kind {
+            PhaseKind::Gains => self.update_gains(sample, y),
+            PhaseKind::Trajectory | PhaseKind::Integration => {
+                self.update_trajectory(y.map(|y| (y[0], y[1])), x, R)
+            }
+        }
+    }
+
+    /// Per tick, last: propagate the phase's stage with the own torque `u`
+    /// and the targets' increments over the coming step (stage 2 does not
+    /// know the partner's: 0).
+    pub fn predict(&mut self, kind: PhaseKind, u: f64, dtau_own: f64, dtau_partner: f64) {
+        let r = match kind {
+            PhaseKind::Gains => self.stage1.predict(u, dtau_own, dtau_partner),
+            PhaseKind::Trajectory | PhaseKind::Integration => self.stage2.predict(u, dtau_own, 0.0),
+        };
+        self.tally.note(r);
+    }
+
+    /// Stage 1: fuse `y1 = [x - tau_own, xdot, x - tau_partner]` when there
+    /// is one, add the estimate to the gain window when `sample` is in it,
+    /// and return it.
+    fn update_gains(&mut self, sample: &Sample<'_>, y: Option<Vector3<f64>>) -> PartnerEstimate {
+        if let Some(y) = y {
+            let r = self.stage1.update(&y);
+            self.tally.note(r);
+        }
+        let gains = self.stage1.gains();
+        if self.window.contains(sample.k, sample.end) {
+            self.window.add(gains);
+        }
+        PartnerEstimate {
+            gains,
+            gains_var: diag3(self.stage1.filter().P(), GAINS),
+            ..PartnerEstimate::NONE
+        }
+    }
+
+    /// The gains stage 2 is given as pseudo-measurements: the stage-1 mean
+    /// over the gain window, else the prior, else the current stage-1
+    /// estimate.
+    pub fn pseudo_gains(&self) -> [f64; 3] {
+        self.window
+            .mean()
+            .or(self.prior_gains)
+            .unwrap_or_else(|| self.stage1.gains())
+    }
+
+    /// The hand-off, at the first stage-2 tick (later calls do nothing):
+    /// stage 2 restarts from the stage-1 posterior with its gains replaced
+    /// by the [`pseudo_gains`](Identifier::pseudo_gains), which stay fixed.
+    fn hand_off(&mut self) -> [f64; 3] {
+        if let Some(g) = self.pseudo_gains {
+            return g;
+        }
+        let g = self.pseudo_gains();
+        let mut x0 = *self.stage1.filter().x();
+        x0.fixed_rows_mut::<3>(GAINS).copy_from_slice(&g);
+        let r = self.stage2.reset(x0, self.stage2_P0);
+        self.tally.note(r.map(|()| Status::Nominal));
+        self.pseudo_gains = Some(g);
+        g
+    }
+
+    /// Stage 2: the hand-off if this is its first tick, then fuse
+    /// `y2 = [x - tau_own, xdot, pseudo-gains]` from `y = (x - tau_own, xdot)`
+    /// when there is one, and return the estimate at the handle position `x`.
+    fn update_trajectory(
+        &mut self,
+        y: Option<(f64, f64)>,
+        x: f64,
+        R: Option<&SMatrix<f64, 5, 5>>,
+    ) -> PartnerEstimate {
+        let g = self.hand_off();
+        if let Some((e, v)) = y {
+            let y = SVector::<f64, 5>::new(e, v, g[0], g[1], g[2]);
+            let r = match R {
+                Some(R) => self.stage2.update_with_r(&y, R),
+                None => self.stage2.update(&y),
+            };
+            self.tally.note(r);
+        }
+        let f = self.stage2.filter();
+        PartnerEstimate {
+            gains: [f.x()[GAINS], f.x()[GAINS + 1], f.x()[GAINS + 2]],
+            gains_var: diag3(f.P(), GAINS),
+            target: self.stage2.partner_target(x),
+            target_var: self.stage2.partner_error_variance(),
+        }
+    }
+
+    /// Stage 2 (for the goal integration: its `x - tau_h` channel and the
+    /// partner torque it implies).
+    pub fn trajectory(&self) -> &TrajectoryEstimator {
+        &self.stage2
+    }
+
+    /// Filter outcomes so far.
+    pub fn tally(&self) -> FilterTally {
+        self.tally
+    }
+}
+
+/// Three consecutive diagonal entries of `P` from index `from`.
+fn diag3(P: &Cov6, from: usize) -> [f64; 3] {
+    [
+        P[(from, from)],
+        P[(from + 1, from + 1)],
+        P[(from + 2, from + 2)],
+    ]
+}

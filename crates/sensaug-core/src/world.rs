@@ -1,0 +1,321 @@
+//! The simulated world of a trial: the true handle, the motor and sensor
+//! noise, the partner agent (a [`VirtualHuman`], and in the simulation
+//! section its mirrored identification of the robot) around a [`Robot`],
+//! run over caller-provided [`TickRecord`] buffers.
+//!
+//! Everything is built and validated at set-up; a tick allocates nothing.
+
+use crate::agent::{Guard, VirtualHuman};
+use crate::controller::{Robot, RobotConfig, RobotCounters, RobotTick};
+use crate::identifier::Identifier;
+use crate::plant::{Plant, PlantParams, PlantState};
+use crate::protocol::{Phase, PhaseKind, Protocol, Sample};
+use crate::rng::Noise;
+use crate::ScenarioError;
+use nalgebra::Vector3;
+
+/// What the partner's mirrored identifier says about the robot in one tick
+/// (gains in the robot's `xi` order).
+pub use crate::identifier::PartnerEstimate;
+
+/// The partner agent of a simulated trial (the virtual human).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PartnerConfig {
+    /// Its gains over `xi` (e.g. `[0, 0, Lhh]` for the Hi5 virtual human,
+    /// `[0, k_vel, k_pos]` for an LQR partner, `docs/model.md`).
+    pub gains: [f64; 3],
+    /// Torque limit, > 0.
+    pub torque_limit: f64,
+    /// Whether the partner also identifies the robot (the simulation
+    /// section): an [`Identifier`] with the robot's filter settings on the
+    /// mirrored `xi`.
+    pub estimates_robot: bool,
+}
+
+/// The simulated world around the agents.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WorldConfig {
+    /// The true handle.
+    pub plant: PlantParams,
+    /// Initial handle state.
+    pub initial: PlantState,
+    /// Std of the motor noise `eps` added to the summed torque (eq.dynamics).
+    pub motor_noise_std: f64,
+    /// Std of the position sensor noise.
+    pub position_noise_std: f64,
+    /// Std of the velocity sensor noise.
+    pub velocity_noise_std: f64,
+    /// Seed of the motor and sensor noise.
+    pub seed: u64,
+}
+
+/// One tick of a simulated trial: the world's side, the robot's log line
+/// and the partner's estimates of the robot. [`TickRecord::to_row`] flattens
+/// it into `f64` columns named by [`FIELDS`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TickRecord {
+    /// Time (s).
+    pub t: f64,
+    /// True position.
+    pub x: f64,
+    /// True velocity.
+    pub v: f64,
+    /// Robot target.
+    pub tau: f64,
+    /// Partner target.
+    pub tau_h: f64,
+    /// Partner torque.
+    pub u_h: f64,
+    /// Motor noise.
+    pub eps: f64,
+    /// True `x - tau`.
+    pub e: f64,
+    /// What the robot did (command, estimates, variances).
+    pub robot: RobotTick,
+    /// The partner's mirrored estimates of the robot.
+    pub mirror: PartnerEstimate,
+}
+
+impl Default for TickRecord {
+    fn default() -> Self {
+        TickRecord {
+            t: 0.0,
+            x: 0.0,
+            v: 0.0,
+            tau: 0.0,
+            tau_h: 0.0,
+            u_h: 0.0,
+            eps: 0.0,
+            e: 0.0,
+            robot: RobotTick::NONE,
+            mirror: PartnerEstimate::NONE,
+        }
+    }
+}
+
+/// Column names of a [`TickRecord`] seen as a row of `f64`.
+pub const FIELDS: [&str; 32] = [
+    "t",
+    "phase",
+    "x",
+    "xdot",
+    "tau",
+    "tau_h",
+    "u",
+    "u_h",
+    "eps",
+    "e",
+    "e_meas",
+    "Lhx_hat",
+    "Lhv_hat",
+    "Lhh_hat",
+    "Lhx_var",
+    "Lhv_var",
+    "Lhh_var",
+    "tau_h_hat",
+    "tau_h_var",
+    "e_hat_own",
+    "e_hat_fused",
+    "e_hat_own_var",
+    "e_hat_fused_var",
+    "partner_var",
+    "Lx_hat",
+    "Lv_hat",
+    "Lh_hat",
+    "Lx_var",
+    "Lv_var",
+    "Lh_var",
+    "tau_hat",
+    "tau_hat_var",
+];
+
+impl TickRecord {
+    /// The record as a row in [`FIELDS`] order.
+    pub fn to_row(&self) -> [f64; FIELDS.len()] {
+        let (r, m) = (&self.robot, &self.mirror);
+        [
+            self.t,
+            r.phase,
+            self.x,
+            self.v,
+            self.tau,
+            self.tau_h,
+            r.u,
+            self.u_h,
+            self.eps,
+            self.e,
+            r.e_meas,
+            r.gains[0],
+            r.gains[1],
+            r.gains[2],
+            r.gains_var[0],
+            r.gains_var[1],
+            r.gains_var[2],
+            r.tau_h_hat,
+            r.tau_h_var,
+            r.e_hat_own,
+            r.e_hat_fused,
+            r.e_hat_own_var,
+            r.e_hat_fused_var,
+            r.partner_var,
+            m.gains[0],
+            m.gains[1],
+            m.gains[2],
+            m.gains_var[0],
+            m.gains_var[1],
+            m.gains_var[2],
+            m.target,
+            m.target_var,
+        ]
+    }
+}
+
+/// The partner's identification of the robot (simulation section): the
+/// robot's [`Identifier`] on `[x - tau_h, xdot, x - tau]`, driven by the
+/// partner's own torque `u_h`; gains reported in the robot's `xi` order. It
+/// does not run in integration phases.
+fn mirror_tick(
+    id: &mut Identifier,
+    s: &Sample<'_>,
+    (x, v): (f64, f64),
+    u_h: f64,
+) -> PartnerEstimate {
+    if s.phase.kind == PhaseKind::Integration {
+        return PartnerEstimate::NONE;
+    }
+    let est = id.update(s, Some(Vector3::new(x - s.tau_h, v, x - s.tau)), x, None);
+    id.predict(s.phase.kind, u_h, s.dtau_h, s.dtau);
+    est.mirrored()
+}
+
+/// What a finished trial reports besides its records.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RunSummary {
+    /// Ticks run.
+    pub ticks: usize,
+    /// The robot's counters.
+    pub robot: RobotCounters,
+    /// Partner commands clamped or replaced.
+    pub partner_guarded: u64,
+    /// Mirrored-estimator errors (each handled by the filter).
+    pub mirror_errors: u64,
+}
+
+/// A simulated trial: robot, partner, plant and noise.
+#[derive(Clone, Debug)]
+pub struct Scenario<'a> {
+    robot: Robot<'a>,
+    partner: VirtualHuman,
+    /// The partner's identifier of the robot, if it runs one.
+    mirror: Option<Identifier>,
+    world: WorldConfig,
+    plant: Plant,
+    noise: Noise,
+}
+
+impl<'a> Scenario<'a> {
+    /// Set-up: validates everything and builds every part.
+    pub fn new(
+        phases: &[Phase<'a>],
+        robot: RobotConfig,
+        partner: PartnerConfig,
+        world: WorldConfig,
+    ) -> Result<Self, ScenarioError> {
+        let protocol = Protocol::new(phases, world.plant.dt_s)?;
+        let mut plant = Plant::new(world.plant).map_err(ScenarioError::Plant)?;
+        if !(world.initial.x.is_finite() && world.initial.v.is_finite()) {
+            return Err(ScenarioError::InvalidSetting("world.initial"));
+        }
+        plant.set_state(world.initial);
+        for (v, name) in [
+            (world.motor_noise_std, "world.motor_noise_std"),
+            (world.position_noise_std, "world.position_noise_std"),
+            (world.velocity_noise_std, "world.velocity_noise_std"),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(ScenarioError::InvalidSetting(name));
+            }
+        }
+        let virtual_human = VirtualHuman::new(partner.gains, partner.torque_limit)?;
+        let cfg = robot;
+        let robot = Robot::new(cfg, protocol)?;
+        // The partner knows no prior robot gains.
+        let mirror = if partner.estimates_robot {
+            Some(cfg.identifier(protocol.dt_s(), None)?)
+        } else {
+            None
+        };
+        Ok(Scenario {
+            robot,
+            partner: virtual_human,
+            mirror,
+            world,
+            plant,
+            noise: Noise::new(world.seed),
+        })
+    }
+
+    /// Ticks in the trial.
+    pub fn ticks(&self) -> usize {
+        self.robot.protocol().total_ticks() as usize
+    }
+
+    /// Runs the whole trial, one record per tick into `out`.
+    pub fn run(&mut self, out: &mut [TickRecord]) -> Result<RunSummary, ScenarioError> {
+        let n = self.ticks();
+        let Some(out) = out.get_mut(..n) else {
+            return Err(ScenarioError::OutputTooShort {
+                needed: n,
+                got: out.len(),
+            });
+        };
+        let mut summary = RunSummary {
+            ticks: n,
+            ..RunSummary::default()
+        };
+        for (k, rec) in out.iter_mut().enumerate() {
+            *rec = self.tick(k as u64, &mut summary);
+        }
+        summary.robot = self.robot.counters();
+        summary.mirror_errors = self.mirror.as_ref().map_or(0, |m| m.tally().errors);
+        Ok(summary)
+    }
+
+    /// One tick of the world: sense, robot, partner, plant.
+    fn tick(&mut self, k: u64, summary: &mut RunSummary) -> TickRecord {
+        let s = self.plant.state();
+        let x_meas = s.x + self.noise.normal(self.world.position_noise_std);
+        let v_meas = s.v + self.noise.normal(self.world.velocity_noise_std);
+        let Some(sample) = self.robot.protocol().sample(k) else {
+            return TickRecord::default();
+        };
+        let robot = self.robot.tick_at(&sample, Some((x_meas, v_meas)));
+
+        let (u_h, g) = self
+            .partner
+            .torque(x_meas, v_meas, sample.tau, sample.tau_h);
+        if g != Guard::Passed {
+            summary.partner_guarded += 1;
+        }
+        let mirror = match self.mirror.as_mut() {
+            Some(m) => mirror_tick(m, &sample, (x_meas, v_meas), u_h),
+            None => PartnerEstimate::NONE,
+        };
+
+        let eps = self.noise.normal(self.world.motor_noise_std);
+        // Every term is finite (guarded), so the step cannot fail.
+        let _ = self.plant.step(robot.u + u_h + eps);
+        TickRecord {
+            t: k as f64 * self.robot.protocol().dt_s(),
+            x: s.x,
+            v: s.v,
+            tau: sample.tau,
+            tau_h: sample.tau_h,
+            u_h,
+            eps,
+            e: s.x - sample.tau,
+            robot,
+            mirror,
+        }
+    }
+}
