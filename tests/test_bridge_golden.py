@@ -79,3 +79,52 @@ def test_torque_crc_is_crc8_sae_j1850() -> None:
             data = bytes.fromhex(f["data"])
             assert data[5:7] == b"\x00\x00", f["label"]
             assert data[7] == crc8(data[:7]), f["label"]
+
+
+def test_protocol_doc_tables_are_generated_from_the_dbc() -> None:
+    """docs/can_protocol.md's frame tables equal what make_doc_tables.py makes
+    from hi5.dbc with cantools (so the docs cannot drift from the DBC)."""
+    spec = importlib.util.spec_from_file_location("make_doc_tables", TOOL.parent / "make_doc_tables.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    doc_path = ROOT / "docs" / "can_protocol.md"
+    doc = doc_path.read_text()
+    import cantools
+
+    generated = module.tables(cantools.database.load_file(str(ROOT / "firmware_bridge" / "hi5.dbc"), strict=True))
+    # The tables carry every message and signal of the DBC.
+    for name in ("TorqueCommand", "Feedback", "Heartbeat", "SetState", "Fault"):
+        assert f"**{name}** (DLC" in generated
+    assert "| position | int24 | 1e-06 |" in generated
+    fresh = module.render(doc, generated)
+    assert fresh == doc, (
+        "docs/can_protocol.md's frame tables differ from hi5.dbc; "
+        "run python firmware_bridge/tools/make_doc_tables.py"
+    )
+
+
+def test_python_state_and_fault_names_are_the_dbcs() -> None:
+    """protocol.State is every `state` signal's VAL_ table and protocol.FaultFlag
+    the `fault_flags` comment's `bitN NAME` list (the Rust side generates both)."""
+    from sensaug_bridge import protocol as p
+
+    db = p.load_database()
+    states = {name: int(v) for name, v in p.State.__members__.items()}
+    faults = {name: int(v) for name, v in p.FaultFlag.__members__.items() if v}
+    seen = 0
+    for msg in db.messages:
+        for sig in msg.signals:
+            if sig.name == "state":
+                assert {str(v): int(k) for k, v in sig.choices.items()} == states, msg.name
+                seen += 1
+            if sig.name == "fault_flags":
+                parsed = {}
+                for item in sig.comment.split(","):
+                    bit, name = item.split()
+                    parsed[name] = 1 << int(bit.removeprefix("bit"))
+                assert parsed == faults, msg.name
+                seen += 1
+    assert seen == 5
+    assert p.DBC_NODE == 1 and p.NODE_MAX == 15
+    assert list(p.BASE_IDS) == [m.name for m in sorted(db.messages, key=lambda m: m.frame_id)]

@@ -12,6 +12,7 @@
 #![deny(missing_docs)]
 #![deny(clippy::undocumented_unsafe_blocks)]
 
+pub mod dbc;
 pub mod frame;
 pub mod protocol;
 pub mod transport;

@@ -30,9 +30,17 @@ DEFAULT_OUT = HERE.parent / "golden" / "frames.json"
 
 CRC8 = Calculator(Crc8.SAEJ1850)  # poly 0x1D, init 0xFF, xorout 0xFF, no reflection
 
-TORQUE_MIN, TORQUE_MAX = -2147.483648, 2147.483647
-POSITION_MIN, POSITION_MAX = -8.388608, 8.388607
-VELOCITY_MIN, VELOCITY_MAX = -8.388608, 8.388607
+
+
+def _range(message: str, signal: str) -> tuple[float, float]:
+    """A signal's ``[min|max]``, read from the DBC (never copied here)."""
+    sig = cantools.database.load_file(str(DBC_PATH)).get_message_by_name(message).get_signal_by_name(signal)
+    return float(sig.minimum), float(sig.maximum)
+
+
+TORQUE_MIN, TORQUE_MAX = _range("TorqueCommand", "torque")
+POSITION_MIN, POSITION_MAX = _range("Feedback", "position")
+VELOCITY_MIN, VELOCITY_MAX = _range("Feedback", "velocity")
 SEED = 20240611
 
 Case = tuple[str, str, int, dict[str, Any]]  # (label, message, node, physical signals)

@@ -2,9 +2,9 @@
 
 The DBC is the one definition; this module adds what a DBC cannot say:
 
-* node addressing: the DBC lists node 1's ids; node ``n`` (0..=15) uses
-  ``base + n`` with the bases in :data:`BASE_IDS` (derived from the DBC, so they
-  cannot drift);
+* node addressing: the DBC lists node ``ListedNode``'s ids (a global attribute,
+  1); node ``n`` (0..``NodeCount``) uses ``base + n`` with the bases in
+  :data:`BASE_IDS` (all derived from the DBC, so they cannot drift);
 * the TorqueCommand CRC: byte 7 is CRC-8/SAE-J1850 (poly 0x1D, init 0xFF,
   xorout 0xFF, not reflected; check value 0x4B over ``b"123456789"``) over
   bytes 0..=6;
@@ -82,21 +82,8 @@ class FaultFlag(enum.IntFlag):
     INTERNAL = 1 << 3
 
 
-#: Lowest and highest node id.
+#: Lowest node id.
 NODE_MIN: Final = 0
-NODE_MAX: Final = 15
-#: The node whose ids the DBC lists.
-DBC_NODE: Final = 1
-
-_MESSAGES: Final = (
-    "EmergencyStop",
-    "Fault",
-    "TorqueCommand",
-    "Feedback",
-    "SetState",
-    "ClearFaults",
-    "Heartbeat",
-)
 
 
 class ProtocolError(ValueError):
@@ -135,17 +122,20 @@ def load_database() -> cantools.database.can.Database:
     return cantools.database.load_file(str(path), strict=True)
 
 
-def _bases() -> dict[str, int]:
-    db = load_database()
-    return {name: db.get_message_by_name(name).frame_id - DBC_NODE for name in _MESSAGES}
+def _global_int(name: str) -> int:
+    return int(load_database().dbc.attributes[name].value)
 
 
-#: Base id per message name; node ``n`` uses ``base + n``.
-BASE_IDS: Final[dict[str, int]] = _bases()
-#: Data length per message name, from the DBC.
-DLC: Final[dict[str, int]] = {
-    name: load_database().get_message_by_name(name).length for name in _MESSAGES
+#: The node whose ids the DBC lists (its ``ListedNode`` attribute).
+DBC_NODE: Final = _global_int("ListedNode")
+#: Highest node id (``NodeCount - 1``).
+NODE_MAX: Final = _global_int("NodeCount") - 1
+#: Base id per message name, in id order; node ``n`` uses ``base + n``.
+BASE_IDS: Final[dict[str, int]] = {
+    m.name: m.frame_id - DBC_NODE for m in sorted(load_database().messages, key=lambda m: m.frame_id)
 }
+#: Data length per message name, from the DBC.
+DLC: Final[dict[str, int]] = {m.name: m.length for m in load_database().messages}
 
 _CRC: Final = crc.Calculator(crc.Crc8.SAEJ1850)
 
