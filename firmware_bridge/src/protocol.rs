@@ -400,9 +400,10 @@ impl std::error::Error for EncodeError {}
 /// A frame that is not a valid message for this node.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum DecodeError {
-    /// The id is not one of this node's (or any node's) ids.
+    /// The id is not one of this node's (or any node's) ids, or the frame
+    /// is not a standard data frame.
     UnknownId {
-        /// The frame's id.
+        /// The frame's `can_id` (with the kernel's EFF/RTR/ERR flag bits).
         id: u32,
     },
     /// The DLC differs from the DBC's.
@@ -434,7 +435,10 @@ pub enum DecodeError {
 impl fmt::Display for DecodeError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match *self {
-            Self::UnknownId { id } => write!(f, "unknown CAN id {id:#05x} for this node"),
+            Self::UnknownId { id } => write!(
+                f,
+                "unknown CAN id {id:#05x} for this node (the protocol uses standard data frames)"
+            ),
             Self::WrongLength {
                 message,
                 expected,
@@ -574,12 +578,14 @@ pub fn encode(node: NodeId, msg: &Message) -> Result<Frame, EncodeError> {
         id: kind.id(node),
         len: kind.dlc(),
         data: d,
+        ..Frame::default()
     })
 }
 
 /// Decode `frame` as a message to or from `node`.
 ///
-/// A frame of another node is [`DecodeError::UnknownId`].
+/// A frame of another node, and any frame but a standard data frame, is
+/// [`DecodeError::UnknownId`].
 pub fn decode(node: NodeId, frame: &Frame) -> Result<Message, DecodeError> {
     match decode_any(frame)? {
         (n, msg) if n == node => Ok(msg),
@@ -595,8 +601,13 @@ pub fn decode(node: NodeId, frame: &Frame) -> Result<Message, DecodeError> {
 /// watchdog_ms 0); bits no signal covers are ignored (as cantools does),
 /// except in a TorqueCommand, where they must be 0.
 pub fn decode_any(frame: &Frame) -> Result<(NodeId, Message), DecodeError> {
-    let (kind, node) =
-        MessageKind::from_id(frame.id).ok_or(DecodeError::UnknownId { id: frame.id })?;
+    // Extended, remote and error frames are not the protocol's, whatever
+    // their id: reported with the kernel's flag bits in the id.
+    let unknown = DecodeError::UnknownId { id: frame.can_id() };
+    if !frame.is_standard_data() {
+        return Err(unknown);
+    }
+    let (kind, node) = MessageKind::from_id(frame.id).ok_or(unknown)?;
     if frame.len != kind.dlc() {
         return Err(DecodeError::WrongLength {
             message: kind.name(),

@@ -276,6 +276,7 @@ fn decode_wrong_length_for_every_kind() {
             id: kind.id(node(3)),
             len: wrong,
             data: [0; 8],
+            ..Frame::default()
         };
         assert_eq!(
             decode(node(3), &f),
@@ -328,6 +329,7 @@ fn decode_invalid_values() {
         id: kind.id(node(1)),
         len: kind.dlc(),
         data: [d0, 0, 0, 0, 0, 0, 0, 0],
+        ..Frame::default()
     };
     assert_eq!(
         decode(node(1), &status(MessageKind::Heartbeat, 4)),
@@ -424,4 +426,24 @@ fn fault_flags_ops() {
         "FaultFlags(WATCHDOG | EMERGENCY_STOP | 0x8000)"
     );
     assert_eq!(format!("{:?}", FaultFlags::empty()), "FaultFlags(0x0000)");
+}
+
+#[test]
+fn extended_remote_and_error_frames_are_not_protocol_frames() {
+    let good = torque_frame(1);
+    let ext = Frame {
+        extended: true,
+        ..good
+    };
+    let rtr = Frame::remote(good.id, false, 8).unwrap();
+    let err = Frame {
+        kind: sensaug_bridge::FrameKind::Error,
+        ..good
+    };
+    for f in [ext, rtr, err] {
+        let e = decode_any(&f).unwrap_err();
+        assert_eq!(e, DecodeError::UnknownId { id: f.can_id() }, "{f:?}");
+        assert!(e.to_string().contains("standard data frames"), "{e}");
+    }
+    assert!(decode_any(&good).is_ok());
 }

@@ -377,6 +377,7 @@ impl<'a> Rig<'a> {
         can.bus_sent = bus.sent;
         can.bus_received = bus.received;
         can.bus_malformed_dropped = bus.malformed_dropped;
+        can.bus_kernel_dropped = bus.kernel_dropped;
         LoopReport {
             ticks: self.ticks_run,
             stop_reason: reason.to_string(),

@@ -365,17 +365,16 @@ class VirtualHi5:
 
         Malformed datagrams dropped by the transport (``bus.drop_reasons``, the
         ``sensaug_udp`` bus) are folded in: wrong size, len or reserved bytes
-        count as length errors; extended/RTR/error flags or an id over 0x7FF as
-        unknown ids.
+        count as length errors; a standard id over 0x7FF as an unknown id.
+        (Extended, remote and error frames arrive as messages and count as
+        unknown ids when handled.)
         """
         length_errors = self.length_errors
         unknown_ids = self.unknown_ids
         drops = getattr(self.bus, "drop_reasons", None)
         if drops:
             length_errors += drops.get("size", 0) + drops.get("len", 0) + drops.get("reserved", 0)
-            unknown_ids += (
-                drops.get("extended", 0) + drops.get("rtr", 0) + drops.get("error_frame", 0) + drops.get("id", 0)
-            )
+            unknown_ids += drops.get("id", 0)
         return p.Heartbeat(
             state=self.state,
             fault_flags=self.fault_flags,
