@@ -168,6 +168,16 @@ def _raw_sender() -> socket.socket:
     return sock
 
 
+def _raw_listener(port: int) -> socket.socket:
+    """A plain UDP socket that sees every datagram on the bus, as bytes."""
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    rx.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+    rx.bind((BROADCAST_ADDR, port))
+    rx.settimeout(RECV_S)
+    return rx
+
+
 class TestSensaugUdp(TransportSuite):
     """The loopback plugin, opened through python-can's entry point."""
 
@@ -189,11 +199,7 @@ class TestSensaugUdp(TransportSuite):
 
     def test_exact_wire_format(self):
         a = self.peer()
-        rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        rx.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        rx.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
-        rx.bind((BROADCAST_ADDR, self.channel))
-        rx.settimeout(RECV_S)
+        rx = _raw_listener(self.channel)
         try:
             a.send(_msg(0x201, [1, 2, 3]))
             datagram, source = rx.recvfrom(64)
@@ -223,11 +229,7 @@ class TestSensaugUdp(TransportSuite):
 
     def test_flag_bits_on_the_wire_are_socketcans(self):
         a = self.peer()
-        rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        rx.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        rx.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
-        rx.bind((BROADCAST_ADDR, self.channel))
-        rx.settimeout(RECV_S)
+        rx = _raw_listener(self.channel)
         try:
             a.send(can.Message(arbitration_id=0x1ABCDEF0, is_extended_id=True, data=b"\x07"))
             a.send(can.Message(arbitration_id=0x123, is_extended_id=False, is_remote_frame=True, dlc=4))
