@@ -166,9 +166,11 @@ mod tests {
 
     #[test]
     fn unused_bits_are_the_gaps_within_the_dlc() {
-        // TorqueCommand: bytes 5..7 are not covered by a signal.
-        assert_eq!(torque_command::MESSAGE.unused_bits(), 0x00FF_FF00_0000_0000);
-        assert_eq!(set_state::MESSAGE.unused_bits(), 0xFF00_0000);
+        // TorqueCommand: byte 5 is not covered by a signal.
+        assert_eq!(torque_command::MESSAGE.unused_bits(), 0x0000_FF00_0000_0000);
+        assert_eq!(set_state::MESSAGE.unused_bits(), 0);
+        // Feedback: bits 4..8 of byte 7.
+        assert_eq!(feedback::MESSAGE.unused_bits(), 0xF000_0000_0000_0000);
         assert_eq!(emergency_stop::MESSAGE.unused_bits(), 0);
     }
 }

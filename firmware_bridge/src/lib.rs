@@ -19,7 +19,7 @@ pub mod transport;
 
 pub use frame::{Frame, FrameKind, WireError};
 pub use protocol::{
-    decode, decode_any, encode, seq_is_newer, DecodeError, DriveState, EncodeError, FaultFlags,
-    Message, MessageKind, NodeId,
+    decode, decode_any, encode, seq_is_newer, CommandGate, DecodeError, DriveState, EncodeError,
+    FaultFlags, Message, MessageKind, NodeId, Rejection,
 };
 pub use transport::{open, Transport, TransportError};

@@ -4,7 +4,8 @@
 //! bit positions, scales, ranges, node addressing, state values and fault
 //! bits reach this module only through the tables `build.rs` generates from
 //! it ([`crate::dbc`]). This module adds the Rust types and the rules a DBC
-//! cannot state (CRC, sequence window). The golden vectors
+//! cannot state (the CRC with its data id; the drive's acceptance rules,
+//! [`CommandGate`]). The golden vectors
 //! (`golden/frames.json`, made by cantools from the DBC) check the result
 //! byte for byte against an independent reader.
 //!
@@ -202,6 +203,9 @@ impl FaultFlags {
     pub const OVERSPEED: Self = Self(dbc::fault_bits::OVERSPEED);
     /// The drive's own self-check failed.
     pub const INTERNAL: Self = Self(dbc::fault_bits::INTERNAL);
+    /// A valid TorqueCommand out of sequence while enabled: a second command
+    /// source on the bus, or a lost command.
+    pub const SEQUENCE: Self = Self(dbc::fault_bits::SEQUENCE);
 
     /// No fault.
     pub const fn empty() -> Self {
@@ -316,6 +320,9 @@ pub enum Message {
         sequence_errors: u8,
         /// Frames for this node with an id it does not know (saturates).
         unknown_ids: u8,
+        /// Torque commands beyond the drive's torque limit, rejected
+        /// (saturates at 255).
+        range_errors: u8,
     },
     /// Host to drive: enable (arms the watchdog) or disable.
     SetState {
@@ -323,6 +330,8 @@ pub enum Message {
         enable: bool,
         /// Command watchdog period, ms (`SetState.watchdog_ms`'s range).
         watchdog_ms: u16,
+        /// The sequence of the next TorqueCommand the drive accepts (resync).
+        sequence: u8,
     },
     /// Host to drive: zero torque now, latch FAULT (EMERGENCY_STOP).
     EmergencyStop,
@@ -415,12 +424,13 @@ pub enum DecodeError {
         /// The frame's DLC.
         got: u8,
     },
-    /// The TorqueCommand's CRC-8 does not match bytes 0..=6.
+    /// The TorqueCommand's CRC-16 does not match its bytes 0..=5 and data
+    /// id (the frame's id: a command for another node or message fails).
     BadCrc {
-        /// CRC-8/SAE-J1850 of bytes 0..=6.
-        expected: u8,
-        /// Byte 7.
-        got: u8,
+        /// [`torque_command_crc`] of the frame.
+        expected: u16,
+        /// Bytes 6..8.
+        got: u16,
     },
     /// A raw value outside its defined set (state > 3, request > 1,
     /// watchdog_ms 0, non-zero reserved bytes of a TorqueCommand).
@@ -446,7 +456,7 @@ impl fmt::Display for DecodeError {
             } => write!(f, "{message}: DLC must be {expected}, got {got}"),
             Self::BadCrc { expected, got } => write!(
                 f,
-                "TorqueCommand.crc8: bytes 0..=6 give {expected:#04x}, frame has {got:#04x}"
+                "TorqueCommand.crc16: bytes 0..=5 and the data id give {expected:#06x}, frame has {got:#06x}"
             ),
             Self::InvalidValue { signal, raw } => write!(f, "{signal}: invalid raw value {raw}"),
         }
@@ -460,24 +470,139 @@ impl std::error::Error for DecodeError {}
 /// Whether `next` is newer than `prev` on the wrapping u8 sequence.
 ///
 /// Window: `next` is newer iff `next - prev (mod 256)` is in `1..=127`.
-/// `0` is a repeat; `128..=255` is older (or more than 127 frames were
-/// lost, which at 1 kHz is 128 ms: longer than any sane watchdog, so the
-/// drive has faulted anyway). The drive accepts a `TorqueCommand` only if
-/// its sequence is newer than the last accepted one; the host accepts a
-/// `Feedback` only if newer than the last one it saw.
+/// `0` is a repeat; `128..=255` is older. For a host telling a late
+/// `Feedback` from a new one; the drive is stricter and accepts only the
+/// exact next `TorqueCommand` sequence ([`CommandGate`]).
 pub const fn seq_is_newer(prev: u8, next: u8) -> bool {
     let d = next.wrapping_sub(prev);
     d >= 1 && d <= 127
 }
 
-// ------------------------------------------------------------------- CRC-8
+// ------------------------------------------------------- the drive's gate
 
-const CRC8: crc::Crc<u8> = crc::Crc::<u8>::new(&crc::CRC_8_SAE_J1850);
+/// Why the drive does not apply a TorqueCommand ([`CommandGate::admit`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Rejection {
+    /// Not a valid TorqueCommand for this node (id, DLC, CRC with data id,
+    /// reserved bits, DBC range); counted as a CRC, length or unknown-id error.
+    Decode(DecodeError),
+    /// A valid protocol frame, but not a TorqueCommand.
+    NotACommand,
+    /// The drive is not enabled (no sequence to expect).
+    NotEnabled,
+    /// Valid, but not the expected sequence: the drive latches
+    /// FAULT(SEQUENCE) (a second command source, or a lost command).
+    Sequence {
+        /// The only sequence the drive accepts now.
+        expected: u8,
+        /// The frame's.
+        got: u8,
+    },
+    /// Valid and in sequence, but beyond the drive's torque limit: rejected
+    /// and counted (`range_errors`), never clamped. The sequence is consumed.
+    Range {
+        /// The commanded torque.
+        torque_nm: f64,
+        /// The drive's limit.
+        limit_nm: f64,
+    },
+}
 
-/// CRC-8/SAE-J1850: poly 0x1D, init 0xFF, xorout 0xFF, no reflection
-/// (check value over `b"123456789"` is 0x4B).
-pub fn crc8_sae_j1850(bytes: &[u8]) -> u8 {
-    CRC8.checksum(bytes)
+/// The drive's acceptance rules for TorqueCommands, as the Hi5 drive (and
+/// `sensaug_bridge.virtual_hi5`) apply them:
+///
+/// 1. the frame decodes for this node (CRC-16 with the frame id as data
+///    id, reserved bits zero, torque within the DBC range);
+/// 2. the drive is enabled;
+/// 3. `sequence` is exactly the expected one: `SetState.sequence` after an
+///    enable (the resync), then one more than the last accepted. Anything
+///    else latches FAULT(SEQUENCE) and disables the gate;
+/// 4. `|torque| <= limit`, else rejected and counted, never clamped.
+///
+/// Allocation-free; the drive calls [`CommandGate::resync`] on SetState
+/// enable and [`CommandGate::disable`] on disable or any fault.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CommandGate {
+    node: NodeId,
+    limit_nm: f64,
+    expected: Option<u8>,
+}
+
+impl CommandGate {
+    /// A disabled gate for `node` with the drive's torque limit (N m).
+    pub const fn new(node: NodeId, limit_nm: f64) -> Self {
+        Self {
+            node,
+            limit_nm,
+            expected: None,
+        }
+    }
+
+    /// Enable (or resync): the next accepted command must carry `sequence`.
+    pub fn resync(&mut self, sequence: u8) {
+        self.expected = Some(sequence);
+    }
+
+    /// Disable: no command is accepted until the next resync.
+    pub fn disable(&mut self) {
+        self.expected = None;
+    }
+
+    /// The sequence the next command must carry, if enabled.
+    pub const fn expected(&self) -> Option<u8> {
+        self.expected
+    }
+
+    /// The torque to apply, or why not (see the type's rules).
+    pub fn admit(&mut self, frame: &Frame) -> Result<f64, Rejection> {
+        let (torque_nm, sequence) = match decode(self.node, frame) {
+            Ok(Message::TorqueCommand {
+                torque_nm,
+                sequence,
+            }) => (torque_nm, sequence),
+            Ok(_) => return Err(Rejection::NotACommand),
+            Err(e) => return Err(Rejection::Decode(e)),
+        };
+        let expected = self.expected.ok_or(Rejection::NotEnabled)?;
+        if sequence != expected {
+            self.expected = None;
+            return Err(Rejection::Sequence {
+                expected,
+                got: sequence,
+            });
+        }
+        self.expected = Some(sequence.wrapping_add(1));
+        if torque_nm.abs() > self.limit_nm {
+            return Err(Rejection::Range {
+                torque_nm,
+                limit_nm: self.limit_nm,
+            });
+        }
+        Ok(torque_nm)
+    }
+}
+
+// ------------------------------------------------------------------ CRC-16
+
+const CRC16: crc::Crc<u16> = crc::Crc::<u16>::new(&crc::CRC_16_IBM_3740);
+
+/// CRC-16/IBM-3740 (a.k.a. CCITT-FALSE, AUTOSAR E2E's CRC-16): poly 0x1021,
+/// init 0xFFFF, no reflection, xorout 0 (check value over `b"123456789"`
+/// is 0x29B1).
+pub fn crc16_ibm_3740(bytes: &[u8]) -> u16 {
+    CRC16.checksum(bytes)
+}
+
+/// The TorqueCommand's `crc16`, in the spirit of an AUTOSAR E2E data id:
+/// `crc16 = CRC-16/IBM-3740(payload[..6] ++ id_le16)`, with `id` the
+/// frame's 11-bit CAN id (not sent). A frame meant for another node, or
+/// another message's bytes, fails the check.
+pub fn torque_command_crc(id: u32, payload: &[u8]) -> u16 {
+    let mut digest = CRC16.digest();
+    digest.update(payload);
+    // The 11-bit id fits in u16.
+    digest.update(&(id as u16).to_le_bytes());
+    digest.finalize()
 }
 
 // ------------------------------------------------------------ encode/decode
@@ -487,9 +612,10 @@ pub fn crc8_sae_j1850(bytes: &[u8]) -> u8 {
 const _: () = {
     use dbc::{feedback as fb, heartbeat as hb, set_state as ss, torque_command as tc};
     assert!(tc::SEQUENCE.is_unsigned(8) && fb::SEQUENCE.is_unsigned(8));
-    assert!(tc::CRC8.is_unsigned(8) && tc::CRC8.start_bit % 8 == 0);
+    assert!(tc::CRC16.is_unsigned(16) && tc::CRC16.start_bit % 8 == 0);
+    assert!(ss::SEQUENCE.is_unsigned(8) && hb::RANGE_ERRORS.is_unsigned(8));
     assert!(hb::COUNTER.is_unsigned(8) && dbc::fault::COUNTER.is_unsigned(8));
-    assert!(hb::FAULT_FLAGS.is_unsigned(16) && dbc::fault::FAULT_FLAGS.is_unsigned(16));
+    assert!(hb::FAULT_FLAGS.bits <= 16 && dbc::fault::FAULT_FLAGS.bits <= 16);
     assert!(hb::CRC_ERRORS.is_unsigned(8) && hb::LENGTH_ERRORS.is_unsigned(8));
     assert!(hb::SEQUENCE_ERRORS.is_unsigned(8) && hb::UNKNOWN_IDS.is_unsigned(8));
     assert!(hb::STATE.bits <= 8 && dbc::fault::STATE.bits <= 8 && fb::STATE.bits <= 8);
@@ -509,7 +635,7 @@ pub fn encode(node: NodeId, msg: &Message) -> Result<Frame, EncodeError> {
         Message::TorqueCommand {
             torque_nm,
             sequence,
-        } => encode_torque_command(&mut d, torque_nm, sequence)?,
+        } => encode_torque_command(&mut d, kind.id(node), torque_nm, sequence)?,
         Message::Feedback {
             position_rad,
             velocity_rad_s,
@@ -536,10 +662,11 @@ pub fn encode(node: NodeId, msg: &Message) -> Result<Frame, EncodeError> {
             length_errors,
             sequence_errors,
             unknown_ids,
+            range_errors,
         } => {
             use dbc::heartbeat::{
-                COUNTER, CRC_ERRORS, FAULT_FLAGS, LENGTH_ERRORS, SEQUENCE_ERRORS, STATE,
-                UNKNOWN_IDS,
+                COUNTER, CRC_ERRORS, FAULT_FLAGS, LENGTH_ERRORS, RANGE_ERRORS, SEQUENCE_ERRORS,
+                STATE, UNKNOWN_IDS,
             };
             put(&mut d, &STATE, f64::from(state.raw()))?;
             put(&mut d, &FAULT_FLAGS, f64::from(fault_flags.bits()))?;
@@ -548,12 +675,14 @@ pub fn encode(node: NodeId, msg: &Message) -> Result<Frame, EncodeError> {
             put(&mut d, &LENGTH_ERRORS, f64::from(length_errors))?;
             put(&mut d, &SEQUENCE_ERRORS, f64::from(sequence_errors))?;
             put(&mut d, &UNKNOWN_IDS, f64::from(unknown_ids))?;
+            put(&mut d, &RANGE_ERRORS, f64::from(range_errors))?;
         }
         Message::SetState {
             enable,
             watchdog_ms,
+            sequence,
         } => {
-            use dbc::set_state::{REQUEST, WATCHDOG_MS};
+            use dbc::set_state::{REQUEST, SEQUENCE, WATCHDOG_MS};
             let request = if enable {
                 dbc::request_values::ENABLE
             } else {
@@ -561,6 +690,7 @@ pub fn encode(node: NodeId, msg: &Message) -> Result<Frame, EncodeError> {
             };
             put(&mut d, &REQUEST, f64::from(request))?;
             put(&mut d, &WATCHDOG_MS, f64::from(watchdog_ms))?;
+            put(&mut d, &SEQUENCE, f64::from(sequence))?;
         }
         Message::EmergencyStop | Message::ClearFaults => {}
         Message::Fault {
@@ -617,7 +747,7 @@ pub fn decode_any(frame: &Frame) -> Result<(NodeId, Message), DecodeError> {
     }
     let d = &frame.data;
     let msg = match kind {
-        MessageKind::TorqueCommand => decode_torque_command(d)?,
+        MessageKind::TorqueCommand => decode_torque_command(frame.id, d)?,
         MessageKind::Feedback => {
             use dbc::feedback::{
                 FAULT_ACTIVE, POSITION, SEQUENCE, STATE, TORQUE_LIMITED, VELOCITY,
@@ -633,8 +763,8 @@ pub fn decode_any(frame: &Frame) -> Result<(NodeId, Message), DecodeError> {
         }
         MessageKind::Heartbeat => {
             use dbc::heartbeat::{
-                COUNTER, CRC_ERRORS, FAULT_FLAGS, LENGTH_ERRORS, SEQUENCE_ERRORS, STATE,
-                UNKNOWN_IDS,
+                COUNTER, CRC_ERRORS, FAULT_FLAGS, LENGTH_ERRORS, RANGE_ERRORS, SEQUENCE_ERRORS,
+                STATE, UNKNOWN_IDS,
             };
             Message::Heartbeat {
                 state: get_state(d, &STATE)?,
@@ -644,14 +774,16 @@ pub fn decode_any(frame: &Frame) -> Result<(NodeId, Message), DecodeError> {
                 length_errors: get(d, &LENGTH_ERRORS)? as u8,
                 sequence_errors: get(d, &SEQUENCE_ERRORS)? as u8,
                 unknown_ids: get(d, &UNKNOWN_IDS)? as u8,
+                range_errors: get(d, &RANGE_ERRORS)? as u8,
             }
         }
         MessageKind::SetState => {
-            use dbc::set_state::{REQUEST, WATCHDOG_MS};
+            use dbc::set_state::{REQUEST, SEQUENCE, WATCHDOG_MS};
             let request = get(d, &REQUEST)?;
             Message::SetState {
                 enable: request == i64::from(dbc::request_values::ENABLE),
                 watchdog_ms: get(d, &WATCHDOG_MS)? as u16,
+                sequence: get(d, &SEQUENCE)? as u8,
             }
         }
         MessageKind::EmergencyStop => Message::EmergencyStop,
@@ -736,24 +868,31 @@ pub const POSITION_SCALE_RAD: f64 = dbc::feedback::POSITION.scale;
 /// Scale of `Feedback.velocity`, rad/s per LSB.
 pub const VELOCITY_SCALE_RAD_S: f64 = dbc::feedback::VELOCITY.scale;
 
-/// TorqueCommand: `torque`, `sequence`, and `crc8` = CRC-8/SAE-J1850 of
-/// every byte before it; the bits no signal covers are 0.
-fn encode_torque_command(d: &mut [u8; 8], torque_nm: f64, sequence: u8) -> Result<(), EncodeError> {
-    use dbc::torque_command::{CRC8, SEQUENCE, TORQUE};
+/// TorqueCommand: `torque`, `sequence`, and `crc16` =
+/// [`torque_command_crc`] of the bytes before it and the frame's `id`; the
+/// bits no signal covers are 0.
+fn encode_torque_command(
+    d: &mut [u8; 8],
+    id: u32,
+    torque_nm: f64,
+    sequence: u8,
+) -> Result<(), EncodeError> {
+    use dbc::torque_command::{CRC16, SEQUENCE, TORQUE};
     put(d, &TORQUE, torque_nm)?;
     put(d, &SEQUENCE, f64::from(sequence))?;
-    let covered = usize::from(CRC8.start_bit / 8);
-    CRC8.put(d, i64::from(crc8_sae_j1850(&d[..covered])));
+    let covered = usize::from(CRC16.start_bit / 8);
+    CRC16.put(d, i64::from(torque_command_crc(id, &d[..covered])));
     Ok(())
 }
 
-/// Inverse of [`encode_torque_command`]: checks the CRC first, then that
-/// the bits no signal covers (`TorqueCommand.reserved`) are zero.
-fn decode_torque_command(d: &[u8; 8]) -> Result<Message, DecodeError> {
-    use dbc::torque_command::{CRC8, MESSAGE, SEQUENCE, TORQUE};
-    let covered = usize::from(CRC8.start_bit / 8);
-    let expected = crc8_sae_j1850(&d[..covered]);
-    let got = CRC8.get(d) as u8;
+/// Inverse of [`encode_torque_command`]: checks the CRC (with the frame's
+/// `id` as data id) first, then that the bits no signal covers
+/// (`TorqueCommand.reserved`) are zero, then the torque's DBC range.
+fn decode_torque_command(id: u32, d: &[u8; 8]) -> Result<Message, DecodeError> {
+    use dbc::torque_command::{CRC16, MESSAGE, SEQUENCE, TORQUE};
+    let covered = usize::from(CRC16.start_bit / 8);
+    let expected = torque_command_crc(id, &d[..covered]);
+    let got = CRC16.get(d) as u16;
     if got != expected {
         return Err(DecodeError::BadCrc { expected, got });
     }

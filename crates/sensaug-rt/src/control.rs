@@ -154,9 +154,11 @@ impl<'a> Rig<'a> {
                 d.state == DriveState::Disabled
             })?;
         }
+        // Resync: the drive accepts exactly this sequence next, then +1 each.
         rig.send(&Message::SetState {
             enable: true,
             watchdog_ms: settings.watchdog_ms,
+            sequence: 255,
         });
         rig.wait_for(timeout, "ENABLED", |d| d.state == DriveState::Enabled)?;
         rig.send(&Message::TorqueCommand {
@@ -359,14 +361,16 @@ impl<'a> Rig<'a> {
     /// already sent on a feedback timeout).
     fn shut_down(&mut self, reason: StopReason) {
         if reason != StopReason::FeedbackTimeout {
+            // The sequence after the loop's last command (tick k sent k & 0xff).
             self.send(&Message::TorqueCommand {
                 torque_nm: 0.0,
-                sequence: 0,
+                sequence: (self.ticks_run & 0xff) as u8,
             });
         }
         self.send(&Message::SetState {
             enable: false,
             watchdog_ms: self.settings.watchdog_ms,
+            sequence: 0,
         });
     }
 

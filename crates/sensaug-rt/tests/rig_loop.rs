@@ -79,6 +79,7 @@ fn drive(port: u16, stop: Arc<AtomicBool>, answer_for: u64) -> JoinHandle<()> {
                     length_errors: 0,
                     sequence_errors: 0,
                     unknown_ids: 0,
+                    range_errors: 0,
                 };
                 bus.send(&encode(node, &hb).unwrap()).unwrap();
                 last_beat = Instant::now();
