@@ -60,22 +60,75 @@ def test_golden_frames_cover_every_message_and_node() -> None:
     assert {f["node"] for f in frames} == set(range(16))
 
 
-def test_torque_crc_is_crc8_sae_j1850() -> None:
-    """Byte 7 of every TorqueCommand is CRC-8/SAE-J1850 of bytes 0..=6,
-    checked with a bitwise reference here (poly 0x1D, init 0xFF, xorout 0xFF)."""
+def test_torque_crc_is_crc16_with_the_frame_id() -> None:
+    """Bytes 6..8 of every TorqueCommand are CRC-16/IBM-3740 of bytes 0..=5 followed by
+    the frame id (u16 LE), checked with a bitwise reference here (poly 0x1021, init
+    0xFFFF, not reflected, xorout 0)."""
 
-    def crc8(data: bytes) -> int:
-        reg = 0xFF
+    def crc16(data: bytes) -> int:
+        reg = 0xFFFF
         for byte in data:
-            reg ^= byte
+            reg ^= byte << 8
             for _ in range(8):
-                reg = ((reg << 1) ^ 0x1D) & 0xFF if reg & 0x80 else (reg << 1) & 0xFF
-        return reg ^ 0xFF
+                reg = ((reg << 1) ^ 0x1021) & 0xFFFF if reg & 0x8000 else (reg << 1) & 0xFFFF
+        return reg
 
-    assert crc8(b"123456789") == 0x4B
+    assert crc16(b"123456789") == 0x29B1
     frames = json.loads(COMMITTED.read_text())["frames"]
+    checked = 0
     for f in frames:
         if f["message"] == "TorqueCommand":
             data = bytes.fromhex(f["data"])
-            assert data[5:7] == b"\x00\x00", f["label"]
-            assert data[7] == crc8(data[:7]), f["label"]
+            assert data[5] == 0, f["label"]
+            assert int.from_bytes(data[6:8], "little") == crc16(data[:6] + f["id"].to_bytes(2, "little")), f["label"]
+            checked += 1
+    assert checked >= 50
+
+
+def test_protocol_doc_tables_are_generated_from_the_dbc() -> None:
+    """docs/can_protocol.md's frame tables equal what make_doc_tables.py makes
+    from hi5.dbc with cantools (so the docs cannot drift from the DBC)."""
+    spec = importlib.util.spec_from_file_location("make_doc_tables", TOOL.parent / "make_doc_tables.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    doc_path = ROOT / "docs" / "can_protocol.md"
+    doc = doc_path.read_text()
+    import cantools
+
+    generated = module.tables(cantools.database.load_file(str(ROOT / "firmware_bridge" / "hi5.dbc"), strict=True))
+    # The tables carry every message and signal of the DBC.
+    for name in ("TorqueCommand", "Feedback", "Heartbeat", "SetState", "Fault"):
+        assert f"**{name}** (DLC" in generated
+    assert "| position | int24 | 1e-06 |" in generated
+    fresh = module.render(doc, generated)
+    assert fresh == doc, (
+        "docs/can_protocol.md's frame tables differ from hi5.dbc; "
+        "run python firmware_bridge/tools/make_doc_tables.py"
+    )
+
+
+def test_python_state_and_fault_names_are_the_dbcs() -> None:
+    """protocol.State is every `state` signal's VAL_ table and protocol.FaultFlag
+    the `fault_flags` comment's `bitN NAME` list (the Rust side generates both)."""
+    from sensaug_bridge import protocol as p
+
+    db = p.load_database()
+    states = {name: int(v) for name, v in p.State.__members__.items()}
+    faults = {name: int(v) for name, v in p.FaultFlag.__members__.items() if v}
+    seen = 0
+    for msg in db.messages:
+        for sig in msg.signals:
+            if sig.name == "state":
+                assert {str(v): int(k) for k, v in sig.choices.items()} == states, msg.name
+                seen += 1
+            if sig.name == "fault_flags":
+                parsed = {}
+                for item in sig.comment.split(","):
+                    bit, name = item.split()
+                    parsed[name] = 1 << int(bit.removeprefix("bit"))
+                assert parsed == faults, msg.name
+                seen += 1
+    assert seen == 5
+    assert p.DBC_NODE == 1 and p.NODE_MAX == 15
+    assert list(p.BASE_IDS) == [m.name for m in sorted(db.messages, key=lambda m: m.frame_id)]

@@ -126,6 +126,31 @@ class TransportSuite:
         assert got is not None and got.arbitration_id == 0x281
 
 
+    def test_every_classic_frame_kind(self):
+        """python-can's Message() defaults to a 29-bit id; remote and error frames travel too."""
+        a, b = self.peer(), self.peer()
+        sent = [
+            can.Message(),
+            can.Message(arbitration_id=0x1ABCDEF0, is_extended_id=True, data=bytes(range(8))),
+            can.Message(arbitration_id=0x123, is_extended_id=False, is_remote_frame=True, dlc=4),
+            can.Message(arbitration_id=0x1234567, is_extended_id=True, is_remote_frame=True, dlc=8),
+            can.Message(arbitration_id=0x4, is_error_frame=True, is_extended_id=False, data=bytes([0, 0x10] + [0] * 6)),
+        ]
+        for msg in sent:
+            a.send(msg)
+            got = b.recv(RECV_S)
+            assert got is not None, msg
+            assert (got.arbitration_id, got.is_extended_id, got.is_remote_frame, got.is_error_frame, got.dlc) == (
+                msg.arbitration_id,
+                msg.is_extended_id,
+                msg.is_remote_frame,
+                msg.is_error_frame,
+                msg.dlc,
+            ), (got, msg)
+            if not msg.is_remote_frame:
+                assert bytes(got.data) == bytes(msg.data)
+
+
 class TestVirtualBus(TransportSuite):
     """python-can's own in-process `virtual` interface, for comparison."""
 
@@ -141,6 +166,16 @@ def _raw_sender() -> socket.socket:
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
     sock.bind(("127.0.0.1", 0))
     return sock
+
+
+def _raw_listener(port: int) -> socket.socket:
+    """A plain UDP socket that sees every datagram on the bus, as bytes."""
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    rx.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+    rx.bind((BROADCAST_ADDR, port))
+    rx.settimeout(RECV_S)
+    return rx
 
 
 class TestSensaugUdp(TransportSuite):
@@ -164,11 +199,7 @@ class TestSensaugUdp(TransportSuite):
 
     def test_exact_wire_format(self):
         a = self.peer()
-        rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        rx.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        rx.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
-        rx.bind((BROADCAST_ADDR, self.channel))
-        rx.settimeout(RECV_S)
+        rx = _raw_listener(self.channel)
         try:
             a.send(_msg(0x201, [1, 2, 3]))
             datagram, source = rx.recvfrom(64)
@@ -189,12 +220,26 @@ class TestSensaugUdp(TransportSuite):
     def test_unsendable_frames_raise(self):
         a = self.peer()
         for bad in (
-            can.Message(arbitration_id=0x1234, is_extended_id=True, data=[1]),
-            can.Message(arbitration_id=0x123, is_extended_id=False, is_remote_frame=True),
+            can.Message(arbitration_id=0x800, is_extended_id=False, data=[1]),
+            can.Message(arbitration_id=0x2000_0000, is_extended_id=True, data=[1]),
             can.Message(arbitration_id=0x123, is_extended_id=False, is_fd=True, data=bytes(12)),
         ):
             with pytest.raises(can.CanOperationError):
                 a.send(bad)
+
+    def test_flag_bits_on_the_wire_are_socketcans(self):
+        a = self.peer()
+        rx = _raw_listener(self.channel)
+        try:
+            a.send(can.Message(arbitration_id=0x1ABCDEF0, is_extended_id=True, data=b"\x07"))
+            a.send(can.Message(arbitration_id=0x123, is_extended_id=False, is_remote_frame=True, dlc=4))
+            a.send(can.Message(arbitration_id=0x4, is_error_frame=True, is_extended_id=False, data=bytes(8)))
+            got = [rx.recvfrom(64)[0] for _ in range(3)]
+        finally:
+            rx.close()
+        assert got[0] == struct.pack("<IB3x8s", 0x8000_0000 | 0x1ABCDEF0, 1, b"\x07" + bytes(7))
+        assert got[1] == struct.pack("<IB3x8s", 0x4000_0123, 4, bytes(8))
+        assert got[2] == struct.pack("<IB3x8s", 0x2000_0004, 8, bytes(8))
 
     def test_garbage_datagrams_dropped_and_counted(self):
         a = self.peer()
@@ -202,9 +247,6 @@ class TestSensaugUdp(TransportSuite):
         garbage = {
             "size": [b"", b"\x00" * 15, b"\x00" * 17, b"x" * 1000],
             "len": [struct.pack("<IB3x8s", 0x201, 9, bytes(8))],
-            "extended": [struct.pack("<IB3x8s", 0x8000_0201, 2, bytes(8))],
-            "rtr": [struct.pack("<IB3x8s", 0x4000_0201, 0, bytes(8))],
-            "error_frame": [struct.pack("<IB3x8s", 0x2000_0004, 8, bytes(8))],
             "id": [struct.pack("<IB3x8s", 0x800, 1, bytes(8))],
             "reserved": [struct.pack("<IBBBB8s", 0x201, 2, 0, 0, 1, bytes(8))],
         }
@@ -221,6 +263,52 @@ class TestSensaugUdp(TransportSuite):
         assert isinstance(a, UdpLoopbackBus)
         assert a.dropped_malformed == sum(len(v) for v in garbage.values())
         assert dict(a.drop_reasons) == {k: len(v) for k, v in garbage.items()}
+
+    def test_kernel_drops_of_a_full_receive_buffer_are_counted(self):
+        a = self.peer()
+        assert isinstance(a, UdpLoopbackBus)
+        granted = a.receive_buffer_bytes
+        assert granted >= 200_000, granted
+        # Far more than the buffer holds (a queued datagram costs ~800 bytes
+        # of it), nobody reading: the kernel drops the rest. One more frame
+        # after draining carries the final SO_RXQ_OVFL count.
+        sent = granted // 128 + 1000
+        datagram = struct.pack("<IB3x8s", 0x123, 1, bytes(8))
+        tx = _raw_sender()
+        try:
+            for _ in range(sent):
+                tx.sendto(datagram, (BROADCAST_ADDR, self.channel))
+            received = 0
+            while a.recv(0) is not None:
+                received += 1
+            tx.sendto(datagram, (BROADCAST_ADDR, self.channel))
+            assert a.recv(RECV_S) is not None
+            received += 1
+        finally:
+            tx.close()
+        assert a.dropped_kernel > 0
+        assert a.dropped_kernel + received == sent + 1, (a.dropped_kernel, received, sent)
+        print(f"\nbuffer {granted} B: {received} frames queued, {a.dropped_kernel} dropped by the kernel")
+
+    def test_opening_the_bus_needs_no_dbc(self):
+        """can.Bus(interface="sensaug_udp") in a process where hi5.dbc cannot be found
+        (as in a non-editable install): the bus opens; only the protocol asks for the DBC."""
+        code = (
+            "import can, sys\n"
+            f"bus = can.Bus(interface='sensaug_udp', channel={self.channel})\n"
+            "bus.send(can.Message(arbitration_id=1, data=[1]))\n"
+            "bus.shutdown()\n"
+            "assert 'sensaug_bridge.protocol' not in sys.modules\n"
+            "try:\n"
+            "    import sensaug_bridge.protocol\n"
+            "except FileNotFoundError as err:\n"
+            "    assert 'SENSAUG_HI5_DBC' in str(err), err\n"
+            "    print('protocol needs the DBC')\n"
+        )
+        env = dict(os.environ, SENSAUG_HI5_DBC="/nonexistent/hi5.dbc")
+        out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
+        assert out.returncode == 0, out.stderr
+        assert out.stdout.strip() == "protocol needs the DBC"
 
     def test_can_logger_subprocess_captures_frames(self):
         a = self.peer()

@@ -17,6 +17,7 @@ that never fires.
 from __future__ import annotations
 
 import math
+import random
 import signal
 import socket
 import struct
@@ -80,8 +81,9 @@ def frames_for(bus: can.BusABC, seconds: float) -> list[p.Decoded]:
     return out
 
 
-def enable(bus: can.BusABC, watchdog_ms: int = 2000, node: int = NODE) -> None:
-    bus.send(p.SetState(True, watchdog_ms).encode(node))
+def enable(bus: can.BusABC, watchdog_ms: int = 200, node: int = NODE, sequence: int = 0) -> None:
+    """Enable with the longest watchdog the protocol allows; the drive then expects ``sequence``."""
+    bus.send(p.SetState(True, watchdog_ms, sequence).encode(node))
     expect(bus, "Fault", lambda f: f.state == State.ENABLED, node=node)
 
 
@@ -147,21 +149,28 @@ def test_protocol_ids_crc_and_round_trip():
     }
     assert p.frame_id("TorqueCommand", 15) == 0x20F and p.classify(0x70F) == ("Heartbeat", 15)
     assert p.classify(0x123) is None
-    # CRC-8/SAE-J1850 catalogue check value.
-    assert p.crc8(b"123456789") == 0x4B
+    # CRC-16/IBM-3740 catalogue check value.
+    assert p.crc16(b"123456789") == 0x29B1
     msg = p.TorqueCommand(-1.234567, 200).encode(3)
-    assert msg.arbitration_id == 0x203 and msg.dlc == 8 and p.crc_ok(bytes(msg.data))
-    assert msg.data[5] == 0 and msg.data[6] == 0
+    data = bytes(msg.data)
+    assert msg.arbitration_id == 0x203 and msg.dlc == 8 and p.crc_ok(data, 0x203)
+    assert data[5] == 0
     assert p.decode(msg) == p.Decoded("TorqueCommand", 3, p.TorqueCommand(-1.234567, 200))
-    bad = bytearray(msg.data)
+    # The frame id is the data id: the same bytes for node 4 fail the CRC.
+    assert not p.crc_ok(data, 0x204)
+    bad = bytearray(data)
     bad[0] ^= 1
     with pytest.raises(p.ProtocolError) as err:
-        p.TorqueCommand.decode(bytes(bad))
+        p.TorqueCommand.decode(bytes(bad), 0x203)
     assert err.value.kind == "crc"
-    hb = p.Heartbeat(State.FAULT, FaultFlag.WATCHDOG | FaultFlag.INTERNAL, 7, 1, 2, 3, 255)
+    hb = p.Heartbeat(State.FAULT, FaultFlag.WATCHDOG | FaultFlag.SEQUENCE, 7, 1, 2, 3, 255, 4)
     assert p.decode(hb.encode(0)).message == hb
-    with pytest.raises(p.ProtocolError):
-        p.TorqueCommand(3000.0, 0).encode(1)  # outside the 32-bit field
+    for torque in (3000.0, 10.5, -10.000002):
+        with pytest.raises(p.ProtocolError):
+            p.TorqueCommand(torque, 0).encode(1)  # outside the DBC's [-10, 10] N m
+    for wd in (0, 4, 201, 65535):
+        with pytest.raises(p.ProtocolError):
+            p.SetState(True, wd).encode(1)  # outside the DBC's 5..=200 ms
     with pytest.raises(p.ProtocolError):
         p.frame_id("Feedback", 16)
 
@@ -192,7 +201,7 @@ def test_torque_ignored_unless_enabled(drive: Drive):
 
 
 def test_feedback_echoes_sequence_and_matches_plant(drive: Drive):
-    enable(drive.host)
+    enable(drive.host, sequence=250)
     ref = sensaug.Plant(mass=0.0035, damping=0.0, coulomb=0.0, dt_s=1e-3, x0=0.0, v0=0.0)
     torques = [0.01 * math.sin(0.2 * k) + 0.002 for k in range(60)]
     for k, tau in enumerate(torques):
@@ -208,18 +217,24 @@ def test_feedback_echoes_sequence_and_matches_plant(drive: Drive):
     assert drive.hi5.accepted == len(torques)
 
 
-def test_torque_clamped_at_limit(start_drive):
-    drive = start_drive(torque_limit_nm=0.5, max_velocity_rad_s=1000.0)
+def test_torque_beyond_limit_rejected_and_counted_not_clamped(start_drive):
+    drive = start_drive(torque_limit_nm=0.5, max_velocity_rad_s=1000.0, heartbeat_period_s=0.05)
     enable(drive.host)
     ref = sensaug.Plant(mass=0.0035, dt_s=1e-3)
-    for seq, tau in enumerate([2.0, -7.0, 0.5, -0.25]):
-        fb = command(drive.host, tau, seq)
-        applied = max(min(tau, 0.5), -0.5)
-        x, v = ref.step(applied)
-        assert fb.torque_limited == (abs(tau) > 0.5)
-        assert drive.hi5.torque_nm == applied
+    torques = [2.0, -7.0, 0.5, -0.25]
+    for seq, tau in enumerate(torques):  # back to back: rejected commands do not feed the watchdog
+        drive.host.send(p.TorqueCommand(tau, seq).encode(NODE))
+    fbs = [d.message for d in frames_for(drive.host, 0.3) if d.name == "Feedback"]
+    # Only the two within the limit were applied, the sequence going on past the rejected ones.
+    assert [fb.sequence for fb in fbs] == [2, 3]
+    for fb, tau in zip(fbs, torques[2:]):
+        x, v = ref.step(tau)
+        assert not fb.torque_limited
         assert abs(fb.position_rad - encoder(x)) <= 0.5 * POS_LSB + 1e-12
         assert abs(fb.velocity_rad_s - v) <= 0.5 * VEL_LSB + 1e-12
+    assert drive.hi5.range_errors == 2 and drive.hi5.accepted == 2
+    hb = expect(drive.host, "Heartbeat", lambda h: h.range_errors == 2)
+    assert hb.fault_flags in (FaultFlag.NONE, FaultFlag.WATCHDOG)  # no more commands: the watchdog may fire
 
 
 def test_watchdog_faults_then_clear_and_reenable(drive: Drive):
@@ -242,8 +257,8 @@ def test_watchdog_faults_then_clear_and_reenable(drive: Drive):
     drive.host.send(p.ClearFaults().encode(NODE))
     cleared = expect(drive.host, "Fault", lambda f: f.state != State.FAULT)
     assert cleared.state == State.DISABLED and cleared.fault_flags == FaultFlag.NONE
-    enable(drive.host)
-    fb = command(drive.host, 0.01, 9)  # any sequence is accepted after an enable
+    enable(drive.host, sequence=9)
+    fb = command(drive.host, 0.01, 9)  # the sequence the enable named
     assert fb.sequence == 9 and fb.state == State.ENABLED
 
 
@@ -272,7 +287,7 @@ def test_overspeed_faults(start_drive):
 def test_other_nodes_ignored_silently(start_drive):
     drive = start_drive(node=3)
     expect(drive.host, "Heartbeat", node=3)
-    drive.host.send(p.SetState(True, 500).encode(1))  # node 1: not this drive
+    drive.host.send(p.SetState(True, 100).encode(1))  # node 1: not this drive
     drive.host.send(p.TorqueCommand(0.1, 0).encode(1))
     enable(drive.host, node=3)
     assert command(drive.host, 0.1, 0, node=3).sequence == 0
@@ -282,15 +297,14 @@ def test_other_nodes_ignored_silently(start_drive):
 def test_bad_frames_dropped_counted_no_crash(start_drive):
     drive = start_drive(heartbeat_period_s=0.05)
     host = drive.host
-    enable(host)
+    enable(host, sequence=10)
     assert command(host, 0.01, 10).sequence == 10
     good = bytes(p.TorqueCommand(0.01, 11).encode(NODE).data)
     tid = p.frame_id("TorqueCommand", NODE)
     bad_crc = good[:7] + bytes([good[7] ^ 0xFF])
     host.send(can.Message(arbitration_id=tid, data=bad_crc, is_extended_id=False))  # crc
+    host.send(can.Message(arbitration_id=tid + 1, data=good, is_extended_id=False))  # crc: node 2's id
     host.send(can.Message(arbitration_id=tid, data=good[:7], is_extended_id=False))  # length
-    host.send(p.TorqueCommand(0.01, 10).encode(NODE))  # stale: repeat
-    host.send(p.TorqueCommand(0.01, 200).encode(NODE))  # stale: 190 behind (mod 256)
     host.send(can.Message(arbitration_id=0x123, data=[1], is_extended_id=False))  # unknown id
     host.send(can.Message(arbitration_id=p.frame_id("SetState", NODE), data=[1], is_extended_id=False))  # length
     raw = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -303,12 +317,72 @@ def test_bad_frames_dropped_counted_no_crash(start_drive):
         raw.close()
     fb = command(host, 0.01, 11)  # still alive and in sequence
     assert fb.sequence == 11
-    want = dict(crc_errors=1, length_errors=3, sequence_errors=2, unknown_ids=2)
+    want = dict(crc_errors=1, length_errors=3, sequence_errors=0, unknown_ids=2)
     hb = expect(
         host, "Heartbeat", lambda h: all(getattr(h, k) == v for k, v in want.items()) and h.state == State.ENABLED
     )
     assert hb.fault_flags == FaultFlag.NONE
     assert drive.hi5.accepted == 2
+
+
+def test_second_command_source_latches_a_sequence_fault(drive: Drive):
+    """A valid command that is not the next one (here: a replay of the last) is a
+    second source on the bus: torque 0, FAULT(SEQUENCE), and nothing is accepted."""
+    enable(drive.host, sequence=100)
+    command(drive.host, 0.2, 100)
+    command(drive.host, 0.2, 101)
+    drive.host.send(p.TorqueCommand(0.2, 101).encode(NODE))
+    fault = expect(drive.host, "Fault", lambda f: f.state == State.FAULT)
+    assert fault.fault_flags == FaultFlag.SEQUENCE
+    assert drive.hi5.torque_nm == 0.0 and drive.hi5.sequence_errors == 1
+    drive.host.send(p.TorqueCommand(0.2, 102).encode(NODE))
+    assert not [d for d in frames_for(drive.host, 0.15) if d.name == "Feedback"]
+    assert drive.hi5.accepted == 2
+
+
+def test_random_valid_frames_are_accepted_only_in_sequence():
+    """1,000 valid-CRC commands with random sequences, each after a fresh enable:
+    only those carrying the expected sequence are applied; every other one faults."""
+    rng = random.Random(7)
+    accepted = 0
+    with can.Bus(interface="sensaug_udp", channel=free_port()) as bus:
+        hi5 = VirtualHi5(bus, DriveConfig())  # driven directly, no thread
+        hi5.start()
+        for _ in range(1000):
+            expected, seq = rng.randrange(256), rng.randrange(256)
+            hi5.fault_flags = FaultFlag.NONE
+            hi5._set_state(State.DISABLED)
+            hi5.handle(p.SetState(True, 200, expected).encode(NODE), time.monotonic())
+            assert hi5.state == State.ENABLED
+            before = hi5.accepted
+            hi5.handle(p.TorqueCommand(0.1, seq).encode(NODE), time.monotonic())
+            if hi5.accepted > before:
+                assert seq == expected
+                accepted += 1
+            else:
+                assert seq != expected and hi5.state == State.FAULT
+                assert hi5.fault_flags == FaultFlag.SEQUENCE
+    print(f"1000 valid frames with random sequences: {accepted} accepted (each the expected one)")
+    assert accepted < 20
+
+
+def test_watchdog_change_refused_while_enabled(drive: Drive):
+    """SetState(enable) with another watchdog while ENABLED is refused (counted); the
+    same watchdog only resyncs. So a stray SetState cannot stretch the watchdog."""
+    enable(drive.host, watchdog_ms=50, sequence=0)
+    command(drive.host, 0.0, 0)
+    drive.host.send(p.SetState(True, 200, 5).encode(NODE))  # refused: watchdog change
+    raw = bytes([1]) + (65535).to_bytes(2, "little") + bytes([0])
+    drive.host.send(can.Message(arbitration_id=p.frame_id("SetState", NODE), data=raw, is_extended_id=False))
+    drive.host.send(p.SetState(True, 50, 77).encode(NODE))  # resync only
+    t_last = time.monotonic()
+    command(drive.host, 0.0, 77)
+    fault = expect(drive.host, "Fault", lambda f: f.state == State.FAULT)
+    elapsed = time.monotonic() - t_last
+    print(f"watchdog 50 ms after two refused changes: FAULT {elapsed * 1e3:.0f} ms after the last command")
+    assert fault.fault_flags == FaultFlag.WATCHDOG
+    assert elapsed <= 0.050 + WATCHDOG_MARGIN_S
+    assert drive.hi5.ignored == 2 and drive.hi5.watchdog_s == 0.050
 
 
 def test_error_counters_saturate_at_255(drive: Drive):
@@ -338,7 +412,7 @@ def test_sigterm_shuts_down_cleanly_and_logs(tmp_path: Path):
         try:
             expect(host, "Heartbeat", timeout=15.0)
             enable(host)
-            torques = [0.02, -0.01, 5.0]
+            torques = [0.02, -0.01, 3.0]
             for seq, tau in enumerate(torques):
                 command(host, tau, seq)
             proc.send_signal(signal.SIGTERM)

@@ -102,8 +102,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
     let s = host.stats();
     println!(
-        "host stats: sent {} received {} own dropped {} malformed {}",
-        s.sent, s.received, s.own_dropped, s.malformed_dropped
+        "host stats: sent {} received {} own dropped {} malformed {} kernel dropped {}",
+        s.sent, s.received, s.own_dropped, s.malformed_dropped, s.kernel_dropped
     );
     Ok(())
 }

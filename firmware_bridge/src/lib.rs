@@ -1,7 +1,7 @@
 //! CAN link to the Hi5 wrist robot's DC-motor driver.
 //!
-//! - [`frame`]: one classic CAN frame and the SocketCAN `can_frame` wire
-//!   layout.
+//! - [`frame`]: one classic CAN frame (standard or extended id; data,
+//!   remote or error) and the SocketCAN `can_frame` wire layout.
 //! - [`protocol`]: the messages of `hi5.dbc`, encode and decode.
 //! - [`transport`]: sending and receiving frames over SocketCAN or over a
 //!   loopback-only UDP "virtual CAN bus".
@@ -12,13 +12,14 @@
 #![deny(missing_docs)]
 #![deny(clippy::undocumented_unsafe_blocks)]
 
+pub mod dbc;
 pub mod frame;
 pub mod protocol;
 pub mod transport;
 
-pub use frame::{Frame, WireError};
+pub use frame::{Frame, FrameKind, WireError};
 pub use protocol::{
-    decode, decode_any, encode, seq_is_newer, DecodeError, DriveState, EncodeError, FaultFlags,
-    Message, MessageKind, NodeId,
+    decode, decode_any, encode, seq_is_newer, CommandGate, DecodeError, DriveState, EncodeError,
+    FaultFlags, Message, MessageKind, NodeId, Rejection,
 };
 pub use transport::{open, Transport, TransportError};

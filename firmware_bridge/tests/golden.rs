@@ -66,6 +66,7 @@ fn message(name: &str, s: &Value) -> Message {
             length_errors: u8_of(s, "length_errors"),
             sequence_errors: u8_of(s, "sequence_errors"),
             unknown_ids: u8_of(s, "unknown_ids"),
+            range_errors: u8_of(s, "range_errors"),
         },
         "Fault" => Message::Fault {
             state: state_of(s, "state"),
@@ -75,6 +76,7 @@ fn message(name: &str, s: &Value) -> Message {
         "SetState" => Message::SetState {
             enable: u(s, "request") == 1,
             watchdog_ms: u16::try_from(u(s, "watchdog_ms")).unwrap(),
+            sequence: u8_of(s, "sequence"),
         },
         "EmergencyStop" => Message::EmergencyStop,
         "ClearFaults" => Message::ClearFaults,
@@ -132,7 +134,8 @@ fn golden_frames_encode_and_decode_like_cantools() {
             bytes
         );
         if name == "TorqueCommand" {
-            assert_eq!(u8_of(signals, "crc8"), bytes[7], "{label}: crc8");
+            let crc = u64::from(u16::from_le_bytes([bytes[6], bytes[7]]));
+            assert_eq!(u(signals, "crc16"), crc, "{label}: crc16");
         }
 
         // Decode cantools' bytes.

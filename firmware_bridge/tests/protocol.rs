@@ -1,7 +1,8 @@
 //! Every protocol error variant, round trips, ids, sequence window.
 
+use sensaug_bridge::protocol::torque_command_crc;
 use sensaug_bridge::protocol::{
-    crc8_sae_j1850, decode, decode_any, encode, seq_is_newer, DecodeError, DriveState, EncodeError,
+    crc16_ibm_3740, decode, decode_any, encode, seq_is_newer, DecodeError, DriveState, EncodeError,
     FaultFlags, Message, MessageKind, NodeId,
 };
 use sensaug_bridge::Frame;
@@ -32,10 +33,12 @@ fn samples() -> [Message; 7] {
             length_errors: 2,
             sequence_errors: 3,
             unknown_ids: 4,
+            range_errors: 5,
         },
         Message::SetState {
             enable: true,
             watchdog_ms: 20,
+            sequence: 9,
         },
         Message::EmergencyStop,
         Message::ClearFaults,
@@ -151,10 +154,10 @@ fn encode_rejects_out_of_range_never_wraps() {
         sequence: 0,
     };
     // The extremes themselves are fine ...
-    assert!(encode(node(1), &torque(2147.483647)).is_ok());
-    assert!(encode(node(1), &torque(-2147.483648)).is_ok());
+    assert!(encode(node(1), &torque(10.0)).is_ok());
+    assert!(encode(node(1), &torque(-10.0)).is_ok());
     // ... one LSB past them is not.
-    for t in [2147.483648, -2147.483649, 1e12, -1e12] {
+    for t in [10.000001, -10.000001, 2147.483647, 1e12, -1e12] {
         let e = encode(node(1), &torque(t)).unwrap_err();
         match e {
             EncodeError::OutOfRange {
@@ -165,7 +168,7 @@ fn encode_rejects_out_of_range_never_wraps() {
             } => {
                 assert_eq!(signal, "TorqueCommand.torque");
                 assert_eq!(value, t);
-                assert_eq!((min, max), (-2147.483648, 2147.483647));
+                assert_eq!((min, max), (-10.0, 10.0));
             }
             other => panic!("{other:?}"),
         }
@@ -207,6 +210,7 @@ fn encode_rejects_out_of_range_never_wraps() {
         &Message::SetState {
             enable: true,
             watchdog_ms: 0,
+            sequence: 0,
         },
     )
     .unwrap_err();
@@ -276,6 +280,7 @@ fn decode_wrong_length_for_every_kind() {
             id: kind.id(node(3)),
             len: wrong,
             data: [0; 8],
+            ..Frame::default()
         };
         assert_eq!(
             decode(node(3), &f),
@@ -307,7 +312,20 @@ fn decode_bad_crc_any_flipped_bit() {
     assert!(decode(node(1), &f)
         .unwrap_err()
         .to_string()
-        .contains("TorqueCommand.crc8"));
+        .contains("TorqueCommand.crc16"));
+}
+
+#[test]
+fn the_crc_covers_the_frame_id_as_data_id() {
+    // Node 1's command, byte for byte, sent under node 2's id: bad CRC.
+    let mut f = torque_frame(1);
+    f.id = MessageKind::TorqueCommand.id(node(2));
+    assert!(matches!(
+        decode(node(2), &f),
+        Err(DecodeError::BadCrc { .. })
+    ));
+    let c = torque_command_crc(0x201, &torque_frame(1).data[..6]);
+    assert_eq!(torque_frame(1).data[6..8], c.to_le_bytes());
 }
 
 #[test]
@@ -315,7 +333,8 @@ fn decode_invalid_values() {
     // TorqueCommand with non-zero reserved bytes but a valid CRC.
     let mut f = torque_frame(1);
     f.data[5] = 1;
-    f.data[7] = crc8_sae_j1850(&f.data[..7]);
+    let crc = torque_command_crc(f.id, &f.data[..6]);
+    f.data[6..8].copy_from_slice(&crc.to_le_bytes());
     assert_eq!(
         decode(node(1), &f),
         Err(DecodeError::InvalidValue {
@@ -328,6 +347,7 @@ fn decode_invalid_values() {
         id: kind.id(node(1)),
         len: kind.dlc(),
         data: [d0, 0, 0, 0, 0, 0, 0, 0],
+        ..Frame::default()
     };
     assert_eq!(
         decode(node(1), &status(MessageKind::Heartbeat, 4)),
@@ -355,20 +375,23 @@ fn decode_invalid_values() {
             raw: 2
         })
     );
-    let e = decode(node(1), &set_state(1, 0)).unwrap_err();
+    for wd in [0, 4, 201, 65535] {
+        let e = decode(node(1), &set_state(1, wd)).unwrap_err();
+        assert_eq!(
+            e,
+            DecodeError::InvalidValue {
+                signal: "SetState.watchdog_ms",
+                raw: u32::from(wd)
+            }
+        );
+        assert!(e.to_string().contains("SetState.watchdog_ms"));
+    }
     assert_eq!(
-        e,
-        DecodeError::InvalidValue {
-            signal: "SetState.watchdog_ms",
-            raw: 0
-        }
-    );
-    assert!(e.to_string().contains("SetState.watchdog_ms"));
-    assert_eq!(
-        decode(node(1), &set_state(0, 65535)).unwrap(),
+        decode(node(1), &set_state(0, 200)).unwrap(),
         Message::SetState {
             enable: false,
-            watchdog_ms: 65535
+            watchdog_ms: 200,
+            sequence: 0,
         }
     );
 }
@@ -381,8 +404,8 @@ fn feedback_reserved_bits_are_ignored_like_cantools() {
 }
 
 #[test]
-fn crc8_catalogue_check_value() {
-    assert_eq!(crc8_sae_j1850(b"123456789"), 0x4B);
+fn crc16_catalogue_check_value() {
+    assert_eq!(crc16_ibm_3740(b"123456789"), 0x29B1);
 }
 
 #[test]
@@ -424,4 +447,24 @@ fn fault_flags_ops() {
         "FaultFlags(WATCHDOG | EMERGENCY_STOP | 0x8000)"
     );
     assert_eq!(format!("{:?}", FaultFlags::empty()), "FaultFlags(0x0000)");
+}
+
+#[test]
+fn extended_remote_and_error_frames_are_not_protocol_frames() {
+    let good = torque_frame(1);
+    let ext = Frame {
+        extended: true,
+        ..good
+    };
+    let rtr = Frame::remote(good.id, false, 8).unwrap();
+    let err = Frame {
+        kind: sensaug_bridge::FrameKind::Error,
+        ..good
+    };
+    for f in [ext, rtr, err] {
+        let e = decode_any(&f).unwrap_err();
+        assert_eq!(e, DecodeError::UnknownId { id: f.can_id() }, "{f:?}");
+        assert!(e.to_string().contains("standard data frames"), "{e}");
+    }
+    assert!(decode_any(&good).is_ok());
 }

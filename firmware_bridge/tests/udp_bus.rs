@@ -8,7 +8,7 @@ use std::thread;
 use std::time::{Duration, Instant};
 
 use sensaug_bridge::transport::{open, BusStats, Transport, TransportError, UdpBus, UDP_BUS_ADDR};
-use sensaug_bridge::{Frame, WireError};
+use sensaug_bridge::{Frame, FrameKind, WireError};
 
 fn free_port() -> u16 {
     UdpSocket::bind("127.0.0.1:0")
@@ -55,7 +55,8 @@ fn three_peers_exchange_frames_and_never_see_their_own() {
             sent: 1,
             received: 2,
             own_dropped: 1,
-            malformed_dropped: 0
+            malformed_dropped: 0,
+            kernel_dropped: 0,
         }
     );
     assert_eq!(b.stats().own_dropped, 1);
@@ -101,20 +102,15 @@ fn garbage_datagrams_are_dropped_and_counted() {
     let good = frame(0x281, 9).to_wire();
     let mut too_long_len = good;
     too_long_len[4] = 9;
-    let mut extended = good;
-    extended[3] |= 0x80;
-    let mut remote = good;
-    remote[3] |= 0x40;
-    let mut error = good;
-    error[3] |= 0x20;
-    let garbage: [&[u8]; 7] = [
+    // 0x800 needs 29 bits but the EFF flag is clear.
+    let mut wide_standard_id = good;
+    wide_standard_id[0..4].copy_from_slice(&0x800u32.to_le_bytes());
+    let garbage: [&[u8]; 5] = [
         &[],
         &good[..15],
         &[0u8; 17],
         &too_long_len,
-        &extended,
-        &remote,
-        &error,
+        &wide_standard_id,
     ];
     for g in garbage {
         raw.send_to(g, dest).unwrap();
@@ -122,12 +118,81 @@ fn garbage_datagrams_are_dropped_and_counted() {
     raw.send_to(&good, dest).unwrap();
 
     assert_eq!(peer.recv(LONG).unwrap(), Some(frame(0x281, 9)));
-    assert_eq!(peer.stats().malformed_dropped, 7);
+    assert_eq!(peer.stats().malformed_dropped, 5);
     assert_eq!(peer.stats().received, 1);
     // Garbage alone: no frame, no error.
     raw.send_to(&[1, 2, 3], dest).unwrap();
     assert_eq!(peer.recv(SHORT).unwrap(), None);
-    assert_eq!(peer.stats().malformed_dropped, 8);
+    assert_eq!(peer.stats().malformed_dropped, 6);
+}
+
+#[test]
+fn extended_remote_and_error_frames_are_carried() {
+    let port = free_port();
+    let mut a = UdpBus::open(port).unwrap();
+    let mut b = UdpBus::open(port).unwrap();
+    let ext = Frame::data(0x1ABC_DEF0, true, &[1, 2, 3, 4, 5, 6, 7, 8]).unwrap();
+    let ext_small = Frame::data(0x5, true, &[]).unwrap();
+    let rtr = Frame::remote(0x123, false, 4).unwrap();
+    let rtr_ext = Frame::remote(0x1234_5678, true, 8).unwrap();
+    let err = Frame {
+        id: 0x4, // CAN_ERR_CRTL
+        len: 8,
+        data: [0, 0x10, 0, 0, 0, 0, 0, 0],
+        kind: FrameKind::Error,
+        ..Frame::default()
+    };
+    for f in [ext, ext_small, rtr, rtr_ext, err] {
+        a.send(&f).unwrap();
+        assert_eq!(b.recv(LONG).unwrap(), Some(f));
+    }
+    assert_eq!(b.stats().malformed_dropped, 0);
+    assert_eq!(b.stats().received, 5);
+    // A 29-bit id in a standard frame is refused before sending.
+    let wide = Frame {
+        id: 0x800,
+        ..Frame::default()
+    };
+    assert!(matches!(
+        a.send(&wide),
+        Err(TransportError::InvalidFrame(WireError::IdTooLarge {
+            id: 0x800
+        }))
+    ));
+}
+
+#[test]
+fn kernel_drops_of_a_full_receive_buffer_are_counted() {
+    let port = free_port();
+    let mut peer = UdpBus::open(port).unwrap();
+    let granted = peer.recv_buffer_bytes().unwrap();
+    assert!(granted >= 200_000, "receive buffer {granted} B");
+    let raw = UdpSocket::bind("127.0.0.1:0").unwrap();
+    raw.set_broadcast(true).unwrap();
+    let dest = SocketAddrV4::new(UDP_BUS_ADDR, port);
+    // Far more than the buffer holds (a queued 16-byte datagram costs
+    // ~800 bytes of it on loopback), with nobody reading: the kernel drops
+    // the rest. One more frame after draining carries the final count.
+    let sent: u64 = (granted / 128 + 1000) as u64;
+    let wire = frame(0x123, 1).to_wire();
+    for _ in 0..sent {
+        raw.send_to(&wire, dest).unwrap();
+    }
+    let mut received = 0u64;
+    while peer.recv(Duration::ZERO).unwrap().is_some() {
+        received += 1;
+    }
+    raw.send_to(&wire, dest).unwrap();
+    assert!(peer.recv(LONG).unwrap().is_some());
+    received += 1;
+    let stats = peer.stats();
+    assert_eq!(stats.received, received);
+    assert!(stats.kernel_dropped > 0, "{stats:?}");
+    assert_eq!(stats.kernel_dropped + received, sent + 1, "{stats:?}");
+    println!(
+        "buffer {granted} B: {received} frames queued, {} dropped",
+        stats.kernel_dropped
+    );
 }
 
 #[test]
@@ -169,6 +234,7 @@ fn send_refuses_invalid_frames() {
         id: 0x10,
         len: 9,
         data: [0; 8],
+        ..Frame::default()
     };
     assert!(matches!(
         peer.send(&bad_len),
@@ -180,6 +246,7 @@ fn send_refuses_invalid_frames() {
         id: 0x800,
         len: 0,
         data: [0; 8],
+        ..Frame::default()
     };
     assert!(matches!(
         peer.send(&bad_id),

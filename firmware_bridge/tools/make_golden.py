@@ -7,8 +7,9 @@ checks that the committed `golden/frames.json` is exactly its output.
 The list of messages is fixed and deterministic (hand-picked extremes,
 negative values and rounding ties, plus a seeded `random.Random`). The DBC
 gives node 1's ids; node n uses `frame_id - 1 + n`. The TorqueCommand's
-`crc8` is CRC-8/SAE-J1850 over bytes 0..=6, computed with the PyPI `crc`
-package (an implementation independent of the Rust `crc` crate).
+`crc16` is CRC-16/IBM-3740 over bytes 0..=5 followed by the data id (the
+frame's CAN id, u16 little-endian), computed with the PyPI `crc` package (an
+implementation independent of the Rust `crc` crate).
 
 Usage: python make_golden.py [OUT.json]   (default: ../golden/frames.json)
 """
@@ -22,17 +23,25 @@ from pathlib import Path
 from typing import Any
 
 import cantools
-from crc import Calculator, Crc8
+from crc import Calculator, Crc16
 
 HERE = Path(__file__).resolve().parent
 DBC_PATH = HERE.parent / "hi5.dbc"
 DEFAULT_OUT = HERE.parent / "golden" / "frames.json"
 
-CRC8 = Calculator(Crc8.SAEJ1850)  # poly 0x1D, init 0xFF, xorout 0xFF, no reflection
+CRC16 = Calculator(Crc16.IBM_3740)  # CCITT-FALSE: poly 0x1021, init 0xFFFF, no reflection, xorout 0
 
-TORQUE_MIN, TORQUE_MAX = -2147.483648, 2147.483647
-POSITION_MIN, POSITION_MAX = -8.388608, 8.388607
-VELOCITY_MIN, VELOCITY_MAX = -8.388608, 8.388607
+
+
+def _range(message: str, signal: str) -> tuple[float, float]:
+    """A signal's ``[min|max]``, read from the DBC (never copied here)."""
+    sig = cantools.database.load_file(str(DBC_PATH)).get_message_by_name(message).get_signal_by_name(signal)
+    return float(sig.minimum), float(sig.maximum)
+
+
+TORQUE_MIN, TORQUE_MAX = _range("TorqueCommand", "torque")
+POSITION_MIN, POSITION_MAX = _range("Feedback", "position")
+VELOCITY_MIN, VELOCITY_MAX = _range("Feedback", "velocity")
 SEED = 20240611
 
 Case = tuple[str, str, int, dict[str, Any]]  # (label, message, node, physical signals)
@@ -60,12 +69,12 @@ def cases() -> list[Case]:
         ("tie -1.5lsb", -1.5e-6),
         ("round down", 1.2345674),
         ("round up", 1.2345676),
-        ("neg round", -12.3456789),
+        ("neg round", -2.3456789),
         ("0.4lsb", 0.4e-6),
         ("-0.6lsb", -0.6e-6),
         ("typical", 0.8),
         ("typical neg", -2.75),
-        ("big", 1000.0),
+        ("big", 9.5),
     ]
     for i, (label, t) in enumerate(torques):
         out.append((f"torque {label}", "TorqueCommand", 1, {"torque": t, "sequence": i * 13 % 256}))
@@ -74,7 +83,7 @@ def cases() -> list[Case]:
     for node in range(16):
         out.append((f"torque node {node}", "TorqueCommand", node, {"torque": -0.5, "sequence": node}))
     for k in range(40):
-        t = rng.uniform(TORQUE_MIN, TORQUE_MAX) if k % 2 else rng.uniform(-5.0, 5.0)
+        t = rng.uniform(TORQUE_MIN, TORQUE_MAX) if k % 2 else rng.uniform(-3.0, 3.0)
         out.append(
             (f"torque random {k}", "TorqueCommand", rng.randrange(16), {"torque": t, "sequence": rng.randrange(256)})
         )
@@ -146,7 +155,7 @@ def cases() -> list[Case]:
         )
 
     # Heartbeat and Fault: states, every named flag, reserved bits, counters.
-    flag_sets = [0, 1, 2, 4, 8, 0b1111, 0b0011, 0x8000, 0xFFFF, 0x1234]
+    flag_sets = [0, 1, 2, 4, 8, 16, 0b11111, 0b0011, 0x80, 0xFF, 0x34]
     for i, flags in enumerate(flag_sets):
         state = i % 4
         out.append(
@@ -162,6 +171,7 @@ def cases() -> list[Case]:
                     "length_errors": 255 - i,
                     "sequence_errors": (i * 7) % 256,
                     "unknown_ids": 255 if i % 2 else 0,
+                    "range_errors": (i * 13) % 256,
                 },
             )
         )
@@ -180,12 +190,13 @@ def cases() -> list[Case]:
             15,
             {
                 "state": 3,
-                "fault_flags": 0xFFFF,
+                "fault_flags": 0xFF,
                 "counter": 255,
                 "crc_errors": 255,
                 "length_errors": 255,
                 "sequence_errors": 255,
                 "unknown_ids": 255,
+                "range_errors": 255,
             },
         )
     )
@@ -197,12 +208,13 @@ def cases() -> list[Case]:
                 rng.randrange(16),
                 {
                     "state": rng.randrange(4),
-                    "fault_flags": rng.randrange(65536),
+                    "fault_flags": rng.randrange(256),
                     "counter": rng.randrange(256),
                     "crc_errors": rng.randrange(256),
                     "length_errors": rng.randrange(256),
                     "sequence_errors": rng.randrange(256),
                     "unknown_ids": rng.randrange(256),
+                    "range_errors": rng.randrange(256),
                 },
             )
         )
@@ -211,14 +223,22 @@ def cases() -> list[Case]:
                 f"fault random {k}",
                 "Fault",
                 rng.randrange(16),
-                {"state": rng.randrange(4), "fault_flags": rng.randrange(65536), "counter": rng.randrange(256)},
+                {"state": rng.randrange(4), "fault_flags": rng.randrange(256), "counter": rng.randrange(256)},
             )
         )
 
-    # SetState: both requests, watchdog extremes.
+    # SetState: both requests, watchdog extremes, resync sequences.
     for request in (0, 1):
-        for wd in (1, 2, 10, 100, 255, 256, 1000, 65534, 65535):
-            out.append((f"setstate {request} {wd} ms", "SetState", wd % 16, {"request": request, "watchdog_ms": wd}))
+        for i, wd in enumerate((5, 6, 10, 20, 50, 100, 199, 200)):
+            seq = (0, 1, 127, 128, 254, 255, 37, 200)[i]
+            out.append(
+                (
+                    f"setstate {request} {wd} ms seq {seq}",
+                    "SetState",
+                    wd % 16,
+                    {"request": request, "watchdog_ms": wd, "sequence": seq},
+                )
+            )
 
     # Zero-length frames on every node.
     for node in range(16):
@@ -232,10 +252,11 @@ def encode_case(db: cantools.database.can.Database, case: Case) -> dict[str, Any
     label, name, node, signals = case
     msg = db.get_message_by_name(name)
     signals = dict(signals)
+    frame_id = msg.frame_id - 1 + node
     if name == "TorqueCommand":
-        body = msg.encode({**signals, "crc8": 0}, strict=True)
-        assert body[5:7] == b"\x00\x00", label
-        signals["crc8"] = CRC8.checksum(body[:7])
+        body = msg.encode({**signals, "crc16": 0}, strict=True)
+        assert body[5] == 0, label
+        signals["crc16"] = CRC16.checksum(body[:6] + frame_id.to_bytes(2, "little"))
     data = msg.encode(signals, strict=True)
     assert len(data) == msg.length, label
     decoded = msg.decode(data, decode_choices=False, scaling=True)
@@ -245,7 +266,7 @@ def encode_case(db: cantools.database.can.Database, case: Case) -> dict[str, Any
         "node": node,
         "signals": signals,
         "decoded": {k: decoded[k] for k in signals},
-        "id": msg.frame_id - 1 + node,
+        "id": frame_id,
         "data": data.hex(),
     }
 
@@ -254,7 +275,7 @@ def build() -> dict[str, Any]:
     """The whole golden file as a JSON-ready dict."""
     db = cantools.database.load_file(str(DBC_PATH))
     # Self-check of the CRC definition: the catalogue check value.
-    assert CRC8.checksum(b"123456789") == 0x4B
+    assert CRC16.checksum(b"123456789") == 0x29B1
     return {
         "about": "Hi5 CAN golden frames, encoded by cantools from hi5.dbc by firmware_bridge/tools/make_golden.py; "
         "id = DBC id - 1 + node; data is hex; signals are the physical inputs, decoded is cantools' decode",

@@ -270,7 +270,9 @@ class RigConfig:
     virtual_human: bool = True
     """Run the virtual human inside the loop (false: a person holds the handle)."""
     watchdog_ms: int = 50
-    """Drive command watchdog (ms): the drive disables itself when commands stop for this long."""
+    """Drive command watchdog (ms): the drive disables itself when commands stop for this long
+    (the protocol's range, from hi5.dbc).
+    """
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> RigConfig:

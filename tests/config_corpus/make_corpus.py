@@ -73,7 +73,7 @@ case("valid_prior_gains", phases("trajectory") + "\n[robot]\nprior_partner_gains
 case("valid_lqr_partner", full({"partner": "q_pos = 20000.0\nq_vel = 2.0\n"}), "valid")
 case("valid_full_cov", setting("robot.stage3", "Q", "[[0.01, 0.001], [0.001, 0.01]]"), "valid")
 case("valid_watchdog_min", setting("rig", "watchdog_ms", "5"), "valid")
-case("valid_watchdog_max", setting("rig", "watchdog_ms", "300"), "valid")
+case("valid_watchdog_max", setting("rig", "watchdog_ms", "200"), "valid")
 case("valid_ramp_zero", setting("rig", "ramp_down_s", "0.0"), "valid")
 case("valid_ramp_max", setting("rig", "ramp_down_s", "2.0"), "valid")
 case("valid_torque_max", setting("rig", "torque_limit_nm", "10.0"), "valid")
@@ -200,7 +200,7 @@ for table, key, value, name in [
     ("rig", "torque_limit_nm", "inf", "torque_inf"),
     ("rig", "watchdog_ms", "0", "watchdog_zero"),
     ("rig", "watchdog_ms", "65535", "watchdog_65535"),
-    ("rig", "watchdog_ms", "301", "watchdog_301"),
+    ("rig", "watchdog_ms", "201", "watchdog_201"),
     ("rig", "watchdog_ms", "4", "watchdog_4"),
     ("rig", "feedback_timeout_ms", "1e300", "feedback_timeout_1e300"),
     ("rig", "feedback_timeout_ms", "0.0", "feedback_timeout_zero"),

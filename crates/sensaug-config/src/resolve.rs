@@ -12,15 +12,15 @@ use crate::schema::{
     PhaseKindSpec, PositionUnit, RigSpec, RobotSpec, ScenarioSpec, ShapeSpec, MAX_PARTS,
 };
 use nalgebra::{SVector, Vector2};
+use sensaug_core::controller::{Robot, RobotConfig};
 use sensaug_core::estimator::{ExtendedFilterConfig, GoalIntegratorConfig, HandleModel};
 use sensaug_core::plant::{PlantParams, PlantState};
-use sensaug_core::riccati::agent_gains;
-use sensaug_core::controller::{Robot, RobotConfig};
 use sensaug_core::protocol::{Phase, PhaseKind, Protocol};
-use sensaug_core::world::{PartnerConfig, WorldConfig};
-use sensaug_core::ScenarioError;
+use sensaug_core::riccati::agent_gains;
 use sensaug_core::target::{Shape, Target};
 use sensaug_core::ukf::MerweParams;
+use sensaug_core::world::{PartnerConfig, WorldConfig};
+use sensaug_core::ScenarioError;
 
 /// Everything the simulation and the real-time loop need, validated and
 /// built. Borrows the sampled targets of the configuration it came from.

@@ -24,6 +24,13 @@ pub const MAX_DURATION_S: f64 = 3600.0;
 pub const MAX_PHASES: usize = sensaug_core::protocol::MAX_PHASES;
 /// Most shapes summed into one target.
 pub const MAX_PARTS: usize = sensaug_core::target::MAX_PARTS;
+/// The drive watchdog's range (ms), from `hi5.dbc` (`SetState.watchdog_ms`).
+pub const WATCHDOG_MS_MIN: f64 = sensaug_bridge::dbc::set_state::WATCHDOG_MS.min;
+/// See [`WATCHDOG_MS_MIN`].
+pub const WATCHDOG_MS_MAX: f64 = sensaug_bridge::dbc::set_state::WATCHDOG_MS.max;
+/// Largest torque the drive protocol carries (N m), from `hi5.dbc`
+/// (`TorqueCommand.torque`).
+pub const TORQUE_NM_MAX: f64 = sensaug_bridge::dbc::torque_command::TORQUE.max;
 /// Largest configuration file read (bytes); larger ones are refused before
 /// parsing.
 pub const MAX_FILE_BYTES: u64 = 1 << 20;
@@ -506,11 +513,11 @@ pub struct RigSpec {
     /// torque is scaled by the same factor (docs/model.md, Units).
     pub position_unit: PositionUnit,
     /// Torque limit at the drive (N m).
-    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = 10.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = TORQUE_NM_MAX))]
     pub torque_limit_nm: f64,
     /// Drive command watchdog (ms): the drive disables itself when commands
-    /// stop for this long.
-    #[schemars(range(min = 5, max = 300))]
+    /// stop for this long (the protocol's range, from hi5.dbc).
+    #[schemars(range(min = WATCHDOG_MS_MIN, max = WATCHDOG_MS_MAX))]
     pub watchdog_ms: u32,
     /// Feedback older than this stops the loop with an emergency stop (ms).
     #[schemars(range(min = 1.0, max = 300.0))]

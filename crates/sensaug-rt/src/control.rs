@@ -307,9 +307,11 @@ impl<'a> Rig<'a> {
                 d.state == DriveState::Disabled
             })?;
         }
+        // Resync: the drive accepts exactly this sequence next, then +1 each.
         rig.send(&Message::SetState {
             enable: true,
             watchdog_ms: settings.watchdog_ms,
+            sequence: 255,
         });
         rig.wait_for(timeout, "ENABLED", |d| d.state == DriveState::Enabled)?;
         rig.send(&Message::TorqueCommand {
@@ -564,14 +566,16 @@ impl<'a> Rig<'a> {
         if reason == StopReason::FeedbackTimeout {
             self.send(&Message::EmergencyStop);
         } else {
+            // The sequence after the loop's last command (tick k sent k & 0xff).
             self.send(&Message::TorqueCommand {
                 torque_nm: 0.0,
-                sequence: 0,
+                sequence: (self.ticks_run & 0xff) as u8,
             });
         }
         self.send(&Message::SetState {
             enable: false,
             watchdog_ms: self.settings.watchdog_ms,
+            sequence: 0,
         });
     }
 
@@ -582,6 +586,7 @@ impl<'a> Rig<'a> {
         can.bus_sent = bus.sent;
         can.bus_received = bus.received;
         can.bus_malformed_dropped = bus.malformed_dropped;
+        can.bus_kernel_dropped = bus.kernel_dropped;
         LoopReport {
             ticks: self.ticks_run,
             stop_reason: reason.to_string(),

@@ -96,6 +96,9 @@ pub struct CanCounters {
     pub bus_received: u64,
     /// Malformed datagrams/frames the transport dropped.
     pub bus_malformed_dropped: u64,
+    /// Frames the kernel dropped from the full receive buffer
+    /// (`SO_RXQ_OVFL`, UDP bus).
+    pub bus_kernel_dropped: u64,
 }
 
 /// Everything the loop reports at the end.

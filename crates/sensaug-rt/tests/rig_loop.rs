@@ -6,10 +6,10 @@
 use sensaug_bridge::protocol::{decode, encode, DriveState, FaultFlags, Message, NodeId};
 use sensaug_bridge::transport::UdpBus;
 use sensaug_bridge::Transport;
+use sensaug_config::{load_str, resolve, Format};
 use sensaug_core::controller::Robot;
 use sensaug_core::plant::{Plant, PlantParams};
 use sensaug_core::protocol::Protocol;
-use sensaug_config::{load_str, resolve, Format};
 use sensaug_rt::control::{LoopSettings, Rig, StopReason};
 use sensaug_rt::log;
 use std::net::UdpSocket;
@@ -74,6 +74,7 @@ fn drive(port: u16, stop: Arc<AtomicBool>, answer_for: u64) -> JoinHandle<()> {
                     length_errors: 0,
                     sequence_errors: 0,
                     unknown_ids: 0,
+                    range_errors: 0,
                 };
                 bus.send(&encode(node, &hb).unwrap()).unwrap();
                 last_beat = Instant::now();

@@ -1,12 +1,32 @@
 """Hi5 CAN bridge, Python side: the protocol (from ``firmware_bridge/hi5.dbc``),
 the loopback ``sensaug_udp`` python-can interface, and a virtual Hi5 drive.
 
-See ``docs/virtual_hi5.md``. ``virtual_hi5`` needs the project's Rust extension
-(``sensaug``) and is not imported here.
+See ``docs/virtual_hi5.md``. Importing the package (which python-can does to
+open ``sensaug_udp``) needs neither the DBC nor the Rust extension: the
+protocol names below are loaded on first use, and ``virtual_hi5`` (which needs
+the project's Rust extension ``sensaug``) is not imported here.
 """
 
-from sensaug_bridge import protocol
-from sensaug_bridge.protocol import FaultFlag, ProtocolError, State
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
 from sensaug_bridge.udp_bus import UdpLoopbackBus, free_port
 
+if TYPE_CHECKING:
+    from sensaug_bridge import protocol
+    from sensaug_bridge.protocol import FaultFlag, ProtocolError, State
+
 __all__ = ["FaultFlag", "ProtocolError", "State", "UdpLoopbackBus", "free_port", "protocol"]
+
+_LAZY = {"FaultFlag", "ProtocolError", "State"}
+
+
+def __getattr__(name: str) -> Any:
+    # The protocol reads hi5.dbc; only its users should need it.
+    if name == "protocol":
+        return importlib.import_module("sensaug_bridge.protocol")
+    if name in _LAZY:
+        return getattr(importlib.import_module("sensaug_bridge.protocol"), name)
+    raise AttributeError(f"module 'sensaug_bridge' has no attribute {name!r}")

@@ -2,12 +2,13 @@
 
 The DBC is the one definition; this module adds what a DBC cannot say:
 
-* node addressing: the DBC lists node 1's ids; node ``n`` (0..=15) uses
-  ``base + n`` with the bases in :data:`BASE_IDS` (derived from the DBC, so they
-  cannot drift);
-* the TorqueCommand CRC: byte 7 is CRC-8/SAE-J1850 (poly 0x1D, init 0xFF,
-  xorout 0xFF, not reflected; check value 0x4B over ``b"123456789"``) over
-  bytes 0..=6;
+* node addressing: the DBC lists node ``ListedNode``'s ids (a global attribute,
+  1); node ``n`` (0..``NodeCount``) uses ``base + n`` with the bases in
+  :data:`BASE_IDS` (all derived from the DBC, so they cannot drift);
+* the TorqueCommand CRC: bytes 6..8 are CRC-16/IBM-3740 (CCITT-FALSE: poly
+  0x1021, init 0xFFFF, not reflected, xorout 0; check value 0x29B1 over
+  ``b"123456789"``) over bytes 0..=5 followed by the data id, the frame's CAN id
+  as u16 little-endian (not sent), so a command for another node fails it;
 * names for the states and fault bits.
 
 The DBC is loaded from the source tree (``Path(__file__).resolve().parents[2] /
@@ -53,8 +54,9 @@ __all__ = [
     "State",
     "TorqueCommand",
     "classify",
-    "crc8",
+    "crc16",
     "crc_ok",
+    "torque_crc",
     "dbc_path",
     "decode",
     "frame_id",
@@ -80,29 +82,21 @@ class FaultFlag(enum.IntFlag):
     EMERGENCY_STOP = 1 << 1
     OVERSPEED = 1 << 2
     INTERNAL = 1 << 3
+    #: A valid TorqueCommand out of sequence while ENABLED: a second command
+    #: source on the bus, or a lost command.
+    SEQUENCE = 1 << 4
 
 
-#: Lowest and highest node id.
+#: Lowest node id.
 NODE_MIN: Final = 0
-NODE_MAX: Final = 15
-#: The node whose ids the DBC lists.
-DBC_NODE: Final = 1
-
-_MESSAGES: Final = (
-    "EmergencyStop",
-    "Fault",
-    "TorqueCommand",
-    "Feedback",
-    "SetState",
-    "ClearFaults",
-    "Heartbeat",
-)
 
 
 class ProtocolError(ValueError):
     """A frame or value that the protocol does not allow.
 
-    ``kind`` is one of ``"crc"``, ``"length"``, ``"range"``, ``"id"``, ``"node"``.
+    ``kind`` is one of ``"crc"``, ``"length"``, ``"range"``, ``"id"``, ``"node"``
+    (``"range"``: a value outside its DBC range, or non-zero unused bits of a
+    TorqueCommand).
     """
 
     def __init__(self, kind: str, msg: str) -> None:
@@ -135,20 +129,22 @@ def load_database() -> cantools.database.can.Database:
     return cantools.database.load_file(str(path), strict=True)
 
 
-def _bases() -> dict[str, int]:
-    db = load_database()
-    return {name: db.get_message_by_name(name).frame_id - DBC_NODE for name in _MESSAGES}
+def _global_int(name: str) -> int:
+    return int(load_database().dbc.attributes[name].value)
 
 
-#: Base id per message name; node ``n`` uses ``base + n``.
-BASE_IDS: Final[dict[str, int]] = _bases()
-#: Data length per message name, from the DBC.
-DLC: Final[dict[str, int]] = {
-    name: load_database().get_message_by_name(name).length for name in _MESSAGES
+#: The node whose ids the DBC lists (its ``ListedNode`` attribute).
+DBC_NODE: Final = _global_int("ListedNode")
+#: Highest node id (``NodeCount - 1``).
+NODE_MAX: Final = _global_int("NodeCount") - 1
+#: Base id per message name, in id order; node ``n`` uses ``base + n``.
+BASE_IDS: Final[dict[str, int]] = {
+    m.name: m.frame_id - DBC_NODE for m in sorted(load_database().messages, key=lambda m: m.frame_id)
 }
+#: Data length per message name, from the DBC.
+DLC: Final[dict[str, int]] = {m.name: m.length for m in load_database().messages}
 
-_CRC: Final = crc.Calculator(crc.Crc8.SAEJ1850)
-
+_CRC: Final = crc.Calculator(crc.Crc16.IBM_3740, optimized=True)
 
 def _check_node(node: int) -> int:
     if not (isinstance(node, int) and NODE_MIN <= node <= NODE_MAX):
@@ -170,14 +166,19 @@ def classify(arbitration_id: int) -> Optional[tuple[str, int]]:
     return None
 
 
-def crc8(data: bytes) -> int:
-    """CRC-8/SAE-J1850 of ``data`` (for a TorqueCommand: bytes 0..=6)."""
+def crc16(data: bytes) -> int:
+    """CRC-16/IBM-3740 (CCITT-FALSE) of ``data``."""
     return int(_CRC.checksum(bytes(data)))
 
 
-def crc_ok(data: bytes) -> bool:
-    """True when an 8-byte TorqueCommand payload carries the right CRC in byte 7."""
-    return len(data) == 8 and crc8(data[:7]) == data[7]
+def torque_crc(frame_id: int, data: bytes) -> int:
+    """The TorqueCommand's ``crc16``: CRC-16/IBM-3740 of ``data[:6]`` then ``frame_id`` (u16 LE)."""
+    return crc16(bytes(data[:6]) + (frame_id & 0xFFFF).to_bytes(2, "little"))
+
+
+def crc_ok(data: bytes, frame_id: int) -> bool:
+    """True when an 8-byte TorqueCommand payload sent as ``frame_id`` carries the right CRC in bytes 6..8."""
+    return len(data) == 8 and torque_crc(frame_id, data) == int.from_bytes(data[6:8], "little")
 
 
 def saturate(name: str, signal: str, value: float) -> float:
@@ -205,6 +206,7 @@ def _encode(name: str, node: int, signals: dict[str, Any]) -> can.Message:
 
 
 def _decode(name: str, data: bytes) -> dict[str, Any]:
+    """Every signal's physical value; each must lie in its DBC range (as the Rust codec checks)."""
     msg_def = load_database().get_message_by_name(name)
     if len(data) != msg_def.length:
         raise ProtocolError(
@@ -212,7 +214,17 @@ def _decode(name: str, data: bytes) -> dict[str, Any]:
         )
     if not msg_def.signals:
         return {}
-    return dict(msg_def.decode(bytes(data), decode_choices=False, scaling=True))
+    values = dict(msg_def.decode(bytes(data), decode_choices=False, scaling=True))
+    for sig in msg_def.signals:
+        value = values[sig.name]
+        tol = abs(sig.scale) * 1e-6
+        if (sig.minimum is not None and value < sig.minimum - tol) or (
+            sig.maximum is not None and value > sig.maximum + tol
+        ):
+            raise ProtocolError(
+                "range", f"{name}.{sig.name}: must be in [{sig.minimum}, {sig.maximum}], got {value}"
+            )
+    return values
 
 
 @dataclass(frozen=True, slots=True)
@@ -223,20 +235,29 @@ class TorqueCommand:
     sequence: int
 
     def encode(self, node: int) -> can.Message:
-        """The frame for ``node``, CRC filled in."""
-        msg = _encode("TorqueCommand", node, {"torque": self.torque_nm, "sequence": self.sequence, "crc8": 0})
-        msg.data[7] = crc8(msg.data[:7])
+        """The frame for ``node``, CRC (with the frame id as data id) filled in."""
+        msg = _encode("TorqueCommand", node, {"torque": self.torque_nm, "sequence": self.sequence, "crc16": 0})
+        msg.data[6:8] = torque_crc(msg.arbitration_id, msg.data).to_bytes(2, "little")
         return msg
 
     @classmethod
-    def decode(cls, data: bytes) -> TorqueCommand:
-        """Raises :class:`ProtocolError` (``length`` or ``crc``)."""
+    def decode(cls, data: bytes, frame_id: int) -> TorqueCommand:
+        """Decode a payload received as ``frame_id``.
+
+        Raises:
+            ProtocolError: ``length``; ``crc`` (checked first, with ``frame_id`` as
+                data id); ``range`` for non-zero unused bits or a torque outside the
+                DBC range.
+        """
         if len(data) != DLC["TorqueCommand"]:
             raise ProtocolError("length", f"TorqueCommand: expected 8 data bytes, got {len(data)}")
-        if not crc_ok(data):
+        if not crc_ok(data, frame_id):
+            got = int.from_bytes(data[6:8], "little")
             raise ProtocolError(
-                "crc", f"TorqueCommand: crc8 {data[7]:#04x} != {crc8(data[:7]):#04x}"
+                "crc", f"TorqueCommand.crc16: {got:#06x} != {torque_crc(frame_id, data):#06x}"
             )
+        if data[5] != 0:
+            raise ProtocolError("range", f"TorqueCommand.reserved: byte 5 must be 0, got {data[5]}")
         s = _decode("TorqueCommand", data)
         return cls(torque_nm=float(s["torque"]), sequence=int(s["sequence"]))
 
@@ -284,14 +305,19 @@ class Feedback:
 
 @dataclass(frozen=True, slots=True)
 class SetState:
-    """Host -> drive: ``enable`` (arms the watchdog with ``watchdog_ms``, 1..=65535) or disable."""
+    """Host -> drive: ``enable`` (arms the watchdog with ``watchdog_ms``, the DBC's
+    5..=200) or disable; ``sequence`` is the next TorqueCommand sequence the drive
+    accepts (resync)."""
 
     enable: bool
     watchdog_ms: int = 100
+    sequence: int = 0
 
     def encode(self, node: int) -> can.Message:
         return _encode(
-            "SetState", node, {"request": int(self.enable), "watchdog_ms": self.watchdog_ms}
+            "SetState",
+            node,
+            {"request": int(self.enable), "watchdog_ms": self.watchdog_ms, "sequence": self.sequence},
         )
 
     @classmethod
@@ -301,7 +327,7 @@ class SetState:
         request = int(s["request"])
         if request not in (0, 1):
             raise ProtocolError("range", f"SetState.request: must be 0 or 1, got {request}")
-        return cls(enable=bool(request), watchdog_ms=int(s["watchdog_ms"]))
+        return cls(enable=bool(request), watchdog_ms=int(s["watchdog_ms"]), sequence=int(s["sequence"]))
 
 
 @dataclass(frozen=True, slots=True)
@@ -366,6 +392,7 @@ class Heartbeat:
     length_errors: int = 0
     sequence_errors: int = 0
     unknown_ids: int = 0
+    range_errors: int = 0
 
     def encode(self, node: int) -> can.Message:
         return _encode(
@@ -379,6 +406,7 @@ class Heartbeat:
                 "length_errors": self.length_errors,
                 "sequence_errors": self.sequence_errors,
                 "unknown_ids": self.unknown_ids,
+                "range_errors": self.range_errors,
             },
         )
 
@@ -393,6 +421,7 @@ class Heartbeat:
             length_errors=int(s["length_errors"]),
             sequence_errors=int(s["sequence_errors"]),
             unknown_ids=int(s["unknown_ids"]),
+            range_errors=int(s["range_errors"]),
         )
 
 
@@ -430,4 +459,7 @@ def decode(msg: can.Message) -> Decoded:
     if found is None:
         raise ProtocolError("id", f"unknown id {msg.arbitration_id:#05x}")
     name, node = found
-    return Decoded(name, node, _CLASSES[name].decode(bytes(msg.data[: msg.dlc])))
+    data = bytes(msg.data[: msg.dlc])
+    if name == "TorqueCommand":
+        return Decoded(name, node, TorqueCommand.decode(data, msg.arbitration_id))
+    return Decoded(name, node, _CLASSES[name].decode(data))

@@ -6,14 +6,20 @@ behaviour, the choices and their reasons are in ``docs/virtual_hi5.md``; in shor
 
 * BOOT -> DISABLED at start; a Fault frame on every state or fault change, a
   Heartbeat every ``heartbeat_period_s`` (10 Hz).
-* SetState(enable, watchdog_ms): DISABLED -> ENABLED, arms the watchdog;
-  SetState(disable): ENABLED -> DISABLED, torque 0.
-* Each accepted TorqueCommand while ENABLED: clamp to the torque limit, step
-  the 1-DoF plant (``sensaug.Plant``) once, reply with one Feedback echoing the
+* SetState(enable, watchdog_ms, sequence): DISABLED -> ENABLED, arms the
+  watchdog, expects ``sequence`` next (resync); while ENABLED the same
+  watchdog only resyncs and another one is refused; SetState(disable):
+  ENABLED -> DISABLED, torque 0.
+* A TorqueCommand is accepted only with a good CRC-16 (the frame id as data
+  id), while ENABLED, with exactly the expected sequence (one more than the
+  last accepted) and ``|torque|`` within the torque limit: then step the 1-DoF
+  plant (``sensaug.Plant``) once and reply with one Feedback echoing the
   sequence. The plant's clock is the host's command stream (one step per
   command), so a run is deterministic.
-* Bad CRC, wrong DLC, stale sequence, unknown id: dropped and counted
-  (Heartbeat counters, saturating at 255); no Feedback.
+* Bad CRC, wrong DLC, unknown id, out-of-range torque (rejected, never
+  clamped): dropped and counted (Heartbeat counters, saturating at 255); no
+  Feedback. A valid command with another sequence while ENABLED (a second
+  command source, or a lost command) latches FAULT(SEQUENCE).
 * Watchdog (no accepted command for ``watchdog_ms`` while ENABLED), emergency
   stop, overspeed: torque 0, FAULT with the flag latched until ClearFaults.
 """
@@ -34,12 +40,7 @@ import can
 from sensaug_bridge import protocol as p
 from sensaug_bridge.protocol import FaultFlag, State
 
-__all__ = ["SEQUENCE_WINDOW", "DriveConfig", "VirtualHi5", "main", "parse_args"]
-
-#: A TorqueCommand's sequence is accepted when ``(seq - last) mod 256`` is in
-#: ``1..=SEQUENCE_WINDOW`` (newer by at most 127); 0 (repeat) and 128..=255
-#: (older) are stale. The first command after an enable is always accepted.
-SEQUENCE_WINDOW = 127
+__all__ = ["DriveConfig", "VirtualHi5", "main", "parse_args"]
 
 _COUNTER_MAX = 255
 
@@ -147,7 +148,8 @@ class VirtualHi5:
         self.torque_nm = 0.0
         self.watchdog_s = 0.0
         self._last_valid_s = 0.0
-        self._last_seq: Optional[int] = None
+        #: The only TorqueCommand sequence accepted next (None: not ENABLED).
+        self._expected_seq: Optional[int] = None
         self._fault_counter = 0
         self._hb_counter = 0
         self._next_hb_s = 0.0
@@ -157,8 +159,10 @@ class VirtualHi5:
         self.length_errors = 0
         self.sequence_errors = 0
         self.unknown_ids = 0
+        self.range_errors = 0
         #: Frames that are valid but not acted on: torque commands while not
-        #: ENABLED, SetState with a bad request/watchdog value. Not in the Heartbeat.
+        #: ENABLED, SetState with a bad request/watchdog value or a watchdog
+        #: change while ENABLED. Not in the Heartbeat.
         self.ignored = 0
         self.accepted = 0
         self.log: Optional[DriveLog] = DriveLog() if log else None
@@ -243,25 +247,31 @@ class VirtualHi5:
         if len(data) != 8:
             self.length_errors += 1
             return
-        if not p.crc_ok(data):
-            self.crc_errors += 1
+        try:
+            cmd = p.TorqueCommand.decode(data, msg.arbitration_id)
+        except p.ProtocolError as err:
+            if err.kind == "crc":
+                self.crc_errors += 1
+            else:  # non-zero reserved byte, torque outside the DBC range
+                self.range_errors += 1
             return
-        if self.state != State.ENABLED:
+        if self.state != State.ENABLED or self._expected_seq is None:
             self.ignored += 1
             return
-        cmd = p.TorqueCommand.decode(data)
-        if self._last_seq is not None and not (
-            1 <= (cmd.sequence - self._last_seq) % 256 <= SEQUENCE_WINDOW
-        ):
+        if cmd.sequence != self._expected_seq:
+            # Valid, but not the next: a second command source, or a lost command.
             self.sequence_errors += 1
+            self._latch(FaultFlag.SEQUENCE)
             return
-        self._last_seq = cmd.sequence
+        self._expected_seq = (cmd.sequence + 1) % 256
+        cfg = self.config
+        if abs(cmd.torque_nm) > cfg.torque_limit_nm:
+            # Rejected and counted, never clamped; the sequence is consumed.
+            self.range_errors += 1
+            return
         self._last_valid_s = now
         self.accepted += 1
-        cfg = self.config
-        limit = cfg.torque_limit_nm
-        torque = min(max(cmd.torque_nm, -limit), limit)
-        limited = torque != cmd.torque_nm
+        torque = cmd.torque_nm
         self.torque_nm = torque
         x, v = self.plant.step(torque)
         if abs(v) > cfg.max_velocity_rad_s:
@@ -276,7 +286,7 @@ class VirtualHi5:
             velocity_rad_s=v_rep,
             sequence=cmd.sequence,
             state=self.state,
-            torque_limited=limited,
+            torque_limited=False,
             fault_active=bool(self.fault_flags),
         ).encode(cfg.node)
         self.bus.send(reply)
@@ -304,17 +314,16 @@ class VirtualHi5:
             if self.state == State.ENABLED:
                 self._set_state(State.DISABLED)
             return
-        if req.watchdog_ms < 1:
-            self.ignored += 1
-            return
-        if self.state in (State.DISABLED, State.ENABLED):
-            # From DISABLED: enable. While ENABLED: take the new watchdog and re-arm.
+        if self.state == State.DISABLED:
             self.watchdog_s = req.watchdog_ms / 1000.0
             self._last_valid_s = now
-            if self.state == State.DISABLED:
-                self._last_seq = None
-                self._set_state(State.ENABLED)
+            self._expected_seq = req.sequence
+            self._set_state(State.ENABLED)
+        elif self.state == State.ENABLED and req.watchdog_ms == round(self.watchdog_s * 1000.0):
+            # Resync only: the watchdog is neither changed nor re-armed.
+            self._expected_seq = req.sequence
         else:
+            # FAULT, or a watchdog change while ENABLED: refused.
             self.ignored += 1
 
     def _on_clear_faults(self, msg: can.Message, now: float) -> None:
@@ -343,6 +352,8 @@ class VirtualHi5:
     def _latch(self, flag: FaultFlag) -> None:
         changed = not (self.fault_flags & flag) or self.state != State.FAULT
         self.fault_flags |= flag
+        self._expected_seq = None
+        self.torque_nm = 0.0
         if self.state != State.FAULT:
             self.state = State.FAULT
         if changed:
@@ -351,6 +362,7 @@ class VirtualHi5:
     def _set_state(self, state: State) -> None:
         if state != State.ENABLED:
             self.torque_nm = 0.0
+            self._expected_seq = None
         self.state = state
         self._send_fault()
 
@@ -365,17 +377,16 @@ class VirtualHi5:
 
         Malformed datagrams dropped by the transport (``bus.drop_reasons``, the
         ``sensaug_udp`` bus) are folded in: wrong size, len or reserved bytes
-        count as length errors; extended/RTR/error flags or an id over 0x7FF as
-        unknown ids.
+        count as length errors; a standard id over 0x7FF as an unknown id.
+        (Extended, remote and error frames arrive as messages and count as
+        unknown ids when handled.)
         """
         length_errors = self.length_errors
         unknown_ids = self.unknown_ids
         drops = getattr(self.bus, "drop_reasons", None)
         if drops:
             length_errors += drops.get("size", 0) + drops.get("len", 0) + drops.get("reserved", 0)
-            unknown_ids += (
-                drops.get("extended", 0) + drops.get("rtr", 0) + drops.get("error_frame", 0) + drops.get("id", 0)
-            )
+            unknown_ids += drops.get("id", 0)
         return p.Heartbeat(
             state=self.state,
             fault_flags=self.fault_flags,
@@ -384,6 +395,7 @@ class VirtualHi5:
             length_errors=min(length_errors, _COUNTER_MAX),
             sequence_errors=min(self.sequence_errors, _COUNTER_MAX),
             unknown_ids=min(unknown_ids, _COUNTER_MAX),
+            range_errors=min(self.range_errors, _COUNTER_MAX),
         )
 
     def _send_heartbeat(self) -> None:
@@ -402,6 +414,7 @@ class VirtualHi5:
             "length_errors": hb.length_errors,
             "sequence_errors": self.sequence_errors,
             "unknown_ids": hb.unknown_ids,
+            "range_errors": self.range_errors,
         }
         if self.log is not None and self.log.latency_s:
             lat = sorted(self.log.latency_s)

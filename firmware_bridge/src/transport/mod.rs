@@ -50,9 +50,13 @@ pub struct BusStats {
     pub received: u64,
     /// Own frames received back and dropped (UDP bus only).
     pub own_dropped: u64,
-    /// Datagrams or frames that were not a valid classic 11-bit CAN data
-    /// frame (wrong size, len > 8, extended/RTR/error flags), dropped.
+    /// Datagrams or frames that were not a valid classic CAN frame (wrong
+    /// size, len > 8, an id too wide for its format), dropped.
     pub malformed_dropped: u64,
+    /// Frames the kernel dropped because this node's receive buffer was
+    /// full (`SO_RXQ_OVFL`; learnt with the next frame received). Any
+    /// non-zero value means frames were lost before `recv` saw them.
+    pub kernel_dropped: u64,
 }
 
 /// Why a transport could not be opened, or could not send or receive.
