@@ -7,6 +7,7 @@ from sensaug import _core
 from sensaug._core import GainEstimator, GoalIntegrator, Plant, TrajectoryEstimator
 from sensaug.config import PhaseConfig, ScenarioConfig
 from sensaug.experiment import Trial, run
+from sensaug.logs import Log, load_log
 from sensaug.lqr import (
     RiccatiConvergenceError,
     agent_gains,
@@ -22,6 +23,7 @@ __all__ = [
     "_core",
     "GainEstimator",
     "GoalIntegrator",
+    "Log",
     "PendulumUKF",
     "PhaseConfig",
     "Plant",
@@ -33,6 +35,7 @@ __all__ = [
     "agent_gains",
     "care",
     "dare",
+    "load_log",
     "lqr",
     "partner_gain_vector",
     "robot_gain_vector",

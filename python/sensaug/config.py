@@ -449,7 +449,7 @@ class RigConfig:
     feedback_timeout_ms: float = 20.0
     ramp_down_s: float = 0.2
     virtual_human: bool = True
-    log: str = "out/rig_log.npy"
+    log: str = "out/rig_log.csv"
     stats: str = "out/rig_stats.json"
     ring_capacity: int = 65536
     realtime: RealtimeConfig = field(default_factory=RealtimeConfig)

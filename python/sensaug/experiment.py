@@ -2,24 +2,28 @@
 
 ``run(config)`` resolves a validated :class:`~sensaug.config.ScenarioConfig`
 (LQR weights to gains, covariances to matrices), crosses into Rust once for
-the whole trial, and returns a :class:`Trial` whose ``data`` is a numpy
-structured array with one named field per logged quantity.
+the whole trial, and returns a :class:`Trial`: a log of the one schema
+(``sensaug.logs``, ``docs/logs.md``) plus the configuration that produced it.
 """
 
 from __future__ import annotations
 
+import functools
+import json
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from sensaug import _core, metrics
+from sensaug import _core, logs, metrics
 from sensaug.config import PHASE_KINDS, ScenarioConfig, _shape_to_dict
 from sensaug.lqr import agent_gains
 
 __all__ = ["Trial", "run", "resolve", "FIELDS"]
 
-FIELDS: tuple[str, ...] = tuple(_core.RECORD_FIELDS)
+#: Column names of ``Trial.data`` (the one log schema, ``sensaug.logs``).
+FIELDS: tuple[str, ...] = logs.COLUMNS
 
 
 def _robot_gains(cfg: ScenarioConfig) -> list[float]:
@@ -85,26 +89,41 @@ def resolve(cfg: ScenarioConfig) -> dict[str, Any]:
     }
 
 
-@dataclass
-class Trial:
+@dataclass(repr=False)
+class Trial(logs.Log):
     """One trial's log and the configuration that produced it.
 
-    ``data`` is a structured array (one record per tick) with the fields in
-    :data:`FIELDS`; ``trial["x"]`` is a column. Phase codes: 0 gains,
-    1 trajectory, 2 integration. Estimates a phase does not produce are NaN.
+    ``data`` is a structured array (one record per tick) with the columns of
+    the one log schema (:data:`FIELDS`, ``docs/logs.md``); ``trial["x"]`` is a
+    column; ``meta`` holds the configuration, versions and units. ``phase``
+    is an integer code, its names in ``meta["phase_names"]`` (0 gains,
+    1 trajectory, 2 integration). Estimates a phase does not produce are NaN.
+    ``save(path)`` writes the log file, ``Trial.load(path)`` reads it back.
     """
 
-    config: ScenarioConfig
-    data: np.ndarray
-    summary: dict[str, int]
+    config: ScenarioConfig = None  # type: ignore[assignment]
+    summary: dict[str, Any] = field(default_factory=dict)
     robot_gains: np.ndarray = field(default_factory=lambda: np.zeros(3))
     partner_gains: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
-    def __getitem__(self, name: str) -> np.ndarray:
-        return self.data[name]
-
-    def __len__(self) -> int:
-        return len(self.data)
+    @classmethod
+    def load(cls, path: str | Path) -> "Trial":
+        """A trial from a log file (``Trial.save`` or a rig log): the
+        configuration rebuilt from its metadata, the summary from its end line."""
+        log = logs.load_log(path)
+        try:
+            config = ScenarioConfig.from_dict(log.meta["config"])
+        except (KeyError, TypeError) as e:
+            raise ValueError(f"{path}: metadata has no usable configuration ({e})") from None
+        resolved = log.meta.get("resolved") or {}
+        return cls(
+            data=log.data,
+            meta=log.meta,
+            config=config,
+            summary=dict(log.meta.get("end") or {}),
+            robot_gains=np.asarray(resolved.get("robot", {}).get("gains", np.zeros(3)), dtype=float),
+            partner_gains=np.asarray(resolved.get("partner", {}).get("gains", np.zeros(3)), dtype=float),
+        )
 
     def phase_mask(self, index: int, *, last_s: float | None = None, skip_s: float = 0.0) -> np.ndarray:
         """Ticks of phase ``index`` (position in ``config.phases``), optionally
@@ -149,15 +168,29 @@ class Trial:
         return found[0]
 
 
+@functools.lru_cache(maxsize=1)
+def _git_commit() -> str | None:
+    """The git commit of this package's checkout (looked up once per process)."""
+    return _core.git_commit(str(Path(__file__).resolve().parent))
+
+
 def run(config: ScenarioConfig) -> Trial:
     """Runs one whole trial in the compiled core and returns its log."""
     resolved = resolve(config)
-    rows, summary = _core.run_scenario(resolved)
-    data = np.rec.fromarrays(rows.T, names=list(FIELDS))
+    meta = _core.simulation_meta(
+        config_json=json.dumps(config.to_dict(), default=logs._jsonable),
+        resolved_json=json.dumps(resolved, default=logs._jsonable),
+        git_commit=_git_commit(),
+    )
+    columns, summary = _core.run_scenario(resolved)
+    summary = dict(summary)
+    meta = json.loads(meta)
+    meta["end"] = summary
     return Trial(
+        data=logs.from_columns(columns),
+        meta=meta,
         config=config,
-        data=np.asarray(data),
-        summary=dict(summary),
+        summary=summary,
         robot_gains=resolved["robot"]["gains"],
         partner_gains=resolved["partner"]["gains"],
     )

@@ -1,10 +1,10 @@
 //! `_core.run_scenario`: one whole trial in Rust from a resolved
 //! configuration dict (built by `sensaug.experiment`), returning the tick
-//! records as one `(ticks, fields)` array. Conversion only.
+//! records as the log schema's columns (`sensaug-log`). Conversion only.
 #![allow(non_snake_case)]
 
 use crate::convert::{estimator_err, mat_from, vec_from};
-use numpy::{PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
+use numpy::{PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
@@ -12,14 +12,13 @@ use sensaug_core::estimator::{ExtendedFilterConfig, GoalIntegratorConfig, Handle
 use sensaug_core::plant::{PlantParams, PlantState};
 use sensaug_core::scenario::{
     PartnerConfig, Phase, PhaseKind, RobotConfig, Scenario, ScenarioError, TickRecord, WorldConfig,
-    FIELDS,
 };
 use sensaug_core::target::{Shape, Target, MAX_PARTS};
 use sensaug_core::ukf::MerweParams;
+use sensaug_log::Row;
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(run_scenario, m)?)?;
-    m.add("RECORD_FIELDS", FIELDS.to_vec())?;
     Ok(())
 }
 
@@ -275,12 +274,13 @@ fn scenario_err(e: ScenarioError) -> PyErr {
     PyValueError::new_err(msg)
 }
 
-/// Runs one trial. Returns `(records (ticks, len(RECORD_FIELDS)), summary)`.
+/// Runs one trial. Returns `(columns, summary)`: one array per column of the
+/// log schema (`log_schema()`), by name.
 #[pyfunction]
 fn run_scenario<'py>(
     py: Python<'py>,
     config: &Bound<'py, PyDict>,
-) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
+) -> PyResult<(Bound<'py, PyDict>, Bound<'py, PyDict>)> {
     let plant_d = sub(config, "plant", "config")?;
     let plant = PlantParams {
         mass: num(&plant_d, "mass", "plant")?,
@@ -323,16 +323,12 @@ fn run_scenario<'py>(
     let summary = py
         .detach(|| scenario.run(&mut records))
         .map_err(scenario_err)?;
-    let out = PyArray2::<f64>::zeros(py, [records.len(), FIELDS.len()], false);
-    {
-        let mut rw = out.readwrite();
-        let mut a = rw.as_array_mut();
-        for (k, r) in records.iter().enumerate() {
-            for (j, v) in r.to_row().into_iter().enumerate() {
-                a[[k, j]] = v;
-            }
-        }
-    }
+    let rows: Vec<Row> = records
+        .iter()
+        .enumerate()
+        .map(|(k, r)| Row::from_tick_record(k as u64, r))
+        .collect();
+    let out = crate::log::rows_to_columns(py, &rows)?;
     let d = PyDict::new(py);
     d.set_item("ticks", summary.ticks)?;
     d.set_item("robot_clamped", summary.robot.clamped)?;

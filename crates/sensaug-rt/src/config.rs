@@ -375,7 +375,7 @@ pub struct RigSpec {
     /// Run the virtual human inside the loop (`false`: a real human holds the handle).
     #[serde(default = "yes")]
     pub virtual_human: bool,
-    /// Log file (`.npy` structured array).
+    /// Log file (CSV with metadata, docs/logs.md).
     #[serde(default = "log_path")]
     pub log: PathBuf,
     /// Loop statistics (JSON).
@@ -411,7 +411,7 @@ fn ramp() -> f64 {
     0.2
 }
 fn log_path() -> PathBuf {
-    "out/rig_log.npy".into()
+    "out/rig_log.csv".into()
 }
 fn stats_path() -> PathBuf {
     "out/rig_stats.json".into()

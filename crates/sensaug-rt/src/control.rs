@@ -295,6 +295,7 @@ impl<'a> Rig<'a> {
                 t: k as f64 * s.dt_s,
                 x,
                 v,
+                fresh,
                 tau: f64::NAN,
                 tau_h: f64::NAN,
                 u_h: f64::NAN,
@@ -307,7 +308,7 @@ impl<'a> Rig<'a> {
                 compute_us: f64::NAN,
                 feedback_age_ticks: age,
                 drive_state: self.drive.state.raw(),
-                guard: f64::NAN,
+                guard: None,
                 ramp: ramp.is_some(),
             };
             let torque_nm = match (ramp, self.protocol.sample(k)) {
@@ -332,7 +333,7 @@ impl<'a> Rig<'a> {
                         Guard::Clamped => self.torque_clamped += 1,
                         Guard::NonFinite => self.non_finite += 1,
                     }
-                    rec.guard = g as u8 as f64;
+                    rec.guard = Some(g);
                     t
                 }
                 // k < total here, so the protocol has a sample.
@@ -386,6 +387,9 @@ impl<'a> Rig<'a> {
             can,
             ring_overflows: 0,
             records_written: 0,
+            log_write_errors: 0,
+            log_records_lost: 0,
+            log_error: None,
             torque_clamped: self.torque_clamped,
             non_finite_commands: self.non_finite,
             estimator_errors: self.robot.counters().estimator_errors,

@@ -5,10 +5,10 @@
 
 use sensaug_bridge::protocol::NodeId;
 use sensaug_core::scenario::{Protocol, Robot};
-use sensaug_rt::config::{parse, ConfigError};
+use sensaug_rt::config::{parse, ConfigError, RigSpec};
 use sensaug_rt::control::{LoopSettings, Rig, StopReason};
 use sensaug_rt::{log, os};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
@@ -21,7 +21,7 @@ const USAGE: &str =
   --check       validate the configuration and exit
   --print-resolved  print every resolved setting (defaults filled in) as JSON and exit
   --can URL     override rig.can (udp:<port> or socketcan:<ifname>)
-  --log PATH    override rig.log (.npy)
+  --log PATH    override rig.log (.csv, docs/logs.md)
   --stats PATH  override rig.stats (.json)";
 
 struct Args {
@@ -122,9 +122,6 @@ fn run(args: Args) -> Result<StopReason, String> {
         signal_hook::flag::register(sig, Arc::clone(&stop))
             .map_err(|e| format!("signal handler: {e}"))?;
     }
-    let (mut sink, writer) = log::start(&rig.log, rig.ring_capacity)
-        .map_err(|e| format!("rig.log: {}: {e}", rig.log.display()))?;
-
     let settings = LoopSettings {
         node,
         dt_s: resolved.dt_s,
@@ -136,6 +133,10 @@ fn run(args: Args) -> Result<StopReason, String> {
         partner_gains: resolved.partner_gains,
         partner_torque_limit: resolved.partner_torque_limit,
     };
+    let meta = log_metadata(&text, &resolved.to_json(), &settings, &rig);
+    let (mut sink, writer) = log::start(&rig.log, rig.ring_capacity, &meta)
+        .map_err(|e| format!("rig.log: {}: {e}", rig.log.display()))?;
+
     let mut rig_loop = Rig::start(settings, transport, robot, Duration::from_secs(5))
         .map_err(|e| e.to_string())?;
 
@@ -166,11 +167,25 @@ fn run(args: Args) -> Result<StopReason, String> {
 
     let overflows = sink.overflows();
     drop(sink);
-    let written = writer.finish().map_err(|e| format!("rig.log: {e}"))?;
     let mut report = rig_loop.report(reason);
     report.ring_overflows = overflows;
-    report.records_written = written;
     report.realtime = realtime;
+    let mut end = serde_json::Map::new();
+    end.insert("stop_reason".into(), report.stop_reason.clone().into());
+    end.insert("ticks".into(), report.ticks.into());
+    end.insert("ring_overflows".into(), overflows.into());
+    end.insert("realtime".into(), report.realtime.clone().into());
+    let written = writer.finish(end);
+    if let Some(e) = &written.error {
+        eprintln!(
+            "warning: rig.log: {e}; {} records lost after the failure",
+            written.records_lost
+        );
+    }
+    report.records_written = written.records_written;
+    report.log_write_errors = written.write_errors;
+    report.log_records_lost = written.records_lost;
+    report.log_error = written.error;
     let json = serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?;
     if let Some(dir) = rig.stats.parent() {
         let _ = std::fs::create_dir_all(dir);
@@ -178,4 +193,43 @@ fn run(args: Args) -> Result<StopReason, String> {
     std::fs::write(&rig.stats, &json).map_err(|e| format!("rig.stats: {e}"))?;
     println!("{json}");
     Ok(reason)
+}
+
+/// The log's metadata line: the configuration file as given (TOML as JSON),
+/// every resolved setting, the loop's settings, the start time and the git
+/// commit of the checkout the binary was built in (when it is one).
+fn log_metadata(
+    text: &str,
+    resolved: &serde_json::Value,
+    s: &LoopSettings,
+    rig: &RigSpec,
+) -> serde_json::Value {
+    let config = toml::from_str::<toml::Value>(text)
+        .ok()
+        .and_then(|v| serde_json::to_value(v).ok())
+        .unwrap_or(serde_json::Value::Null);
+    let exe_dir = std::env::current_exe()
+        .ok()
+        .and_then(|p| p.parent().map(Path::to_path_buf));
+    sensaug_log::metadata(&sensaug_log::RunInfo {
+        source: sensaug_log::Source::Rig,
+        config,
+        resolved: resolved.clone(),
+        git_commit: exe_dir.as_deref().and_then(sensaug_log::git_commit),
+        start_unix_s: sensaug_log::now_unix_s(),
+        loop_settings: serde_json::json!({
+            "can": rig.can,
+            "node_id": s.node.get(),
+            "dt_s": s.dt_s,
+            "rad_per_unit": s.rad_per_unit,
+            "torque_limit_nm": s.torque_limit_nm,
+            "watchdog_ms": s.watchdog_ms,
+            "feedback_timeout_ms": s.feedback_timeout_ms,
+            "ramp_down_s": s.ramp_down_s,
+            "partner_gains": s.partner_gains,
+            "partner_torque_limit": s.partner_torque_limit,
+            "ring_capacity": rig.ring_capacity,
+            "log_write_period_ms": log::WRITE_PERIOD.as_secs_f64() * 1e3,
+        }),
+    })
 }
