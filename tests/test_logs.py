@@ -46,6 +46,15 @@ def test_the_schema_is_typed_and_comes_from_rust():
     assert all(logs.UNITS[n] for n in logs.COLUMNS)
 
 
+def test_docs_list_the_schema_as_it_is():
+    """docs/logs.md's column table is the Rust table, row for row."""
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "logs.md").read_text()
+    rows = [f"| `{n}` | {u} | {k} | {d} |" for n, u, k, d in _core.log_schema()["columns"]]
+    assert "\n".join(rows) in doc
+
+
 def test_a_simulated_trial_is_in_the_schema(trial):
     assert trial.data.dtype == logs.DTYPE
     np.testing.assert_array_equal(trial["tick"], np.arange(len(trial)))
