@@ -110,8 +110,17 @@ def procs(tmp_path):
         pr.close()
 
 
+def stall_tolerant(cfg: ScenarioConfig) -> ScenarioConfig:
+    """Feedback timeout 1 s and drive watchdog 2 s: on this loaded 2-core VM
+    the loop or the Python drive stalls for tens of ms now and then, which
+    the preset's 20 ms / 50 ms turn into a stopped run (seen with the
+    unchanged binary too). For the tests whose subject is not those limits."""
+    cfg.rig.feedback_timeout_ms, cfg.rig.watchdog_ms = 1000.0, 2000
+    return cfg
+
+
 def test_short_trial_converges_and_logs_every_tick(procs):
-    pr = procs(short_config())
+    pr = procs(stall_tolerant(short_config()))
     pr.start_controller()
     assert pr.wait_controller() == 0, pr.controller.stderr.read()
     stats = json.loads(pr.stats.read_text())
@@ -222,8 +231,7 @@ def test_sigkill_leaves_every_record_older_than_200_ms_readable(procs):
     while the loop lags the wall clock by < 128 ms). Feedback timeout and
     drive watchdog are raised, and the run is retried (3 attempts) if it
     ended by itself before the kill: this VM's stalls can fault the drive."""
-    cfg = short_config(gain_s=20.0)
-    cfg.rig.feedback_timeout_ms, cfg.rig.watchdog_ms = 1000.0, 2000
+    cfg = stall_tolerant(short_config(gain_s=20.0))
     for attempt in range(3):
         pr = procs(cfg)
         k_bus = _kill_mid_run(pr)

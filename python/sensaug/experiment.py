@@ -178,8 +178,8 @@ def run(config: ScenarioConfig) -> Trial:
     """Runs one whole trial in the compiled core and returns its log."""
     resolved = resolve(config)
     meta = _core.simulation_meta(
-        config_json=json.dumps(config.to_dict(), default=logs._jsonable),
-        resolved_json=json.dumps(resolved, default=logs._jsonable),
+        config_json=logs.to_json(config.to_dict()),
+        resolved_json=logs.to_json(resolved),
         git_commit=_git_commit(),
     )
     columns, summary = _core.run_scenario(resolved)

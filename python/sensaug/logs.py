@@ -24,7 +24,7 @@ import numpy as np
 
 from sensaug import _core
 
-__all__ = ["COLUMNS", "DTYPE", "PHASE_NAMES", "UNITS", "UNKNOWN_INT", "Log", "from_columns", "load_log"]
+__all__ = ["COLUMNS", "DTYPE", "PHASE_NAMES", "UNITS", "UNKNOWN_INT", "Log", "from_columns", "load_log", "to_json"]
 
 _SCHEMA = _core.log_schema()
 FORMAT_LINE: str = _SCHEMA["format_line"]
@@ -113,8 +113,8 @@ class Log:
         _core.write_log(
             str(path),
             self.data,
-            meta_json=json.dumps(meta, default=_jsonable, allow_nan=False),
-            end_json=None if end is None else json.dumps(end, default=_jsonable, allow_nan=False),
+            meta_json=to_json(meta),
+            end_json=None if end is None else to_json(end),
         )
         return Path(path)
 
@@ -134,6 +134,12 @@ def _jsonable(obj: Any) -> Any:
     if isinstance(obj, np.generic):
         return obj.item()
     raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+def to_json(obj: Any) -> str:
+    """JSON text for the metadata (numpy arrays as lists; NaN is an error:
+    the metadata must be strict JSON)."""
+    return json.dumps(obj, default=_jsonable, allow_nan=False)
 
 
 def load_log(path: str | Path) -> Log:
