@@ -258,7 +258,7 @@ fn write_loop(
 
 #[cfg(test)]
 mod tests {
-    use super::{start, LogRecord};
+    use super::{start, write_loop, LogRecord};
     use sensaug_core::agent::Guard;
     use sensaug_core::scenario::RobotTick;
 
@@ -337,5 +337,25 @@ mod tests {
             serde_json::from_str(lines.last().unwrap().strip_prefix("# ").unwrap()).unwrap();
         assert_eq!(end["end"]["stop_reason"], "completed");
         assert_eq!(end["end"]["records_written"], stats.records_written);
+    }
+
+    #[test]
+    fn a_failed_write_is_counted_and_later_records_are_lost_not_hidden() {
+        let dir = std::env::temp_dir().join(format!("sensaug-log-fail-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("ro.csv");
+        std::fs::write(&path, b"").unwrap();
+        // Opened read-only: every write fails (EBADF).
+        let file = std::fs::File::open(&path).unwrap();
+        let (mut producer, consumer) = rtrb::RingBuffer::new(8);
+        for k in 0..5 {
+            producer.push(record(k)).unwrap();
+        }
+        let done = std::sync::atomic::AtomicBool::new(true);
+        let (_, stats) = write_loop(file, consumer, &done);
+        let _ = std::fs::remove_dir_all(&dir);
+        assert_eq!(stats.write_errors, 1);
+        assert_eq!((stats.records_written, stats.records_lost), (0, 5));
+        assert!(stats.error.is_some());
     }
 }
