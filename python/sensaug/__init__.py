@@ -7,6 +7,7 @@ from sensaug import _core
 from sensaug._core import GainEstimator, GoalIntegrator, Plant, TrajectoryEstimator
 from sensaug.config import ConfigError, PhaseConfig, ScenarioConfig
 from sensaug.experiment import Trial, run
+from sensaug.logs import Log, load_log
 from sensaug.lqr import (
     RiccatiConvergenceError,
     agent_gains,
@@ -24,6 +25,7 @@ __all__ = [
     "ConfigError",
     "GainEstimator",
     "GoalIntegrator",
+    "Log",
     "PendulumUKF",
     "PhaseConfig",
     "Plant",
@@ -35,6 +37,7 @@ __all__ = [
     "agent_gains",
     "care",
     "dare",
+    "load_log",
     "lqr",
     "partner_gain_vector",
     "robot_gain_vector",

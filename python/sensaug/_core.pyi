@@ -1,5 +1,5 @@
 """Type stubs for the compiled module `sensaug._core` (Rust, pyo3)."""
-from typing import final
+from typing import Any, final
 
 import numpy as np
 import numpy.typing as npt
@@ -324,13 +324,39 @@ class GoalIntegrator:
 
 # --- scenario ---
 
-RECORD_FIELDS: list[str]
-
-def run_scenario(config: dict) -> tuple[NDArray[np.float64], dict[str, int]]:
+def run_scenario(config: dict) -> tuple[dict[str, NDArray[Any]], dict[str, int]]:
     """One whole simulated trial from the resolved dict of ``sensaug.experiment.resolve``.
 
-    Returns ``(records (ticks, len(RECORD_FIELDS)), summary)``.
+    Returns ``(columns, summary)``: one array per column of the log schema
+    (``log_schema()``; float64, int64 or bool), by name.
 
     Raises:
         ValueError: a setting out of range (the message names its path).
+    """
+
+# --- log (the one log schema, docs/logs.md) ---
+
+def log_schema() -> dict[str, Any]:
+    """The schema: ``format_line``, ``format_version``, ``columns`` as
+    ``(name, unit, kind, description)`` tuples (kind ``int``/``float``/``bool``),
+    ``phase_names``, ``unknown_int``, ``units`` as ``(symbol, meaning)``."""
+
+def git_commit(dir: str) -> str | None:
+    """``git rev-parse HEAD`` of the checkout containing ``dir`` (``-dirty`` if
+    modified), or ``None``."""
+
+def simulation_meta(*, config_json: str, resolved_json: str, git_commit: str | None = None) -> str:
+    """The metadata line (JSON) of a simulated trial started now.
+
+    Raises:
+        ValueError: ``config_json`` or ``resolved_json`` is not valid JSON.
+    """
+
+def write_log(path: str, data: Any, /, *, meta_json: str, end_json: str | None = None) -> None:
+    """Writes a log file: metadata line, one line per row of ``data`` (every
+    schema column as ``data[name]`` with its dtype), then the end status.
+
+    Raises:
+        ValueError: a column is missing, has the wrong dtype or length; bad JSON.
+        OSError: the file cannot be written.
     """

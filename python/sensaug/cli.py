@@ -6,7 +6,8 @@
   plots (the README's main job).
 * ``paper`` reproduces the paper's headline numbers in simulation (Hi5 gain
   sweep, trajectory, goal integration, simulation section) as tables.
-* ``run CONFIG.toml`` runs one simulated trial and saves its log (``.npz``).
+* ``run CONFIG.toml`` runs one simulated trial and saves its log (``.csv``,
+  ``sensaug.load_log``; docs/logs.md).
 * ``rig CONFIG.toml`` runs one trial on the virtual rig.
 * ``preset {hi5,hi5-rig,simulation}`` prints a preset as TOML.
 * ``sweep FILE --grid PATH=V1,V2 --seeds N --out DIR`` runs a grid over seeds.
@@ -153,7 +154,7 @@ def rig_demo(config: ScenarioConfig, out: Path, plots: bool) -> int:
           f"{can['send_errors']}/{can['recv_errors']}/{can['decode_errors']}, missing feedback {can['missing_feedback']}, "
           f"ring overflows {s['ring_overflows']}, records {s['records_written']}, clamped {s['torque_clamped']}")
     print(f"real-time settings: {'; '.join(s['realtime'])}")
-    print(f"\nlog: {out / 'rig_log.npy'} (np.load), stats: {out / 'rig_stats.json'}")
+    print(f"\nlog: {out / 'rig_log.csv'} (sensaug.load_log), stats: {out / 'rig_stats.json'}")
     if plots:
         from sensaug import plots as pl
 
@@ -170,8 +171,7 @@ def _fmt(v) -> str:
 def run_config(path: Path, out: Path | None) -> int:
     cfg = ScenarioConfig.from_toml(path)
     trial = experiment.run(cfg)
-    out = out or path.with_suffix(".npz")
-    np.savez_compressed(out, data=trial.data, config=cfg.to_toml())
+    out = trial.save(out or path.with_suffix(".csv"))
     print(f"{len(trial)} ticks; summary {trial.summary}; log -> {out}")
     return 0
 
@@ -254,7 +254,7 @@ def main(argv: list[str] | None = None) -> int:
     rg.add_argument("--out", type=Path, default=Path("out"))
     r = sub.add_parser("run", help="run one trial from a TOML configuration")
     r.add_argument("config", type=Path)
-    r.add_argument("--out", type=Path, default=None, help="log file (.npz); default next to the config")
+    r.add_argument("--out", type=Path, default=None, help="log file (.csv); default next to the config")
     p = sub.add_parser("preset", help="print a preset configuration as TOML")
     p.add_argument("name", choices=["hi5", "hi5-rig", "simulation"])
     sw = sub.add_parser("sweep", help="run a configuration over a grid of settings and seeds")

@@ -1,50 +1,70 @@
 """Run whole trials and read their logs as numpy arrays.
 
-``run(config)`` hands a :class:`~sensaug.config.ScenarioConfig` to Rust,
-where the one configuration schema resolves it (LQR weights to gains,
-covariances to matrices) and the core runs the whole trial in one call; it
-returns a :class:`Trial` whose ``data`` is a numpy structured array with one
-named field per logged quantity.
+``run(config)`` hands a :class:`~sensaug.config.ScenarioConfig` to Rust, where
+the one configuration schema resolves it (LQR weights to gains, covariances to
+matrices) and the core runs the whole trial in one call; it returns a
+:class:`Trial`: a log of the one schema
+(``sensaug.logs``, ``docs/logs.md``) plus the configuration that produced it.
 """
 
 from __future__ import annotations
 
+import functools
+import json
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from sensaug import _core, metrics
+from sensaug import _core, logs, metrics
 from sensaug.config import ScenarioConfig
 
-__all__ = ["Trial", "run", "FIELDS"]
+__all__ = ["Trial", "run", "FIELDS", "PHASE_KINDS"]
 
-FIELDS: tuple[str, ...] = tuple(_core.RECORD_FIELDS)
+#: Column names of ``Trial.data`` (the one log schema, ``sensaug.logs``).
+FIELDS: tuple[str, ...] = logs.COLUMNS
+
 
 #: The phase kinds, in the order of their codes in logs.
 PHASE_KINDS: tuple[str, ...] = ("gains", "trajectory", "integration")
 
 
-@dataclass
-class Trial:
+@dataclass(repr=False)
+class Trial(logs.Log):
     """One trial's log and the configuration that produced it.
 
-    ``data`` is a structured array (one record per tick) with the fields in
-    :data:`FIELDS`; ``trial["x"]`` is a column. Phase codes: 0 gains,
-    1 trajectory, 2 integration. Estimates a phase does not produce are NaN.
+    ``data`` is a structured array (one record per tick) with the columns of
+    the one log schema (:data:`FIELDS`, ``docs/logs.md``); ``trial["x"]`` is a
+    column; ``meta`` holds the configuration, versions and units. ``phase``
+    is an integer code, its names in ``meta["phase_names"]`` (0 gains,
+    1 trajectory, 2 integration). Estimates a phase does not produce are NaN.
+    ``save(path)`` writes the log file, ``Trial.load(path)`` reads it back.
     """
 
-    config: ScenarioConfig
-    data: np.ndarray
-    summary: dict[str, int]
+    config: ScenarioConfig = None  # type: ignore[assignment]
+    summary: dict[str, Any] = field(default_factory=dict)
     robot_gains: np.ndarray = field(default_factory=lambda: np.zeros(3))
     partner_gains: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
-    def __getitem__(self, name: str) -> np.ndarray:
-        return self.data[name]
-
-    def __len__(self) -> int:
-        return len(self.data)
+    @classmethod
+    def load(cls, path: str | Path) -> "Trial":
+        """A trial from a log file (``Trial.save`` or a rig log): the
+        configuration rebuilt from its metadata, the summary from its end line."""
+        log = logs.load_log(path)
+        try:
+            config = ScenarioConfig.from_dict(log.meta["config"])
+        except (KeyError, TypeError) as e:
+            raise ValueError(f"{path}: metadata has no usable configuration ({e})") from None
+        resolved = log.meta.get("resolved") or {}
+        return cls(
+            data=log.data,
+            meta=log.meta,
+            config=config,
+            summary=dict(log.meta.get("end") or {}),
+            robot_gains=np.asarray(resolved.get("robot", {}).get("gains", np.zeros(3)), dtype=float),
+            partner_gains=np.asarray(resolved.get("partner", {}).get("gains", np.zeros(3)), dtype=float),
+        )
 
     def phase_mask(self, index: int, *, last_s: float | None = None, skip_s: float = 0.0) -> np.ndarray:
         """Ticks of phase ``index`` (position in ``config.phases``), optionally
@@ -89,16 +109,32 @@ class Trial:
         return found[0]
 
 
+@functools.lru_cache(maxsize=1)
+def _git_commit() -> str | None:
+    """The git commit of this package's checkout (looked up once per process)."""
+    return _core.git_commit(str(Path(__file__).resolve().parent))
+
+
 def run(config: ScenarioConfig) -> Trial:
     """Runs one whole trial in the compiled core and returns its log."""
-    summary: dict[str, Any]
-    rows, summary = _core.run_scenario(config._toml())
-    data = np.rec.fromarrays(rows.T, names=list(FIELDS))
-    robot_gains = np.asarray(summary.pop("robot_gains"))
-    partner_gains = np.asarray(summary.pop("partner_gains"))
+    toml = config._toml()
+    columns, summary = _core.run_scenario(toml)
+    summary = dict(summary)
+    robot_gains = np.asarray(summary.pop("robot_gains"), dtype=float)
+    partner_gains = np.asarray(summary.pop("partner_gains"), dtype=float)
+    resolved = {"robot": {"gains": robot_gains.tolist()}, "partner": {"gains": partner_gains.tolist()}}
+    meta = json.loads(
+        _core.simulation_meta(
+            config_json=_core.config_load(toml),
+            resolved_json=logs.to_json(resolved),
+            git_commit=_git_commit(),
+        )
+    )
+    meta["end"] = summary
     return Trial(
+        data=logs.from_columns(columns),
+        meta=meta,
         config=config,
-        data=np.asarray(data),
         summary=summary,
         robot_gains=robot_gains,
         partner_gains=partner_gains,

@@ -1,8 +1,10 @@
 """The paper's headline numbers from a log (simulated trial or rig run).
 
-Both log formats name these columns alike (``x``, ``tau``, ``tau_h``,
-``Lh*_hat``, ``tau_h_hat``, ``e_meas``, ``e_hat_own``, ``e_hat_fused``);
-the caller selects the ticks with a boolean mask.
+Simulated trials and rig runs share one log schema (``sensaug.logs``,
+``docs/logs.md``): ``data`` is a log, a trial or its structured array, read
+by column name (``x``, ``tau``, ``tau_h``, ``Lh*_hat``, ``tau_h_hat``,
+``e_meas``, ``e_hat_own``, ``e_hat_fused``); the caller selects the ticks
+with a boolean mask.
 """
 
 from __future__ import annotations

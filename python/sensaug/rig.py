@@ -1,6 +1,7 @@
 """The experiment on the virtual Hi5 rig: the virtual drive (Python,
 python-can) and the real-time binary (`sensaug-rt`, Rust) as two processes
-on the loopback CAN bus, then the log read back as numpy arrays.
+on the loopback CAN bus, then the log read back (``sensaug.load_log``: the
+same schema as a simulated trial, ``docs/logs.md``).
 
 The real-time binary is found at ``$SENSAUG_RT`` or in the repository's
 ``target/release`` (``scripts/setup.sh`` builds it).
@@ -21,8 +22,9 @@ import numpy as np
 
 from sensaug import metrics
 from sensaug.config import ScenarioConfig
+from sensaug.logs import Log, load_log
 
-__all__ = ["RigRun", "find_binary", "run_virtual_rig", "read_log"]
+__all__ = ["RigRun", "find_binary", "run_virtual_rig"]
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -39,25 +41,19 @@ def find_binary() -> Path:
     return path
 
 
-def read_log(path: str | Path) -> np.ndarray:
-    """The loop's log: a structured array, one record per tick."""
-    return np.load(path)
-
-
 @dataclass
 class RigRun:
     """What one rig run produced."""
 
     config: ScenarioConfig
-    log: np.ndarray
+    log: Log
     stats: dict
     returncode: int
     drive_returncode: int
     stderr: str
 
     def phase_mask(self, kind: str, *, skip_s: float = 0.0, last_s: float | None = None) -> np.ndarray:
-        codes = {"gains": 0.0, "trajectory": 1.0, "integration": 2.0}
-        m = self.log["phase"] == codes[kind]
+        m = self.log["phase"] == self.log.phase_code(kind)
         if not m.any():
             raise ValueError(f"kind: the log has no {kind!r} phase")
         t = self.log["t"]
@@ -121,7 +117,7 @@ def run_virtual_rig(
     port = port or _free_port()
     toml_path = out / "rig_config.toml"
     cfg.to_toml(toml_path)
-    log_path, stats_path = out / "rig_log.npy", out / "rig_stats.json"
+    log_path, stats_path = out / "rig_log.csv", out / "rig_stats.json"
     binary = find_binary()
     budget = timeout_s or cfg.duration_s + 30.0
     drive = start_drive(port, duration_s=budget + 5.0)
@@ -144,7 +140,7 @@ def run_virtual_rig(
         raise RuntimeError(f"sensaug-rt failed (exit {proc.returncode}): {proc.stderr.strip()}")
     return RigRun(
         config=cfg,
-        log=read_log(log_path),
+        log=load_log(log_path),
         stats=json.loads(stats_path.read_text()),
         returncode=proc.returncode,
         drive_returncode=drive.returncode,

@@ -50,8 +50,8 @@ pub struct WorldConfig {
 }
 
 /// One tick of a simulated trial: the world's side, the robot's log line
-/// and the partner's estimates of the robot. [`TickRecord::to_row`] flattens
-/// it into `f64` columns named by [`FIELDS`].
+/// and the partner's estimates of the robot (a row of the one log schema,
+/// `sensaug-log`'s `Row::from_tick_record`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TickRecord {
     /// Time (s).
@@ -60,6 +60,10 @@ pub struct TickRecord {
     pub x: f64,
     /// True velocity.
     pub v: f64,
+    /// The position measurement the robot received (true + sensor noise).
+    pub x_meas: f64,
+    /// The velocity measurement the robot received.
+    pub v_meas: f64,
     /// Robot target.
     pub tau: f64,
     /// Partner target.
@@ -82,6 +86,8 @@ impl Default for TickRecord {
             t: 0.0,
             x: 0.0,
             v: 0.0,
+            x_meas: 0.0,
+            v_meas: 0.0,
             tau: 0.0,
             tau_h: 0.0,
             u_h: 0.0,
@@ -90,83 +96,6 @@ impl Default for TickRecord {
             robot: RobotTick::NONE,
             mirror: PartnerEstimate::NONE,
         }
-    }
-}
-
-/// Column names of a [`TickRecord`] seen as a row of `f64`.
-pub const FIELDS: [&str; 32] = [
-    "t",
-    "phase",
-    "x",
-    "xdot",
-    "tau",
-    "tau_h",
-    "u",
-    "u_h",
-    "eps",
-    "e",
-    "e_meas",
-    "Lhx_hat",
-    "Lhv_hat",
-    "Lhh_hat",
-    "Lhx_var",
-    "Lhv_var",
-    "Lhh_var",
-    "tau_h_hat",
-    "tau_h_var",
-    "e_hat_own",
-    "e_hat_fused",
-    "e_hat_own_var",
-    "e_hat_fused_var",
-    "partner_var",
-    "Lx_hat",
-    "Lv_hat",
-    "Lh_hat",
-    "Lx_var",
-    "Lv_var",
-    "Lh_var",
-    "tau_hat",
-    "tau_hat_var",
-];
-
-impl TickRecord {
-    /// The record as a row in [`FIELDS`] order.
-    pub fn to_row(&self) -> [f64; FIELDS.len()] {
-        let (r, m) = (&self.robot, &self.mirror);
-        [
-            self.t,
-            r.phase,
-            self.x,
-            self.v,
-            self.tau,
-            self.tau_h,
-            r.u,
-            self.u_h,
-            self.eps,
-            self.e,
-            r.e_meas,
-            r.gains[0],
-            r.gains[1],
-            r.gains[2],
-            r.gains_var[0],
-            r.gains_var[1],
-            r.gains_var[2],
-            r.tau_h_hat,
-            r.tau_h_var,
-            r.e_hat_own,
-            r.e_hat_fused,
-            r.e_hat_own_var,
-            r.e_hat_fused_var,
-            r.partner_var,
-            m.gains[0],
-            m.gains[1],
-            m.gains[2],
-            m.gains_var[0],
-            m.gains_var[1],
-            m.gains_var[2],
-            m.target,
-            m.target_var,
-        ]
     }
 }
 
@@ -309,6 +238,8 @@ impl<'a> Scenario<'a> {
             t: k as f64 * self.robot.protocol().dt_s(),
             x: s.x,
             v: s.v,
+            x_meas,
+            v_meas,
             tau: sample.tau,
             tau_h: sample.tau_h,
             u_h,

@@ -5,6 +5,7 @@ use pyo3::prelude::*;
 
 mod convert;
 mod estimators;
+mod log;
 mod plant;
 mod riccati;
 mod scenario;
@@ -13,6 +14,7 @@ mod ukf;
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     estimators::register(m)?;
+    log::register(m)?;
     plant::register(m)?;
     riccati::register(m)?;
     scenario::register(m)?;

@@ -2,13 +2,13 @@
 //! (`sensaug-config`) reads, checks and resolves the text; the core runs the
 //! whole trial in one call. Conversion only.
 
-use numpy::{PyArray2, PyArrayMethods};
 use pyo3::create_exception;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use sensaug_config::{Format, ScenarioSpec};
-use sensaug_core::world::{Scenario, TickRecord, FIELDS};
+use sensaug_core::world::{Scenario, TickRecord};
+use sensaug_log::Row;
 use std::path::Path;
 
 create_exception!(
@@ -25,7 +25,6 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(config_to_toml, m)?)?;
     m.add_function(wrap_pyfunction!(config_schema, m)?)?;
     m.add_function(wrap_pyfunction!(run_scenario, m)?)?;
-    m.add("RECORD_FIELDS", FIELDS.to_vec())?;
     Ok(())
 }
 
@@ -76,15 +75,15 @@ fn config_schema() -> String {
     serde_json::to_string_pretty(sensaug_config::json_schema()).expect("a schema is JSON")
 }
 
-/// Runs one trial from configuration text. Returns
-/// `(records (ticks, len(RECORD_FIELDS)), summary)`.
+/// Runs one trial from configuration text. Returns `(columns, summary)`:
+/// one array per column of the log schema (`log_schema()`), by name.
 #[pyfunction]
 #[pyo3(signature = (text, /, *, format = "toml"))]
 fn run_scenario<'py>(
     py: Python<'py>,
     text: &str,
     format: &str,
-) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
+) -> PyResult<(Bound<'py, PyDict>, Bound<'py, PyDict>)> {
     let spec = load(text, format)?;
     let resolved = sensaug_config::resolve(&spec).map_err(config_err)?;
     let mut scenario = Scenario::new(
@@ -102,16 +101,12 @@ fn run_scenario<'py>(
     let summary = py.detach(|| scenario.run(&mut records)).map_err(|_| {
         PyValueError::new_err("internal: the output buffer is shorter than the trial")
     })?;
-    let out = PyArray2::<f64>::zeros(py, [records.len(), FIELDS.len()], false);
-    {
-        let mut rw = out.readwrite();
-        let mut a = rw.as_array_mut();
-        for (k, r) in records.iter().enumerate() {
-            for (j, v) in r.to_row().into_iter().enumerate() {
-                a[[k, j]] = v;
-            }
-        }
-    }
+    let rows: Vec<Row> = records
+        .iter()
+        .enumerate()
+        .map(|(k, r)| Row::from_tick_record(k as u64, r))
+        .collect();
+    let out = crate::log::rows_to_columns(py, &rows)?;
     let d = PyDict::new(py);
     d.set_item("ticks", summary.ticks)?;
     d.set_item("robot_clamped", summary.robot.clamped)?;

@@ -170,7 +170,7 @@ struct Command {
     tau: f64,
     tau_h: f64,
     u_h: f64,
-    guard: f64,
+    guard: Option<Guard>,
 }
 
 impl Command {
@@ -186,7 +186,7 @@ impl Command {
             tau: f64::NAN,
             tau_h: f64::NAN,
             u_h: f64::NAN,
-            guard: f64::NAN,
+            guard: None,
         }
     }
 }
@@ -514,7 +514,7 @@ impl<'a> Rig<'a> {
             tau: sample.tau,
             tau_h: sample.tau_h,
             u_h,
-            guard: g as u8 as f64,
+            guard: Some(g),
         }
     }
 
@@ -546,6 +546,7 @@ impl<'a> Rig<'a> {
             t: k as f64 * self.settings.dt_s,
             x: sensed.x,
             v: sensed.v,
+            fresh: sensed.fresh,
             tau: command.tau,
             tau_h: command.tau_h,
             u_h: command.u_h,
@@ -596,6 +597,9 @@ impl<'a> Rig<'a> {
             can,
             ring_overflows: 0,
             records_written: 0,
+            log_write_errors: 0,
+            log_records_lost: 0,
+            log_error: None,
             torque_clamped: self.torque_clamped,
             non_finite_commands: self.non_finite,
             estimator_errors: self.robot.counters().estimator_errors,

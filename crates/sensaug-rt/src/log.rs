@@ -1,62 +1,47 @@
 //! Logging off the real-time thread: the loop pushes fixed-size records into
 //! a lock-free single-producer/single-consumer ring (`rtrb`); a writer thread
-//! drains it into a `.npy` structured array that numpy and pandas read
-//! without custom code (`np.load(path)`).
+//! drains it, turns each record into a row of the one log schema
+//! (`sensaug_log`) and appends it as a CSV line (`docs/logs.md`).
 //!
 //! A full ring is a value (`push` returns the record back): the loop counts
 //! it and goes on; it never blocks or grows. The ring is sized for many
 //! seconds of records, so a healthy writer never lets it fill.
+//!
+//! Crash safety: the writer hands complete lines to the kernel (`write(2)`,
+//! no user-space buffer kept across passes) every [`WRITE_PERIOD`], so a
+//! SIGKILL loses at most the records of the last pass; the loader ignores a
+//! partial last line. A failed write is counted and its message kept; from
+//! then on the file stays a valid prefix and later records are counted lost.
 
 use rtrb::{Consumer, Producer, RingBuffer};
+use sensaug_core::agent::Guard;
 use sensaug_core::controller::RobotTick;
+use sensaug_log::{format_row, write_footer, write_header, Row, UNKNOWN};
 use std::fs::File;
-use std::io::{self, BufWriter, Seek, SeekFrom, Write};
+use std::io::{self, Write};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-/// Column names of a [`LogRecord`], in order; every column is `<f8`.
-pub const COLUMNS: [&str; 24] = [
-    "tick",
-    "t",
-    "phase",
-    "x",
-    "xdot",
-    "tau",
-    "tau_h",
-    "u",
-    "u_h",
-    "torque_nm",
-    "e_meas",
-    "Lhx_hat",
-    "Lhv_hat",
-    "Lhh_hat",
-    "tau_h_hat",
-    "e_hat_own",
-    "e_hat_fused",
-    "partner_var",
-    "wake_latency_us",
-    "compute_us",
-    "feedback_age_ticks",
-    "drive_state",
-    "guard",
-    "ramp",
-];
+/// How often the writer drains the ring and writes what it found.
+pub const WRITE_PERIOD: Duration = Duration::from_millis(10);
 
-/// One tick of the real-time loop; written as the `f64` row
-/// [`LogRecord::to_row`] (the tick counter is exact up to 2^53).
+/// One tick of the real-time loop, as the loop knows it; the writer thread
+/// turns it into a [`Row`] ([`LogRecord::to_row`]), off the loop.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LogRecord {
     /// Tick number.
     pub tick: u64,
     /// Time of the tick (s).
     pub t: f64,
-    /// Measured position (controller units).
+    /// Measured position (controller units): the drive's last feedback.
     pub x: f64,
     /// Measured velocity (controller units).
     pub v: f64,
+    /// The feedback was new this tick (the controller updated with it).
+    pub fresh: bool,
     /// Robot target (NaN while ramping down).
     pub tau: f64,
     /// Partner target (NaN while ramping down).
@@ -75,42 +60,45 @@ pub struct LogRecord {
     pub feedback_age_ticks: u64,
     /// Drive state (raw).
     pub drive_state: u8,
-    /// What the torque guard did (`agent::Guard` as a number).
-    pub guard: f64,
+    /// What the drive-torque guard did (`None` while ramping down).
+    pub guard: Option<Guard>,
     /// Ramping down after a stop request.
     pub ramp: bool,
 }
 
+/// The `guard` column's code of a guard outcome.
+fn guard_code(g: Option<Guard>) -> i64 {
+    match g {
+        Some(Guard::Passed) => 0,
+        Some(Guard::Clamped) => 1,
+        Some(Guard::NonFinite) => 2,
+        None => UNKNOWN,
+    }
+}
+
 impl LogRecord {
-    /// The record as a row in [`COLUMNS`] order.
-    pub fn to_row(&self) -> [f64; COLUMNS.len()] {
-        let r = &self.robot;
-        [
-            self.tick as f64,
-            self.t,
-            r.phase,
-            self.x,
-            self.v,
-            self.tau,
-            self.tau_h,
-            r.u,
-            self.u_h,
-            self.torque_nm,
-            r.e_meas,
-            r.gains[0],
-            r.gains[1],
-            r.gains[2],
-            r.tau_h_hat,
-            r.e_hat_own,
-            r.e_hat_fused,
-            r.partner_var,
-            self.wake_latency_us,
-            self.compute_us,
-            self.feedback_age_ticks as f64,
-            f64::from(self.drive_state),
-            self.guard,
-            if self.ramp { 1.0 } else { 0.0 },
-        ]
+    /// The record as a row of the log schema. On the rig the controller's
+    /// measurement is the drive's feedback, so `x_meas = x`.
+    pub fn to_row(&self) -> Row {
+        Row {
+            x: self.x,
+            xdot: self.v,
+            x_meas: self.x,
+            xdot_meas: self.v,
+            fresh: self.fresh,
+            tau: self.tau,
+            tau_h: self.tau_h,
+            u_h: self.u_h,
+            torque_nm: self.torque_nm,
+            e: self.x - self.tau,
+            wake_latency_us: self.wake_latency_us,
+            compute_us: self.compute_us,
+            feedback_age_ticks: self.feedback_age_ticks as i64,
+            drive_state: i64::from(self.drive_state),
+            guard: guard_code(self.guard),
+            ramp: self.ramp,
+            ..Row::from_robot(self.tick, self.t, &self.robot)
+        }
     }
 }
 
@@ -134,38 +122,83 @@ impl LogSink {
     }
 }
 
+/// What the writer did.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct WriterStats {
+    /// Records whose line reached the file.
+    pub records_written: u64,
+    /// Failed writes (the first one stops writing).
+    pub write_errors: u64,
+    /// Records drained from the ring but not written (after a failed write).
+    pub records_lost: u64,
+    /// The first write error, if any.
+    pub error: Option<String>,
+}
+
 /// The writer thread and its stop flag.
 pub struct LogWriter {
     done: Arc<AtomicBool>,
-    handle: JoinHandle<io::Result<u64>>,
+    handle: JoinHandle<(File, WriterStats)>,
 }
 
 impl LogWriter {
-    /// Signals the end of the trial and waits for every queued record to be
-    /// written; returns the number of records in the file.
-    pub fn finish(self) -> io::Result<u64> {
+    /// Signals the end of the run, waits for every queued record to be
+    /// written, then appends the end-status line (`end` plus the writer's
+    /// counts; skipped after a failed write, which may have left a partial
+    /// line) and syncs the file.
+    pub fn finish(self, mut end: serde_json::Map<String, serde_json::Value>) -> WriterStats {
         self.done.store(true, Ordering::Release);
-        self.handle
-            .join()
-            .map_err(|_| io::Error::other("log writer thread panicked"))?
+        let (mut file, mut stats) = match self.handle.join() {
+            Ok(r) => r,
+            Err(_) => {
+                return WriterStats {
+                    write_errors: 1,
+                    error: Some("log writer thread panicked".into()),
+                    ..WriterStats::default()
+                }
+            }
+        };
+        if stats.error.is_none() {
+            end.insert("records_written".into(), stats.records_written.into());
+            end.insert(
+                "end_time_utc".into(),
+                sensaug_log::iso8601_utc(sensaug_log::now_unix_s()).into(),
+            );
+            let mut line = Vec::new();
+            // Writing to a Vec cannot fail.
+            let _ = write_footer(&mut line, &serde_json::Value::Object(end));
+            if let Err(e) = file.write_all(&line).and_then(|()| file.sync_all()) {
+                stats.write_errors += 1;
+                stats.error = Some(format!("end-status line: {e}"));
+            }
+        }
+        stats
     }
 }
 
-/// Set-up: creates the file, the ring of `capacity` records and the writer
+/// Set-up: creates the file with the metadata and header lines
+/// (`sensaug_log::metadata`), the ring of `capacity` records and the writer
 /// thread.
-pub fn start(path: &Path, capacity: usize) -> io::Result<(LogSink, LogWriter)> {
+pub fn start(
+    path: &Path,
+    capacity: usize,
+    meta: &serde_json::Value,
+) -> io::Result<(LogSink, LogWriter)> {
     if let Some(dir) = path.parent() {
         if !dir.as_os_str().is_empty() {
             std::fs::create_dir_all(dir)?;
         }
     }
-    let file = File::create(path)?;
+    let mut file = File::create(path)?;
+    let mut head = Vec::new();
+    write_header(&mut head, meta)?;
+    file.write_all(&head)?;
     let (producer, consumer) = RingBuffer::new(capacity);
     let done = Arc::new(AtomicBool::new(false));
     let flag = Arc::clone(&done);
     let handle = std::thread::Builder::new()
         .name("sensaug-log".into())
-        .spawn(move || write_all(file, consumer, &flag))?;
+        .spawn(move || write_loop(file, consumer, &flag))?;
     Ok((
         LogSink {
             producer,
@@ -175,71 +208,144 @@ pub fn start(path: &Path, capacity: usize) -> io::Result<(LogSink, LogWriter)> {
     ))
 }
 
-/// Digits reserved for the row count in the header, so the real count can be
-/// written in place at the end without moving the data.
-const COUNT_WIDTH: usize = 20;
-
-/// The `.npy` v1.0 header for `rows` records, padded to a multiple of 64.
-pub fn npy_header(rows: u64) -> Vec<u8> {
-    let descr: Vec<String> = COLUMNS.iter().map(|c| format!("('{c}', '<f8')")).collect();
-    let dict = format!(
-        "{{'descr': [{}], 'fortran_order': False, 'shape': ({:>width$},), }}",
-        descr.join(", "),
-        rows,
-        width = COUNT_WIDTH
-    );
-    let unpadded = 10 + dict.len() + 1;
-    let total = unpadded.div_ceil(64) * 64;
-    let mut h = Vec::with_capacity(total);
-    h.extend_from_slice(b"\x93NUMPY\x01\x00");
-    h.extend_from_slice(&((total - 10) as u16).to_le_bytes());
-    h.extend_from_slice(dict.as_bytes());
-    h.resize(total - 1, b' ');
-    h.push(b'\n');
-    h
-}
-
-fn write_all(file: File, mut consumer: Consumer<LogRecord>, done: &AtomicBool) -> io::Result<u64> {
-    let mut out = BufWriter::with_capacity(1 << 20, file);
-    out.write_all(&npy_header(0))?;
-    let mut rows = 0u64;
+/// The writer thread: every [`WRITE_PERIOD`], drain the ring into complete
+/// lines and write them to the file in one call.
+fn write_loop(
+    mut file: File,
+    mut consumer: Consumer<LogRecord>,
+    done: &AtomicBool,
+) -> (File, WriterStats) {
+    let mut stats = WriterStats::default();
+    let mut lines = Vec::with_capacity(1 << 20);
     loop {
         // Read the flag before draining: whatever was pushed before it was
         // set is in the ring now and gets written by this pass.
         let finished = done.load(Ordering::Acquire);
+        let mut n = 0u64;
         while let Ok(r) = consumer.pop() {
-            for v in r.to_row() {
-                out.write_all(&v.to_le_bytes())?;
+            format_row(&r.to_row(), &mut lines);
+            n += 1;
+        }
+        if n > 0 {
+            if stats.error.is_some() {
+                stats.records_lost += n;
+            } else if let Err(e) = file.write_all(&lines) {
+                stats.write_errors += 1;
+                stats.records_lost += n;
+                stats.error = Some(e.to_string());
+            } else {
+                stats.records_written += n;
             }
-            rows += 1;
+            lines.clear();
         }
         if finished {
             break;
         }
-        std::thread::sleep(Duration::from_millis(5));
+        std::thread::sleep(WRITE_PERIOD);
     }
-    out.flush()?;
-    let mut file = out.into_inner().map_err(|e| e.into_error())?;
-    file.seek(SeekFrom::Start(0))?;
-    file.write_all(&npy_header(rows))?;
-    file.sync_all()?;
-    Ok(rows)
+    (file, stats)
 }
 
 #[cfg(test)]
 mod tests {
-    use super::{npy_header, COLUMNS};
+    use super::{start, write_loop, LogRecord};
+    use sensaug_core::agent::Guard;
+    use sensaug_core::controller::RobotTick;
+
+    fn record(tick: u64) -> LogRecord {
+        LogRecord {
+            tick,
+            t: tick as f64 * 1e-3,
+            x: 0.5,
+            v: -0.25,
+            fresh: tick % 2 == 0,
+            tau: 0.125,
+            tau_h: 0.0,
+            u_h: 0.1,
+            torque_nm: 0.01,
+            robot: RobotTick {
+                u: 0.2,
+                phase: 1.0,
+                ..RobotTick::NONE
+            },
+            wake_latency_us: 12.5,
+            compute_us: 30.0,
+            feedback_age_ticks: 1,
+            drive_state: 2,
+            guard: Some(Guard::Clamped),
+            ramp: false,
+        }
+    }
 
     #[test]
-    fn header_is_padded_and_keeps_its_length() {
-        let a = npy_header(0);
-        let b = npy_header(123_456_789);
-        assert_eq!(a.len() % 64, 0);
-        assert_eq!(a.len(), b.len(), "the count is rewritten in place");
-        assert_eq!(&a[..6], b"\x93NUMPY");
-        assert_eq!(*a.last().unwrap(), b'\n');
-        let text = String::from_utf8_lossy(&b[10..]);
-        assert!(text.contains("123456789,)"));
-        assert_eq!(text.matches("'<f8'").count(), COLUMNS.len());
+    fn a_record_becomes_a_schema_row() {
+        let row = record(4).to_row();
+        assert_eq!(
+            (row.tick, row.phase, row.guard, row.drive_state),
+            (4, 1, 1, 2)
+        );
+        assert!(row.fresh && !row.ramp);
+        assert_eq!((row.x_meas, row.xdot_meas), (0.5, -0.25));
+        assert_eq!(row.e, 0.5 - 0.125);
+        assert!(row.eps.is_nan() && row.Lx_hat.is_nan());
+        let ramp = LogRecord {
+            guard: None,
+            robot: RobotTick::NONE,
+            ..record(5)
+        };
+        assert_eq!((ramp.to_row().guard, ramp.to_row().phase), (-1, -1));
+    }
+
+    #[test]
+    fn the_file_has_header_rows_and_end_line() {
+        let dir = std::env::temp_dir().join(format!("sensaug-log-unit-{}", std::process::id()));
+        let path = dir.join("log.csv");
+        let meta = serde_json::json!({"source": "rig"});
+        let (mut sink, writer) = start(&path, 16, &meta).unwrap();
+        for k in 0..40 {
+            sink.push(record(k)); // the ring holds 16: some may overflow
+        }
+        let overflows = sink.overflows();
+        let mut end = serde_json::Map::new();
+        end.insert("stop_reason".into(), "completed".into());
+        let stats = writer.finish(end);
+        let text = std::fs::read_to_string(&path).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        assert_eq!(stats.records_written + overflows, 40);
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines[0], sensaug_log::FORMAT_LINE);
+        assert_eq!(lines[2], sensaug_log::header_row());
+        let rows: Vec<_> = lines[3..lines.len() - 1]
+            .iter()
+            .map(|l| sensaug_log::parse_row(l).unwrap())
+            .collect();
+        assert_eq!(rows.len() as u64, stats.records_written);
+        let mut first = Vec::new();
+        sensaug_log::format_row(&record(0).to_row(), &mut first);
+        assert_eq!(format!("{}\n", lines[3]).as_bytes(), &first[..]);
+        let end: serde_json::Value =
+            serde_json::from_str(lines.last().unwrap().strip_prefix("# ").unwrap()).unwrap();
+        assert_eq!(end["end"]["stop_reason"], "completed");
+        assert_eq!(end["end"]["records_written"], stats.records_written);
+    }
+
+    #[test]
+    fn a_failed_write_is_counted_and_later_records_are_lost_not_hidden() {
+        let dir = std::env::temp_dir().join(format!("sensaug-log-fail-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("ro.csv");
+        std::fs::write(&path, b"").unwrap();
+        // Opened read-only: every write fails (EBADF).
+        let file = std::fs::File::open(&path).unwrap();
+        let (mut producer, consumer) = rtrb::RingBuffer::new(8);
+        for k in 0..5 {
+            producer.push(record(k)).unwrap();
+        }
+        let done = std::sync::atomic::AtomicBool::new(true);
+        let (_, stats) = write_loop(file, consumer, &done);
+        let _ = std::fs::remove_dir_all(&dir);
+        assert_eq!(stats.write_errors, 1);
+        assert_eq!((stats.records_written, stats.records_lost), (0, 5));
+        assert!(stats.error.is_some());
     }
 }

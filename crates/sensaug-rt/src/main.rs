@@ -5,12 +5,13 @@
 //! set-up error.
 
 use clap::Parser;
+use sensaug_config::Resolved;
 use sensaug_config::{load_file, validate, ConfigError, ScenarioSpec};
 use sensaug_core::controller::Robot;
 use sensaug_rt::config::loop_settings;
-use sensaug_rt::control::{Rig, StopReason};
+use sensaug_rt::control::{LoopSettings, Rig, StopReason};
 use sensaug_rt::{log, os};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
@@ -104,7 +105,8 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, String> {
     }
     let log_path = PathBuf::from(&rig.log);
     let stats_path = PathBuf::from(&rig.stats);
-    let (mut sink, writer) = log::start(&log_path, rig.ring_capacity as usize)
+    let meta = log_metadata(&resolved, &settings);
+    let (mut sink, writer) = log::start(&log_path, rig.ring_capacity as usize, &meta)
         .map_err(|e| format!("rig.log: {}: {e}", log_path.display()))?;
 
     let mut rig_loop = Rig::start(settings, transport, robot, Duration::from_secs(5))
@@ -141,11 +143,25 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, String> {
 
     let overflows = sink.overflows();
     drop(sink);
-    let written = writer.finish().map_err(|e| format!("rig.log: {e}"))?;
     let mut report = rig_loop.report(reason);
     report.ring_overflows = overflows;
-    report.records_written = written;
     report.realtime = realtime;
+    let mut end = serde_json::Map::new();
+    end.insert("stop_reason".into(), report.stop_reason.clone().into());
+    end.insert("ticks".into(), report.ticks.into());
+    end.insert("ring_overflows".into(), overflows.into());
+    end.insert("realtime".into(), report.realtime.clone().into());
+    let written = writer.finish(end);
+    if let Some(e) = &written.error {
+        eprintln!(
+            "warning: rig.log: {e}; {} records lost after the failure",
+            written.records_lost
+        );
+    }
+    report.records_written = written.records_written;
+    report.log_write_errors = written.write_errors;
+    report.log_records_lost = written.records_lost;
+    report.log_error = written.error;
     let json = serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?;
     if let Some(dir) = stats_path.parent() {
         let _ = std::fs::create_dir_all(dir);
@@ -153,4 +169,39 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, String> {
     std::fs::write(&stats_path, &json).map_err(|e| format!("rig.stats: {e}"))?;
     println!("{json}");
     Ok(reason)
+}
+
+/// The log's metadata line: the configuration (every default filled in),
+/// the values derived from it, the git commit and the loop's settings.
+fn log_metadata(resolved: &Resolved<'_>, s: &LoopSettings) -> serde_json::Value {
+    let spec = resolved.spec;
+    let exe_dir = std::env::current_exe()
+        .ok()
+        .and_then(|p| p.parent().map(Path::to_path_buf));
+    sensaug_log::metadata(&sensaug_log::RunInfo {
+        source: sensaug_log::Source::Rig,
+        config: serde_json::to_value(spec).unwrap_or(serde_json::Value::Null),
+        resolved: serde_json::json!({
+            "robot_gains": resolved.robot.gains,
+            "partner_gains": resolved.partner.gains,
+            "dt_s": resolved.dt_s,
+            "rad_per_unit": resolved.rad_per_unit,
+        }),
+        git_commit: exe_dir.as_deref().and_then(sensaug_log::git_commit),
+        start_unix_s: sensaug_log::now_unix_s(),
+        loop_settings: serde_json::json!({
+            "can": spec.rig.can,
+            "node_id": s.node.get(),
+            "dt_s": s.dt_s,
+            "rad_per_unit": s.rad_per_unit,
+            "torque_limit_nm": s.torque_limit_nm,
+            "watchdog_ms": s.watchdog_ms,
+            "feedback_timeout_ms": s.feedback_timeout_ms,
+            "ramp_down_s": s.ramp_down_s,
+            "partner_gains": s.partner_gains,
+            "partner_torque_limit": s.partner_torque_limit,
+            "ring_capacity": spec.rig.ring_capacity,
+            "log_write_period_ms": log::WRITE_PERIOD.as_secs_f64() * 1e3,
+        }),
+    })
 }

@@ -120,6 +120,12 @@ pub struct LoopReport {
     pub ring_overflows: u64,
     /// Records written to the log file.
     pub records_written: u64,
+    /// Failed writes to the log file (the first one stops the log).
+    pub log_write_errors: u64,
+    /// Records taken from the ring but not written (after a failed write).
+    pub log_records_lost: u64,
+    /// The first log write error, if any.
+    pub log_error: Option<String>,
     /// Commands clamped to the torque limit.
     pub torque_clamped: u64,
     /// Non-finite commands replaced by zero.

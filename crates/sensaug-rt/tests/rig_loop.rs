@@ -142,7 +142,8 @@ fn run_loop(answer_for: u64, stop_after: Option<Duration>) -> Outcome {
     let transport = Box::new(UdpBus::open(port).unwrap());
     let mut rig = Rig::start(settings, transport, robot, Duration::from_secs(5)).unwrap();
     let dir = std::env::temp_dir().join(format!("sensaug-rt-test-{port}"));
-    let (mut sink, writer) = log::start(&dir.join("log.npy"), 1 << 14).unwrap();
+    let meta = serde_json::json!({"source": "rig"});
+    let (mut sink, writer) = log::start(&dir.join("log.csv"), 1 << 14, &meta).unwrap();
     let stop = Arc::new(AtomicBool::new(false));
     if let Some(after) = stop_after {
         let s = Arc::clone(&stop);
@@ -154,7 +155,9 @@ fn run_loop(answer_for: u64, stop_after: Option<Duration>) -> Outcome {
     let mut reason = StopReason::Completed;
     let allocations = allocations(|| reason = rig.run(&mut sink, &stop));
     drop(sink);
-    let records = writer.finish().unwrap();
+    let written = writer.finish(serde_json::Map::new());
+    assert_eq!(written.error, None);
+    let records = written.records_written;
     drive_stop.store(true, Ordering::Relaxed);
     handle.join().unwrap();
     let report = rig.report(reason);

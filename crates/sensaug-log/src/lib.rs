@@ -1,0 +1,664 @@
+//! The one log schema of sensaug, shared by simulated trials and rig runs.
+//!
+//! * [`COLUMNS`]: every column once — name, unit, kind (integer, float,
+//!   boolean) and a one-line description — and [`Row`], one tick of a log
+//!   with one field per column (both generated from the same table).
+//! * [`Row::from_tick_record`] (a simulated tick) and [`Row::from_robot`]
+//!   (the controller's part, used by the rig loop's record): columns one side
+//!   cannot know are NaN (floats) or [`UNKNOWN`] (integers).
+//! * The file format ([`write_header`], [`format_row`], [`write_footer`]):
+//!   CSV text; `#` lines carry the metadata (a format line, then one JSON
+//!   line: configuration, versions, units, phase names, start time, loop
+//!   settings) and, after the last row, the run's end status. Floats are
+//!   written in their shortest round-trip form, so reloading is bit-exact.
+//!   Why this format: `docs/logs.md`.
+
+#![deny(missing_docs)]
+#![allow(non_snake_case)]
+
+use sensaug_core::controller::RobotTick;
+use sensaug_core::protocol::PhaseKind;
+use sensaug_core::world::TickRecord;
+use std::io::{self, Write};
+use std::path::Path;
+use std::process::Command;
+
+/// The first line of every log file: format name and version.
+pub const FORMAT_LINE: &str = "# sensaug-log 1";
+/// Version of the schema and the file layout (bumped on any change to either).
+pub const FORMAT_VERSION: u32 = 1;
+/// The value of an integer column that one side cannot know.
+pub const UNKNOWN: i64 = -1;
+
+/// Names of the phase codes in the `phase` column (index = code).
+pub const PHASE_NAMES: [&str; 3] = ["gains", "trajectory", "integration"];
+
+/// The code of a phase kind in the `phase` column (an index of [`PHASE_NAMES`]).
+pub fn phase_code(kind: PhaseKind) -> i64 {
+    match kind {
+        PhaseKind::Gains => 0,
+        PhaseKind::Trajectory => 1,
+        PhaseKind::Integration => 2,
+    }
+}
+
+/// What a column holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kind {
+    /// A signed 64-bit integer; [`UNKNOWN`] where not known.
+    Int,
+    /// A 64-bit float; NaN where not known.
+    Float,
+    /// A boolean, written `0` or `1`.
+    Bool,
+}
+
+impl Kind {
+    /// The name used in the metadata and by the Python loader.
+    pub fn name(self) -> &'static str {
+        match self {
+            Kind::Int => "int",
+            Kind::Float => "float",
+            Kind::Bool => "bool",
+        }
+    }
+}
+
+/// One column of the schema.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Column {
+    /// Header name.
+    pub name: &'static str,
+    /// Unit (symbols defined in [`UNITS`]).
+    pub unit: &'static str,
+    /// Integer, float or boolean.
+    pub kind: Kind,
+    /// One line: what it is, and which side leaves it unknown.
+    pub description: &'static str,
+}
+
+/// One value of a row.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Value {
+    /// An integer column.
+    Int(i64),
+    /// A float column.
+    Float(f64),
+    /// A boolean column.
+    Bool(bool),
+}
+
+/// The unit symbols used in [`COLUMNS`]; `u^2` and `(u)^2` are squares of `u`
+/// (variances).
+pub const UNITS: [(&str, &str); 9] = [
+    ("1", "dimensionless count or code"),
+    ("s", "second"),
+    ("us", "microsecond"),
+    ("pos", "controller position unit: rig.position_unit on the rig (rad_per_unit rad), deg in the Hi5 presets"),
+    ("pos/s", "controller position unit per second"),
+    ("trq", "model torque unit: the robot's torque in the handle model (on the rig, N m = trq * rad_per_unit)"),
+    ("N m", "newton metre at the drive"),
+    ("trq/pos", "position gain (Lhx, Lhh, Lx, Lh)"),
+    ("trq s/pos", "velocity gain (Lhv, Lv)"),
+];
+
+macro_rules! schema {
+    ($( $name:ident : $kind:ident, $unit:literal, $doc:literal; )*) => {
+        /// One tick of a log, one field per column of [`COLUMNS`] (same
+        /// order). Built by the simulation ([`Row::from_tick_record`]) and
+        /// by the rig loop's writer.
+        #[derive(Clone, Copy, Debug, PartialEq)]
+        pub struct Row {
+            $( #[doc = $doc] pub $name: schema!(@ty $kind), )*
+        }
+
+        /// Every column of a log, in file order.
+        pub const COLUMNS: [Column; schema!(@count $($name)*)] = [
+            $( Column { name: stringify!($name), unit: $unit, kind: Kind::$kind, description: $doc }, )*
+        ];
+
+        impl Row {
+            /// Nothing known: NaN floats, [`UNKNOWN`] integers, `false`.
+            pub const UNKNOWN: Row = Row { $( $name: schema!(@unknown $kind), )* };
+
+            /// The row's values in [`COLUMNS`] order.
+            pub fn values(&self) -> [Value; COLUMNS.len()] {
+                [ $( Value::$kind(self.$name), )* ]
+            }
+
+            /// Sets column `index` to `value`; `Err` names the column when
+            /// the index is out of range or the value has the wrong kind.
+            pub fn set(&mut self, index: usize, value: Value) -> Result<(), String> {
+                let mut i = 0usize;
+                $(
+                    if i == index {
+                        return match value {
+                            Value::$kind(v) => { self.$name = v; Ok(()) }
+                            other => Err(format!(
+                                "{}: expected {}, got {other:?}",
+                                stringify!($name),
+                                Kind::$kind.name()
+                            )),
+                        };
+                    }
+                    i += 1;
+                )*
+                Err(format!("column index {index} >= {i}"))
+            }
+        }
+    };
+    (@ty Int) => { i64 };
+    (@ty Float) => { f64 };
+    (@ty Bool) => { bool };
+    (@unknown Int) => { UNKNOWN };
+    (@unknown Float) => { f64::NAN };
+    (@unknown Bool) => { false };
+    (@count) => { 0 };
+    (@count $head:ident $($tail:ident)*) => { 1 + schema!(@count $($tail)*) };
+}
+
+schema! {
+    tick: Int, "1", "tick number, 0 at the first tick of the run";
+    t: Float, "s", "time of the tick, tick * dt_s";
+    phase: Int, "1", "phase kind of the tick: an index of meta.phase_names; -1 outside the protocol (the rig's ramp-down)";
+    x: Float, "pos", "handle position: the true one (simulation), the drive's last feedback (rig)";
+    xdot: Float, "pos/s", "handle velocity: the true one (simulation), the drive's last feedback (rig)";
+    x_meas: Float, "pos", "position measurement the controller received this tick";
+    xdot_meas: Float, "pos/s", "velocity measurement the controller received this tick";
+    fresh: Bool, "1", "the measurement was new this tick (else the estimators only predicted)";
+    tau: Float, "pos", "robot target; NaN outside the protocol";
+    tau_h: Float, "pos", "partner target; NaN outside the protocol";
+    u: Float, "trq", "robot command after its torque guard; NaN outside the protocol";
+    u_h: Float, "trq", "partner (virtual human) torque; NaN outside the protocol";
+    eps: Float, "trq", "motor noise added to the summed torque (simulation; NaN on the rig)";
+    torque_nm: Float, "N m", "torque sent to the drive after its guard (rig; NaN in simulations)";
+    e: Float, "pos", "x - tau";
+    e_meas: Float, "pos", "the robot's (noisy in integration phases) view of x - tau";
+    Lhx_hat: Float, "trq/pos", "robot's estimate of the partner gain Lhx (stage 1 or 2)";
+    Lhv_hat: Float, "trq s/pos", "robot's estimate of the partner gain Lhv (stage 1 or 2)";
+    Lhh_hat: Float, "trq/pos", "robot's estimate of the partner gain Lhh (stage 1 or 2)";
+    Lhx_var: Float, "(trq/pos)^2", "posterior variance of Lhx_hat";
+    Lhv_var: Float, "(trq s/pos)^2", "posterior variance of Lhv_hat";
+    Lhh_var: Float, "(trq/pos)^2", "posterior variance of Lhh_hat";
+    tau_h_hat: Float, "pos", "robot's estimate of the partner target (stages 2-3)";
+    tau_h_var: Float, "pos^2", "posterior variance of x - tau_h_hat";
+    e_hat_own: Float, "pos", "stage 3: (x - tau)^ from own sensing only";
+    e_hat_fused: Float, "pos", "stage 3: (x - tau)^ with the partner channel (goal integration)";
+    e_hat_own_var: Float, "pos^2", "posterior variance of e_hat_own";
+    e_hat_fused_var: Float, "pos^2", "posterior variance of e_hat_fused";
+    partner_var: Float, "pos^2", "stage 3: variance of the partner channel used";
+    Lx_hat: Float, "trq/pos", "partner's mirrored estimate of the robot gain Lx (simulation section; NaN otherwise)";
+    Lv_hat: Float, "trq s/pos", "partner's mirrored estimate of the robot gain Lv";
+    Lh_hat: Float, "trq/pos", "partner's mirrored estimate of the robot gain Lh";
+    Lx_var: Float, "(trq/pos)^2", "posterior variance of Lx_hat";
+    Lv_var: Float, "(trq s/pos)^2", "posterior variance of Lv_hat";
+    Lh_var: Float, "(trq/pos)^2", "posterior variance of Lh_hat";
+    tau_hat: Float, "pos", "partner's mirrored estimate of the robot target";
+    tau_hat_var: Float, "pos^2", "posterior variance of the partner's (x - tau)^";
+    wake_latency_us: Float, "us", "rig: wake-up after the tick's deadline (NaN in simulations)";
+    compute_us: Float, "us", "rig: wake-up to command sent (NaN in simulations)";
+    feedback_age_ticks: Int, "1", "ticks since the last feedback (0 in simulations: a measurement every tick)";
+    drive_state: Int, "1", "rig: drive state 0 boot, 1 disabled, 2 enabled, 3 fault (-1 in simulations)";
+    guard: Int, "1", "rig: the drive-torque guard 0 passed, 1 clamped, 2 non-finite (-1 ramp-down and simulations)";
+    ramp: Bool, "1", "rig: ramping down after a stop request (false in simulations)";
+}
+
+/// The `phase` column's value for a controller log line (its code is a
+/// float there, NaN outside the protocol).
+fn phase_from(robot: &RobotTick) -> i64 {
+    if robot.phase.is_nan() {
+        UNKNOWN
+    } else {
+        robot.phase as i64
+    }
+}
+
+impl Row {
+    /// The controller's columns from its log line; everything else unknown.
+    pub fn from_robot(tick: u64, t: f64, robot: &RobotTick) -> Row {
+        let r = robot;
+        Row {
+            tick: tick as i64,
+            t,
+            phase: phase_from(r),
+            u: r.u,
+            e_meas: r.e_meas,
+            Lhx_hat: r.gains[0],
+            Lhv_hat: r.gains[1],
+            Lhh_hat: r.gains[2],
+            Lhx_var: r.gains_var[0],
+            Lhv_var: r.gains_var[1],
+            Lhh_var: r.gains_var[2],
+            tau_h_hat: r.tau_h_hat,
+            tau_h_var: r.tau_h_var,
+            e_hat_own: r.e_hat_own,
+            e_hat_fused: r.e_hat_fused,
+            e_hat_own_var: r.e_hat_own_var,
+            e_hat_fused_var: r.e_hat_fused_var,
+            partner_var: r.partner_var,
+            ..Row::UNKNOWN
+        }
+    }
+
+    /// A simulated tick `tick`. The simulation gives the robot a measurement
+    /// every tick (`fresh`, age 0); rig-only columns stay unknown.
+    pub fn from_tick_record(tick: u64, rec: &TickRecord) -> Row {
+        let m = &rec.mirror;
+        Row {
+            x: rec.x,
+            xdot: rec.v,
+            x_meas: rec.x_meas,
+            xdot_meas: rec.v_meas,
+            fresh: true,
+            tau: rec.tau,
+            tau_h: rec.tau_h,
+            u_h: rec.u_h,
+            eps: rec.eps,
+            e: rec.e,
+            Lx_hat: m.gains[0],
+            Lv_hat: m.gains[1],
+            Lh_hat: m.gains[2],
+            Lx_var: m.gains_var[0],
+            Lv_var: m.gains_var[1],
+            Lh_var: m.gains_var[2],
+            tau_hat: m.target,
+            tau_hat_var: m.target_var,
+            feedback_age_ticks: 0,
+            ..Row::from_robot(tick, rec.t, &rec.robot)
+        }
+    }
+}
+
+/// The header row: column names separated by commas.
+pub fn header_row() -> String {
+    let names: Vec<&str> = COLUMNS.iter().map(|c| c.name).collect();
+    names.join(",")
+}
+
+/// Appends `v` in its shortest form that reads back to the same bits:
+/// plain decimal for moderate magnitudes (always with a `.` or an exponent,
+/// so readers infer a float), exponent form otherwise; `nan`, `inf`, `-inf`.
+pub fn format_float(v: f64, out: &mut Vec<u8>) {
+    // Writing to a Vec cannot fail.
+    let _ = if v.is_nan() {
+        out.write_all(b"nan")
+    } else if v.is_infinite() {
+        out.write_all(if v > 0.0 { b"inf" } else { b"-inf" })
+    } else if v == 0.0 || (1e-5..1e16).contains(&v.abs()) {
+        // Rust's Display prints the shortest digits that round-trip.
+        let start = out.len();
+        let r = write!(out, "{v}");
+        if !out[start..].contains(&b'.') {
+            out.extend_from_slice(b".0");
+        }
+        r
+    } else {
+        write!(out, "{v:e}")
+    };
+}
+
+/// Appends one CSV line (with its newline) for `row`.
+pub fn format_row(row: &Row, out: &mut Vec<u8>) {
+    for (i, v) in row.values().iter().enumerate() {
+        if i > 0 {
+            out.push(b',');
+        }
+        // Writing to a Vec cannot fail.
+        let _ = match *v {
+            Value::Int(n) => write!(out, "{n}"),
+            Value::Float(f) => {
+                format_float(f, out);
+                Ok(())
+            }
+            Value::Bool(b) => out.write_all(if b { b"1" } else { b"0" }),
+        };
+    }
+    out.push(b'\n');
+}
+
+/// Reads one CSV line written by [`format_row`] (without its newline);
+/// `Err` names the first bad column.
+pub fn parse_row(line: &str) -> Result<Row, String> {
+    let mut row = Row::UNKNOWN;
+    let mut n = 0;
+    for (i, field) in line.split(',').enumerate() {
+        let col = COLUMNS
+            .get(i)
+            .ok_or_else(|| format!("more than {} fields", COLUMNS.len()))?;
+        let bad = |e: &dyn std::fmt::Display| format!("{}: {e} ({field:?})", col.name);
+        let value = match col.kind {
+            Kind::Int => Value::Int(field.parse().map_err(|e| bad(&e))?),
+            Kind::Float => Value::Float(field.parse().map_err(|e| bad(&e))?),
+            Kind::Bool => match field {
+                "0" => Value::Bool(false),
+                "1" => Value::Bool(true),
+                _ => return Err(bad(&"expected 0 or 1")),
+            },
+        };
+        row.set(i, value)?;
+        n = i + 1;
+    }
+    if n != COLUMNS.len() {
+        return Err(format!("{n} fields, expected {}", COLUMNS.len()));
+    }
+    Ok(row)
+}
+
+/// Where a log comes from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Source {
+    /// A simulated trial (`sensaug.experiment.run`).
+    Simulation,
+    /// A run of the real-time loop (`sensaug-rt`).
+    Rig,
+}
+
+impl Source {
+    /// `"simulation"` or `"rig"`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Source::Simulation => "simulation",
+            Source::Rig => "rig",
+        }
+    }
+}
+
+/// What the writer of a log knows about its run, besides the schema.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RunInfo {
+    /// Simulation or rig.
+    pub source: Source,
+    /// The configuration as written by the user (TOML as JSON), from which
+    /// `sensaug.ScenarioConfig.from_dict` rebuilds the trial.
+    pub config: serde_json::Value,
+    /// Every setting resolved (defaults filled, gains computed).
+    pub resolved: serde_json::Value,
+    /// `git rev-parse HEAD` of the source tree, `-dirty` if modified; `None`
+    /// when unknown.
+    pub git_commit: Option<String>,
+    /// Start of the run (s since the Unix epoch, UTC).
+    pub start_unix_s: f64,
+    /// The loop's settings (rig runs), else `Null`.
+    pub loop_settings: serde_json::Value,
+}
+
+/// The metadata line's JSON: format, versions, source, start time, the
+/// configuration, every column with its unit and kind, the phase names and
+/// the unit symbols.
+pub fn metadata(info: &RunInfo) -> serde_json::Value {
+    let columns: Vec<serde_json::Value> = COLUMNS
+        .iter()
+        .map(|c| {
+            serde_json::json!({
+                "name": c.name, "unit": c.unit, "kind": c.kind.name(), "description": c.description,
+            })
+        })
+        .collect();
+    let units: serde_json::Map<String, serde_json::Value> = UNITS
+        .iter()
+        .map(|(k, v)| (k.to_string(), serde_json::Value::from(*v)))
+        .collect();
+    serde_json::json!({
+        "format": "sensaug-log",
+        "format_version": FORMAT_VERSION,
+        "source": info.source.name(),
+        "package_version": env!("CARGO_PKG_VERSION"),
+        "git_commit": info.git_commit,
+        "start_time_utc": iso8601_utc(info.start_unix_s),
+        "start_unix_s": info.start_unix_s,
+        "config": info.config,
+        "resolved": info.resolved,
+        "loop": info.loop_settings,
+        "columns": columns,
+        "phase_names": PHASE_NAMES,
+        "unknown_int": UNKNOWN,
+        "units": units,
+    })
+}
+
+/// Writes the format line, the metadata line and the header row.
+pub fn write_header(out: &mut impl Write, meta: &serde_json::Value) -> io::Result<()> {
+    // serde_json never writes a raw newline inside a string, so the
+    // metadata is one line.
+    write!(out, "{FORMAT_LINE}\n# {meta}\n{}\n", header_row())
+}
+
+/// Writes the end-status line after the last row: `# {"end": ...}`.
+pub fn write_footer(out: &mut impl Write, end: &serde_json::Value) -> io::Result<()> {
+    let line = serde_json::json!({ "end": end });
+    writeln!(out, "# {line}")
+}
+
+/// Seconds since the Unix epoch, now.
+pub fn now_unix_s() -> f64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(f64::NAN, |d| d.as_secs_f64())
+}
+
+/// `s` seconds after the Unix epoch as `YYYY-MM-DDTHH:MM:SS.mmmZ`.
+pub fn iso8601_utc(s: f64) -> String {
+    if !s.is_finite() {
+        return "unknown".into();
+    }
+    let ms = (s * 1e3).floor() as i64;
+    let (days, ms_of_day) = (ms.div_euclid(86_400_000), ms.rem_euclid(86_400_000));
+    let (y, m, d) = civil_from_days(days);
+    let (h, rest) = (ms_of_day / 3_600_000, ms_of_day % 3_600_000);
+    let (min, rest) = (rest / 60_000, rest % 60_000);
+    format!(
+        "{y:04}-{m:02}-{d:02}T{h:02}:{min:02}:{:02}.{:03}Z",
+        rest / 1000,
+        rest % 1000
+    )
+}
+
+/// Days since 1970-01-01 to the proleptic Gregorian `(year, month, day)`
+/// (H. Hinnant's "civil_from_days": 400-year eras of 146097 days, years
+/// starting in March so the leap day is last).
+fn civil_from_days(z: i64) -> (i64, i64, i64) {
+    let z = z + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    (yoe + era * 400 + i64::from(m <= 2), m, d)
+}
+
+/// The git commit of the checkout containing `dir` (`-dirty` when tracked
+/// files differ from it); `None` when git or the checkout is missing.
+/// Set-up only: runs `git` twice.
+pub fn git_commit(dir: &Path) -> Option<String> {
+    let git = |args: &[&str]| {
+        Command::new("git")
+            .arg("-C")
+            .arg(dir)
+            .args(args)
+            .output()
+            .ok()
+            .filter(|o| o.status.success())
+            .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
+    };
+    let head = git(&["rev-parse", "HEAD"]).filter(|h| !h.is_empty())?;
+    let dirty = git(&["status", "--porcelain", "--untracked-files=no"]).map(|s| !s.is_empty());
+    Some(match dirty {
+        Some(true) => format!("{head}-dirty"),
+        _ => head,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sensaug_core::controller::RobotTick;
+    use sensaug_core::world::PartnerEstimate;
+
+    #[test]
+    fn names_are_unique_and_the_header_matches() {
+        let mut names: Vec<_> = COLUMNS.iter().map(|c| c.name).collect();
+        assert_eq!(header_row().split(',').collect::<Vec<_>>(), names);
+        names.sort_unstable();
+        names.dedup();
+        assert_eq!(names.len(), COLUMNS.len());
+    }
+
+    #[test]
+    fn every_unit_is_defined() {
+        for c in COLUMNS {
+            let base = c.unit.strip_suffix("^2").unwrap_or(c.unit);
+            let base = base.trim_start_matches('(').trim_end_matches(')');
+            let ok = UNITS.iter().any(|(u, _)| *u == base);
+            assert!(ok, "{}: unit {:?} not in UNITS", c.name, c.unit);
+        }
+    }
+
+    #[test]
+    fn phase_codes_index_the_names_and_match_the_core() {
+        for (kind, name) in [
+            (PhaseKind::Gains, "gains"),
+            (PhaseKind::Trajectory, "trajectory"),
+            (PhaseKind::Integration, "integration"),
+        ] {
+            assert_eq!(PHASE_NAMES[phase_code(kind) as usize], name);
+            assert_eq!(kind.code(), phase_code(kind) as f64);
+        }
+    }
+
+    #[test]
+    fn floats_round_trip_bit_exactly() {
+        let values = [
+            0.0,
+            -0.0,
+            1.0,
+            -2.5,
+            0.1,
+            1.0 / 3.0,
+            1e-5,
+            9.999_999_999_999_999e-6,
+            1e16,
+            123_456_789.123_456_79,
+            f64::MIN_POSITIVE,
+            5e-324,
+            f64::MAX,
+            -f64::MAX,
+            f64::EPSILON,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        ];
+        for v in values {
+            let mut s = Vec::new();
+            format_float(v, &mut s);
+            let text = String::from_utf8(s).unwrap();
+            assert!(text.len() <= 24, "{text}");
+            let back: f64 = text.parse().unwrap();
+            assert_eq!(back.to_bits(), v.to_bits(), "{v:e} -> {text}");
+            assert!(
+                text.contains(['.', 'e', 'n']),
+                "{text}: readers would infer an integer"
+            );
+        }
+        let mut s = Vec::new();
+        format_float(f64::NAN, &mut s);
+        assert_eq!(s, b"nan");
+    }
+
+    #[test]
+    fn a_simulated_tick_round_trips_through_a_line() {
+        let rec = TickRecord {
+            t: 0.123,
+            x: 1.0 / 7.0,
+            v: -3.25e-7,
+            x_meas: 1.0 / 7.0 + 1e-4,
+            v_meas: -3.25e-7 - 2e-4,
+            tau: 8.0,
+            tau_h: -8.0,
+            u_h: 0.3,
+            eps: 1e-20,
+            e: 1.0 / 7.0 - 8.0,
+            robot: RobotTick {
+                u: 0.5,
+                phase: 2.0,
+                e_meas: 0.25,
+                gains: [0.1, 0.2, 0.3],
+                gains_var: [1e-3, 2e-3, 3e-3],
+                ..RobotTick::NONE
+            },
+            mirror: PartnerEstimate::NONE,
+        };
+        let row = Row::from_tick_record(123, &rec);
+        assert_eq!((row.tick, row.phase, row.fresh), (123, 2, true));
+        assert_eq!(row.drive_state, UNKNOWN);
+        assert_eq!((row.x_meas, row.xdot_meas), (rec.x_meas, rec.v_meas));
+        assert!(row.torque_nm.is_nan() && row.e_hat_own.is_nan());
+        let mut line = Vec::new();
+        format_row(&row, &mut line);
+        assert_eq!(line.last(), Some(&b'\n'));
+        let text = std::str::from_utf8(&line[..line.len() - 1]).unwrap();
+        let back = parse_row(text).unwrap();
+        for (a, b) in back.values().iter().zip(row.values()) {
+            match (*a, b) {
+                (Value::Float(a), Value::Float(b)) => {
+                    assert!(a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan()))
+                }
+                (a, b) => assert_eq!(a, b),
+            }
+        }
+    }
+
+    #[test]
+    fn outside_the_protocol_the_phase_is_unknown() {
+        let row = Row::from_robot(5, 0.005, &RobotTick::NONE);
+        assert_eq!(row.phase, UNKNOWN);
+    }
+
+    #[test]
+    fn bad_lines_name_the_column() {
+        let mut line = Vec::new();
+        format_row(&Row::UNKNOWN, &mut line);
+        let text = String::from_utf8(line).unwrap();
+        let text = text.trim_end();
+        assert!(parse_row(text).is_ok());
+        let bad = text.replacen("-1", "x", 1);
+        assert!(parse_row(&bad).unwrap_err().starts_with("tick:"));
+        let short = &text[..text.rfind(',').unwrap()];
+        assert!(parse_row(short).unwrap_err().contains("fields"));
+        let mut row = Row::UNKNOWN;
+        assert!(row
+            .set(1, Value::Int(3))
+            .unwrap_err()
+            .starts_with("t: expected float"));
+    }
+
+    #[test]
+    fn dates_are_utc_civil_dates() {
+        assert_eq!(iso8601_utc(0.0), "1970-01-01T00:00:00.000Z");
+        assert_eq!(iso8601_utc(951_782_400.5), "2000-02-29T00:00:00.500Z");
+        assert_eq!(iso8601_utc(1_795_392_000.0), "2026-11-23T00:00:00.000Z");
+        assert_eq!(iso8601_utc(-1.0), "1969-12-31T23:59:59.000Z");
+    }
+
+    #[test]
+    fn the_metadata_is_one_line_with_every_column() {
+        let info = RunInfo {
+            source: Source::Rig,
+            config: serde_json::json!({"note": "a\nb"}),
+            resolved: serde_json::Value::Null,
+            git_commit: None,
+            start_unix_s: 0.0,
+            loop_settings: serde_json::Value::Null,
+        };
+        let mut out = Vec::new();
+        write_header(&mut out, &metadata(&info)).unwrap();
+        let text = String::from_utf8(out).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines.len(), 3);
+        assert_eq!(lines[0], FORMAT_LINE);
+        let meta: serde_json::Value = serde_json::from_str(&lines[1][2..]).unwrap();
+        assert_eq!(meta["columns"].as_array().unwrap().len(), COLUMNS.len());
+        assert_eq!(meta["config"]["note"], "a\nb");
+        assert_eq!(lines[2], header_row());
+    }
+}

@@ -1,0 +1,214 @@
+//! The one log schema (`sensaug-log`) for Python: the column table, the
+//! metadata of a simulated trial, rows <-> numpy columns, and the writer of
+//! a log file. Conversion only; the format lives in `sensaug-log`.
+
+use numpy::{IntoPyArray, PyReadonlyArray1};
+use pyo3::exceptions::{PyOSError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use sensaug_log::{Kind, Row, Value, COLUMNS};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(log_schema, m)?)?;
+    m.add_function(wrap_pyfunction!(git_commit, m)?)?;
+    m.add_function(wrap_pyfunction!(simulation_meta, m)?)?;
+    m.add_function(wrap_pyfunction!(write_log, m)?)?;
+    Ok(())
+}
+
+/// The schema: format line and version, `columns` as `(name, unit, kind,
+/// description)` tuples, phase names, the unknown-integer sentinel, units.
+#[pyfunction]
+fn log_schema(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("format_line", sensaug_log::FORMAT_LINE)?;
+    d.set_item("format_version", sensaug_log::FORMAT_VERSION)?;
+    let cols: Vec<(&str, &str, &str, &str)> = COLUMNS
+        .iter()
+        .map(|c| (c.name, c.unit, c.kind.name(), c.description))
+        .collect();
+    d.set_item("columns", cols)?;
+    d.set_item("phase_names", sensaug_log::PHASE_NAMES.to_vec())?;
+    d.set_item("unknown_int", sensaug_log::UNKNOWN)?;
+    d.set_item("units", sensaug_log::UNITS.to_vec())?;
+    Ok(d)
+}
+
+/// The git commit of the checkout containing `dir` (`-dirty` if modified),
+/// or `None`.
+#[pyfunction]
+fn git_commit(py: Python<'_>, dir: PathBuf) -> Option<String> {
+    py.detach(|| sensaug_log::git_commit(&dir))
+}
+
+/// The metadata line of a simulated trial started now, as JSON text.
+#[pyfunction]
+#[pyo3(signature = (*, config_json, resolved_json, git_commit=None))]
+fn simulation_meta(
+    config_json: &str,
+    resolved_json: &str,
+    git_commit: Option<String>,
+) -> PyResult<String> {
+    let parse = |name: &str, text: &str| {
+        serde_json::from_str::<serde_json::Value>(text)
+            .map_err(|e| PyValueError::new_err(format!("{name}: not valid JSON: {e}")))
+    };
+    let info = sensaug_log::RunInfo {
+        source: sensaug_log::Source::Simulation,
+        config: parse("config_json", config_json)?,
+        resolved: parse("resolved_json", resolved_json)?,
+        git_commit,
+        start_unix_s: sensaug_log::now_unix_s(),
+        loop_settings: serde_json::Value::Null,
+    };
+    Ok(sensaug_log::metadata(&info).to_string())
+}
+
+/// One column's values while converting rows to numpy.
+enum ColumnValues {
+    Int(Vec<i64>),
+    Float(Vec<f64>),
+    Bool(Vec<bool>),
+}
+
+/// Rows as one numpy array per column (float64, int64 or bool), by name.
+pub fn rows_to_columns<'py>(py: Python<'py>, rows: &[Row]) -> PyResult<Bound<'py, PyDict>> {
+    let n = rows.len();
+    let mut cols: Vec<ColumnValues> = COLUMNS
+        .iter()
+        .map(|c| match c.kind {
+            Kind::Int => ColumnValues::Int(Vec::with_capacity(n)),
+            Kind::Float => ColumnValues::Float(Vec::with_capacity(n)),
+            Kind::Bool => ColumnValues::Bool(Vec::with_capacity(n)),
+        })
+        .collect();
+    for r in rows {
+        for (col, v) in cols.iter_mut().zip(r.values()) {
+            // `values()` and `COLUMNS` come from one table: kinds agree.
+            match (col, v) {
+                (ColumnValues::Int(a), Value::Int(x)) => a.push(x),
+                (ColumnValues::Float(a), Value::Float(x)) => a.push(x),
+                (ColumnValues::Bool(a), Value::Bool(x)) => a.push(x),
+                _ => {}
+            }
+        }
+    }
+    let d = PyDict::new(py);
+    for (c, col) in COLUMNS.iter().zip(cols) {
+        match col {
+            ColumnValues::Int(a) => d.set_item(c.name, a.into_pyarray(py))?,
+            ColumnValues::Float(a) => d.set_item(c.name, a.into_pyarray(py))?,
+            ColumnValues::Bool(a) => d.set_item(c.name, a.into_pyarray(py))?,
+        }
+    }
+    Ok(d)
+}
+
+/// Rows from `data[name]` for every column (a numpy structured array or a
+/// dict of 1-D arrays with the schema's dtypes).
+fn columns_to_rows(data: &Bound<'_, PyAny>) -> PyResult<Vec<Row>> {
+    // A field of a structured array is a strided, possibly unaligned view:
+    // numpy copies it into an aligned contiguous array first.
+    let contiguous = data.py().import("numpy")?.getattr("ascontiguousarray")?;
+    let mut rows: Vec<Row> = Vec::new();
+    for (j, c) in COLUMNS.iter().enumerate() {
+        let col = data
+            .get_item(c.name)
+            .map_err(|_| PyValueError::new_err(format!("data.{}: missing column", c.name)))?;
+        let col = contiguous.call1((col,))?;
+        let wrong = |what: &str| {
+            PyValueError::new_err(format!(
+                "data.{}: expected a 1-D {what} array (column kind {})",
+                c.name,
+                c.kind.name()
+            ))
+        };
+        let len = col.len().map_err(|_| wrong("numpy"))?;
+        if j == 0 {
+            rows = vec![Row::UNKNOWN; len];
+        } else if len != rows.len() {
+            return Err(PyValueError::new_err(format!(
+                "data.{}: {len} values, but {} has {}",
+                c.name,
+                COLUMNS[0].name,
+                rows.len()
+            )));
+        }
+        let set =
+            |rows: &mut [Row], k: usize, v: Value| rows[k].set(j, v).map_err(PyValueError::new_err);
+        match c.kind {
+            Kind::Int => {
+                let a: PyReadonlyArray1<i64> = col.extract().map_err(|_| wrong("int64"))?;
+                for (k, v) in a.as_array().iter().enumerate() {
+                    set(&mut rows, k, Value::Int(*v))?;
+                }
+            }
+            Kind::Float => {
+                let a: PyReadonlyArray1<f64> = col.extract().map_err(|_| wrong("float64"))?;
+                for (k, v) in a.as_array().iter().enumerate() {
+                    set(&mut rows, k, Value::Float(*v))?;
+                }
+            }
+            Kind::Bool => {
+                let a: PyReadonlyArray1<bool> = col.extract().map_err(|_| wrong("bool"))?;
+                for (k, v) in a.as_array().iter().enumerate() {
+                    set(&mut rows, k, Value::Bool(*v))?;
+                }
+            }
+        }
+    }
+    Ok(rows)
+}
+
+fn write_file(
+    path: &Path,
+    meta: &serde_json::Value,
+    rows: &[Row],
+    end: &serde_json::Value,
+) -> std::io::Result<()> {
+    if let Some(dir) = path.parent() {
+        if !dir.as_os_str().is_empty() {
+            std::fs::create_dir_all(dir)?;
+        }
+    }
+    let mut out = std::io::BufWriter::new(std::fs::File::create(path)?);
+    sensaug_log::write_header(&mut out, meta)?;
+    let mut line = Vec::with_capacity(1024);
+    for r in rows {
+        line.clear();
+        sensaug_log::format_row(r, &mut line);
+        out.write_all(&line)?;
+    }
+    if !end.is_null() {
+        sensaug_log::write_footer(&mut out, end)?;
+    }
+    out.flush()
+}
+
+/// Writes a log file: the metadata line `meta_json`, one line per row of
+/// `data` (every column of the schema, with its dtype), then the end-status
+/// line `end_json` if given.
+#[pyfunction]
+#[pyo3(signature = (path, data, /, *, meta_json, end_json=None))]
+fn write_log(
+    py: Python<'_>,
+    path: PathBuf,
+    data: &Bound<'_, PyAny>,
+    meta_json: &str,
+    end_json: Option<&str>,
+) -> PyResult<()> {
+    let parse = |name: &str, text: &str| {
+        serde_json::from_str::<serde_json::Value>(text)
+            .map_err(|e| PyValueError::new_err(format!("{name}: not valid JSON: {e}")))
+    };
+    let meta = parse("meta_json", meta_json)?;
+    let end = match end_json {
+        Some(t) => parse("end_json", t)?,
+        None => serde_json::Value::Null,
+    };
+    let rows = columns_to_rows(data)?;
+    py.detach(|| write_file(&path, &meta, &rows, &end))
+        .map_err(|e| PyOSError::new_err(format!("{}: cannot write the log: {e}", path.display())))
+}
