@@ -4,7 +4,7 @@ The numerics run in the compiled core (`sensaug._core`, Rust); this package is
 the Python API for scripting experiments around it.
 """
 from sensaug import _core
-from sensaug._core import GainEstimator, GoalIntegrator, Plant, TrajectoryEstimator
+from sensaug._core import GainEstimator, GoalIntegrator, Plant, TrajectoryEstimator, UkfStepError
 from sensaug.config import PhaseConfig, ScenarioConfig
 from sensaug.experiment import Trial, run
 from sensaug.lqr import (
@@ -16,13 +16,11 @@ from sensaug.lqr import (
     partner_gain_vector,
     robot_gain_vector,
 )
-from sensaug.ukf import PendulumUKF, UkfStepError
 
 __all__ = [
     "_core",
     "GainEstimator",
     "GoalIntegrator",
-    "PendulumUKF",
     "PhaseConfig",
     "Plant",
     "RiccatiConvergenceError",

@@ -14,10 +14,10 @@
 #![allow(non_snake_case)]
 
 pub mod agent;
-pub mod demo_model;
 pub mod estimator;
 pub mod linalg;
 pub mod plant;
+pub mod replay;
 pub mod riccati;
 pub mod rng;
 pub mod scenario;
