@@ -10,41 +10,6 @@ from numpy.typing import NDArray
 class RiccatiConvergenceError(RuntimeError):
     """The solver did not converge, or its solution failed the residual or closed-loop check."""
 
-def care(
-    a: npt.NDArray[np.float64],
-    b: npt.NDArray[np.float64],
-    q: npt.NDArray[np.float64],
-    r: npt.NDArray[np.float64],
-    /,
-) -> npt.NDArray[np.float64]:
-    """Stabilising CARE solution X of A'X + XA - X B R^-1 B' X + Q = 0.
-
-    Arguments:
-        a: (n, n), 1 <= n <= 6. b: (n, m), 1 <= m <= min(n, 3). q: (n, n) PSD. r: (m, m) PD.
-
-    Raises:
-        ValueError: bad shape or input, not stabilisable, not detectable.
-        RiccatiConvergenceError: no convergence, residual > 1e-10, or not stabilising.
-
-    Returns:
-        X, (n, n).
-    """
-
-def dare(
-    a: npt.NDArray[np.float64],
-    b: npt.NDArray[np.float64],
-    q: npt.NDArray[np.float64],
-    r: npt.NDArray[np.float64],
-    /,
-) -> npt.NDArray[np.float64]:
-    """Stabilising DARE solution X of X = A'XA - A'XB (R + B'XB)^-1 B'XA + Q.
-
-    Arguments, Raises: as `care`.
-
-    Returns:
-        X, (n, n).
-    """
-
 def lqr(
     a: npt.NDArray[np.float64],
     b: npt.NDArray[np.float64],
@@ -54,9 +19,17 @@ def lqr(
     *,
     discrete: bool = False,
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """LQR gain and Riccati solution (K, X); K = R^-1 B'X, or (R + B'XB)^-1 B'XA if discrete.
+    """LQR gain and stabilising Riccati solution (K, X); K = R^-1 B'X, or (R + B'XB)^-1 B'XA if discrete.
 
-    Arguments, Raises: as `care`.
+    X solves the CARE A'X + XA - X B R^-1 B' X + Q = 0, or if discrete the DARE
+    X = A'XA - A'XB (R + B'XB)^-1 B'XA + Q (`sensaug.care` / `sensaug.dare` return X).
+
+    Arguments:
+        a: (n, n), 1 <= n <= 6. b: (n, m), 1 <= m <= min(n, 3). q: (n, n) PSD. r: (m, m) PD.
+
+    Raises:
+        ValueError: bad shape or input, not stabilisable, not detectable.
+        RiccatiConvergenceError: no convergence, residual > 1e-10, or not stabilising.
 
     Returns:
         (K (m, n), X (n, n)).

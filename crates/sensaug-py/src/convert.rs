@@ -5,13 +5,13 @@ use numpy::ndarray::Array2;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray, PyUntypedArrayMethods};
 use numpy::{PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
-use pyo3::types::PyDict;
+use pyo3::types::{IntoPyDict, PyDict};
 use pyo3::{create_exception, prelude::*};
 use sensaug_core::estimator::EstimatorError;
 use sensaug_core::plant::PlantError;
 use sensaug_core::replay::ReplayError;
 use sensaug_core::riccati::RiccatiError;
-use sensaug_core::ukf::{Arg, Phase, Recoveries, RunReport, Stage, Status, UkfError};
+use sensaug_core::ukf::{Arg, Recoveries, RunReport, Status, UkfError};
 
 create_exception!(
     _core,
@@ -86,28 +86,33 @@ pub fn vec_to<'py, const D: usize>(
 pub fn status_str(s: Status) -> String {
     match s {
         Status::Nominal => "nominal".to_owned(),
-        Status::Resymmetrised { stage } => format!("resymmetrised:{}", stage_name(stage)),
+        Status::Resymmetrised { stage } => format!("resymmetrised:{}", snake(stage)),
     }
 }
 
-fn stage_name(s: Stage) -> &'static str {
-    match s {
-        Stage::PredictSigmaPoints => "predict_sigma_points",
-        Stage::PredictRedraw => "predict_redraw",
-        Stage::UpdateSigmaPoints => "update_sigma_points",
-        Stage::InnovationCovariance => "innovation_covariance",
+/// A core enum variant's name in snake case (`PredictRedraw` -> `predict_redraw`).
+fn snake(variant: impl core::fmt::Debug) -> String {
+    let mut out = String::new();
+    for (i, c) in format!("{variant:?}").chars().enumerate() {
+        if c.is_uppercase() && i > 0 {
+            out.push('_');
+        }
+        out.push(c.to_ascii_lowercase());
     }
+    out
 }
 
 /// A UKF's counters as a dict.
 pub fn recoveries_dict<'py>(py: Python<'py>, r: &Recoveries) -> PyResult<Bound<'py, PyDict>> {
-    let d = PyDict::new(py);
-    d.set_item("resymmetrised", r.resymmetrised)?;
-    d.set_item("covariance_resets", r.covariance_resets)?;
-    d.set_item("rejected", r.rejected)?;
-    d.set_item("predicts", r.predicts)?;
-    d.set_item("updates", r.updates)?;
-    Ok(d)
+    let (rs, cr, rj) = (r.resymmetrised, r.covariance_resets, r.rejected);
+    [
+        ("resymmetrised", rs),
+        ("covariance_resets", cr),
+        ("rejected", rj),
+    ]
+    .into_iter()
+    .chain([("predicts", r.predicts), ("updates", r.updates)])
+    .into_py_dict(py)
 }
 
 /// Every core error the binding can meet.
@@ -183,9 +188,9 @@ fn describe(e: CoreError) -> (Kind, String) {
             UkfError::InvalidModelParameter { name } => (Value, format!(
                 "{name}: out of range (dt_s, length_m, mass_kg > 0; damping_nms >= 0; all finite)"
             )),
-            UkfError::InputLength { which, needed, got }
-            | UkfError::OutputTooShort { which, needed, got } => {
-                (Value, format!("{}: needs {needed} values, got {got}", which.name()))
+            // Ukf::run's slice errors: the binding replays through sensaug_core::replay.
+            other @ (UkfError::InputLength { .. } | UkfError::OutputTooShort { .. }) => {
+                (Value, format!("{other:?}"))
             }
             UkfError::NonFiniteMeasurement => {
                 (Step, "z: must be finite; update rejected, state unchanged".into())
@@ -198,11 +203,11 @@ fn describe(e: CoreError) -> (Kind, String) {
             ),
             UkfError::NonFiniteResult { phase } => (Step, format!(
                 "{} overflowed to NaN/inf; rejected, state unchanged",
-                phase_name(phase)
+                snake(phase)
             )),
             UkfError::CovarianceReset { stage } => (Step, format!(
                 "covariance not positive definite at {} even after re-symmetrising; P reset to the reset covariance (filter valid)",
-                stage_name(stage)
+                snake(stage)
             )),
         },
         CoreError::Replay(e) => (Value, match e {
@@ -235,18 +240,11 @@ fn describe(e: CoreError) -> (Kind, String) {
                 "{} step error(s); first at step {} ({}): {}",
                 r.errors,
                 first.step,
-                phase_name(first.phase),
+                snake(first.phase),
                 describe(CoreError::Ukf(first.error)).1
             ),
             None => "no step error".into(),
         }),
-    }
-}
-
-fn phase_name(p: Phase) -> &'static str {
-    match p {
-        Phase::Predict => "predict",
-        Phase::Update => "update",
     }
 }
 

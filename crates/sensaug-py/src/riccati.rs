@@ -81,33 +81,9 @@ fn solve<'py>(py: Python<'py>, arrays: Arrays<'_, 'py>, discrete: bool) -> PyRes
     )
 }
 
-/// CARE `A'X + XA - X B R^-1 B' X + Q = 0`: the stabilising solution.
-#[pyfunction]
-#[pyo3(signature = (a, b, q, r, /))]
-fn care<'py>(
-    py: Python<'py>,
-    a: PyReadonlyArray2<'py, f64>,
-    b: PyReadonlyArray2<'py, f64>,
-    q: PyReadonlyArray2<'py, f64>,
-    r: PyReadonlyArray2<'py, f64>,
-) -> PyResult<Bound<'py, PyArray2<f64>>> {
-    Ok(solve(py, [&a, &b, &q, &r], false)?.1)
-}
-
-/// DARE `X = A'XA - A'XB (R + B'XB)^-1 B'XA + Q`: the stabilising solution.
-#[pyfunction]
-#[pyo3(signature = (a, b, q, r, /))]
-fn dare<'py>(
-    py: Python<'py>,
-    a: PyReadonlyArray2<'py, f64>,
-    b: PyReadonlyArray2<'py, f64>,
-    q: PyReadonlyArray2<'py, f64>,
-    r: PyReadonlyArray2<'py, f64>,
-) -> PyResult<Bound<'py, PyArray2<f64>>> {
-    Ok(solve(py, [&a, &b, &q, &r], true)?.1)
-}
-
-/// LQR gain and Riccati solution `(K, X)`; `discrete` selects the DARE.
+/// LQR gain and stabilising Riccati solution `(K, X)`: CARE
+/// `A'X + XA - X B R^-1 B' X + Q = 0`, or with `discrete` the DARE
+/// `X = A'XA - A'XB (R + B'XB)^-1 B'XA + Q` (`sensaug.care` / `dare` keep `X`).
 #[pyfunction]
 #[pyo3(signature = (a, b, q, r, /, *, discrete = false))]
 fn lqr<'py>(
@@ -130,8 +106,6 @@ fn agent_gains(mass: f64, damping: f64, q_pos: f64, q_vel: f64) -> PyResult<(f64
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_function(wrap_pyfunction!(care, m)?)?;
-    m.add_function(wrap_pyfunction!(dare, m)?)?;
     m.add_function(wrap_pyfunction!(lqr, m)?)?;
     m.add_function(wrap_pyfunction!(agent_gains, m)?)
 }
