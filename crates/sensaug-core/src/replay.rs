@@ -139,6 +139,30 @@ pub enum ReplayError {
     },
 }
 
+impl core::fmt::Display for ReplayError {
+    /// The message starts with the argument's name, as the Python API spells it.
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match *self {
+            ReplayError::Length { which, needed, got } => write!(
+                f,
+                "{}: expected {needed} values (one row per tick of u), got {got}",
+                which.name()
+            ),
+            ReplayError::NotRead { which } => {
+                write!(f, "{}: not read by this filter; leave it out", which.name())
+            }
+            ReplayError::OutOfRange { which } => {
+                write!(f, "{}: must be finite and >= 0", which.name())
+            }
+            ReplayError::NonFinite { which, step } => write!(
+                f,
+                "{}[{step}]: must be finite; nothing was stepped",
+                which.name()
+            ),
+        }
+    }
+}
+
 fn check_len(which: ReplayArg, needed: usize, got: usize) -> Result<(), ReplayError> {
     if needed == got {
         Ok(())

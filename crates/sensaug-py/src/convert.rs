@@ -210,18 +210,7 @@ fn describe(e: CoreError) -> (Kind, String) {
                 snake(stage)
             )),
         },
-        CoreError::Replay(e) => (Value, match e {
-            ReplayError::Length { which, needed, got } => {
-                format!("{}: expected {needed} values (one row per tick of u), got {got}", which.name())
-            }
-            ReplayError::NotRead { which } => {
-                format!("{}: not read by this filter; leave it out", which.name())
-            }
-            ReplayError::OutOfRange { which } => format!("{}: must be finite and >= 0", which.name()),
-            ReplayError::NonFinite { which, step } => {
-                format!("{}[{step}]: must be finite; nothing was stepped", which.name())
-            }
-        }),
+        CoreError::Replay(e) => (Value, e.to_string()),
         CoreError::Plant(PlantError::InvalidParam(field)) => (Value, format!(
             "{field}: must be finite and {}",
             if matches!(field, "mass" | "dt_s") { "> 0" } else { ">= 0" }
