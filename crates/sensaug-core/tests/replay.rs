@@ -11,7 +11,7 @@ use sensaug_core::plant::{Plant, PlantParams};
 use sensaug_core::replay::{
     replay, simulate, GoalReplay, Posteriors, Recording, ReplayArg, ReplayError,
 };
-use sensaug_core::ukf::{Phase, StepError, UkfError};
+use sensaug_core::ukf::{Phase, RunReport, StepError, UkfError};
 
 const T: usize = 300;
 
@@ -27,24 +27,36 @@ fn recording() -> (Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>) {
     (y, u, dtau, dtau_h)
 }
 
+/// Replays a whole recording through `g`; returns the report and the outputs.
+fn replay_gain(
+    g: &mut GainEstimator,
+    y: &[f64],
+    u: &[f64],
+    dtau: &[f64],
+    dtau_h: &[f64],
+) -> (RunReport, Vec<f64>, Vec<f64>) {
+    let (mut xs, mut var) = (vec![0.0; 6 * T], vec![0.0; 6 * T]);
+    let rec = Recording {
+        y,
+        u,
+        dtau: Some(dtau),
+        dtau_h: Some(dtau_h),
+    };
+    let mut out = Posteriors {
+        x: &mut xs,
+        var: &mut var,
+    };
+    let report = replay(g, &rec, &mut out).unwrap();
+    (report, xs, var)
+}
+
 #[test]
 fn gain_replay_equals_stepping_update_then_predict() {
     let (y, u, dtau, dtau_h) = recording();
     let model = common::model();
     let mut batch = GainEstimator::new(model, &common::extended::<3>()).unwrap();
     let mut step = batch.clone();
-    let (mut xs, mut var) = (vec![0.0; 6 * T], vec![0.0; 6 * T]);
-    let rec = Recording {
-        y: &y,
-        u: &u,
-        dtau: Some(&dtau),
-        dtau_h: Some(&dtau_h),
-    };
-    let mut out = Posteriors {
-        x: &mut xs,
-        var: &mut var,
-    };
-    let report = replay(&mut batch, &rec, &mut out).unwrap();
+    let (report, xs, var) = replay_gain(&mut batch, &y, &u, &dtau, &dtau_h);
     assert_eq!(
         (report.steps, report.errors, report.first_error),
         (T, 0, None)
@@ -180,18 +192,7 @@ fn step_errors_are_counted_and_the_replay_goes_on() {
     y[3 * 100 + 1] = f64::NAN;
     y[3 * 200] = f64::INFINITY;
     let mut g = GainEstimator::new(common::model(), &common::extended::<3>()).unwrap();
-    let (mut xs, mut var) = (vec![0.0; 6 * T], vec![0.0; 6 * T]);
-    let rec = Recording {
-        y: &y,
-        u: &u,
-        dtau: Some(&dtau),
-        dtau_h: Some(&dtau_h),
-    };
-    let mut out = Posteriors {
-        x: &mut xs,
-        var: &mut var,
-    };
-    let report = replay(&mut g, &rec, &mut out).unwrap();
+    let (report, xs, var) = replay_gain(&mut g, &y, &u, &dtau, &dtau_h);
     assert_eq!(report.errors, 2);
     let first = StepError {
         step: 100,
