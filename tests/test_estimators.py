@@ -130,3 +130,54 @@ def test_non_finite_measurement_is_rejected_and_state_kept():
     np.testing.assert_array_equal(est.x, x_before)
     with pytest.raises(ValueError, match="u, dtau, dtau_h"):
         est.predict(np.inf)
+
+
+@pytest.mark.parametrize("columns", [2, 3])
+def test_goal_integrator_run_equals_stepping(recorded, columns):
+    """`run` is update(y[k], partner_floor) then predict(u[k], dtau[k]) per k,
+    with and without the partner channel; posteriors are the integrated filter's."""
+    y, u, dtau, _ = recorded
+    T = 500
+    channel = y[:T, 0] + 0.02 * np.sin(np.arange(T) * 0.05)
+    yk = np.ascontiguousarray(np.column_stack([y[:T, :2], channel])[:, :columns])
+    kw = dict(mass=M, dt=DT, Q=1e-2 * np.eye(2), R=np.diag([1e-4, 1e-7]), x0=np.zeros(2), P0=np.eye(2))
+    a, b = sensaug.GoalIntegrator(**kw), sensaug.GoalIntegrator(**kw)
+    xs, pd = a.run(yk, u[:T], dtau[:T], partner_floor=1e-6)
+    assert xs.shape == pd.shape == (T, 2)
+    for k in range(T):
+        b.update(yk[k], partner_floor=1e-6)
+        np.testing.assert_array_equal(xs[k], b.x)
+        np.testing.assert_array_equal(pd[k], np.diag(b.P))
+        b.predict(u[k], dtau[k])
+    np.testing.assert_array_equal(a.x, b.x)
+    np.testing.assert_array_equal(a.x_own, b.x_own)
+    if columns == 3:
+        assert not np.array_equal(a.x, a.x_own), "the channel was used"
+
+
+def test_run_arguments_and_step_errors_name_the_field(recorded):
+    y, u, dtau, dtau_h = recorded
+    kw = dict(mass=M, dt=DT, Q=1e-2 * np.eye(2), R=np.diag([1e-4, 1e-7]), x0=np.zeros(2), P0=np.eye(2))
+    gi = sensaug.GoalIntegrator(**kw)
+    with pytest.raises(ValueError, match="^y: expected 2 entries"):
+        gi.run(np.zeros((10, 4)), np.zeros(10), np.zeros(10))
+    with pytest.raises(ValueError, match="^dtau: expected 10 values"):
+        gi.run(np.zeros((10, 3)), np.zeros(10), np.zeros(9))
+    with pytest.raises(ValueError, match="^partner_floor: must be finite"):
+        gi.run(np.zeros((10, 3)), np.zeros(10), np.zeros(10), partner_floor=-1.0)
+    with pytest.raises(ValueError, match="^y: must be C-contiguous"):
+        gi.run(np.zeros((10, 6))[:, ::2], np.zeros(10), np.zeros(10))
+    kw6 = dict(mass=M, dt=DT, Q=1e-2 * np.eye(6), R=1e-7 * np.eye(3), x0=np.zeros(6), P0=np.eye(6))
+    with pytest.raises(ValueError, match=r"^y: expected shape \(T, 3\)"):
+        sensaug.GainEstimator(**kw6).run(y[:10, :2].copy(), u[:10], dtau[:10], dtau_h[:10])
+    with pytest.raises(ValueError, match=r"^y: expected 27 values \(one row per tick of u\), got 30"):
+        sensaug.GainEstimator(**kw6).run(y[:10], u[:9], dtau[:10], dtau_h[:10])
+    bad = y[:200].copy()
+    bad[50, 1] = np.nan
+    est = sensaug.GainEstimator(**kw6)
+    with pytest.raises(sensaug.UkfStepError, match=r"^1 step error\(s\); first at step 50 \(update\): z: must be finite"):
+        est.run(bad, u[:200], dtau[:200], dtau_h[:200])
+    est = sensaug.GainEstimator(**kw6)
+    xs, pd = est.run(bad, u[:200], dtau[:200], dtau_h[:200], strict=False)
+    assert np.all(np.isfinite(xs)) and np.all(np.isfinite(pd))
+    assert est.recoveries()["rejected"] == 1

@@ -3,6 +3,8 @@
 Oracle: filterpy.kalman.UnscentedKalmanFilter + MerweScaledSigmaPoints on the
 same pendulum model written here in numpy, the same seeded data, the same
 order (predict(u_k) then update(z_k) for every k, as filterpy's batch_filter).
+The generic UKF runs on the test-only pendulum module `tests/ukf_oracle`
+(built by cargo on import), not the shipped package.
 Tolerance: at every step, max|ours - filterpy| <= 1e-9 * max|filterpy| for x
 and for P separately (norm-wise relative; elements cross zero so elementwise
 relative error is meaningless).
@@ -15,7 +17,8 @@ import numpy as np
 import pytest
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
-from sensaug import PendulumUKF, UkfStepError, _core
+from ukf_oracle.pendulum_ukf import PendulumUKF, UkfStepError
+from ukf_oracle.pendulum_ukf import _core
 
 DT, L, MASS, DAMP, G = 1e-3, 0.5, 1.0, 0.1, 9.81
 STEPS = 10_000
@@ -23,7 +26,7 @@ RTOL = 1e-9
 
 
 def fx(x: np.ndarray, dt: float, u: float = 0.0) -> np.ndarray:
-    """Same model as sensaug-core demo_model::Pendulum::f (semi-implicit Euler)."""
+    """Same model as sensaug-core tests/common/pendulum.rs Pendulum::f (semi-implicit Euler)."""
     theta, omega, bias = x
     inertia = MASS * L * L
     acc = (u + bias - DAMP * omega - MASS * G * L * math.sin(theta)) / inertia
@@ -101,8 +104,11 @@ def test_matches_filterpy_every_step(data, alpha, beta, kappa) -> None:
     assert us.recoveries() == {"resymmetrised": 0, "covariance_resets": 0, "rejected": 0,
                                "predicts": STEPS, "updates": STEPS}
 
-    # The whole trial in one Rust call gives the same trajectory.
-    xs, pd = ours(alpha, beta, kappa).run(u, z)
+    # The whole trial in one Rust call gives the same trajectory. The replay
+    # runs update(z[k]) then predict(u[k]), so predict u[0] first and shift u.
+    batch = ours(alpha, beta, kappa)
+    assert batch.predict(u[0]) == "nominal"
+    xs, pd = batch.run(z, np.append(u[1:], 0.0))
     ex = np.max(np.abs(xs - ref_x), axis=1) / np.max(np.abs(ref_x), axis=1)
     ep = np.max(np.abs(pd - ref_pd), axis=1) / np.max(np.abs(ref_pd), axis=1)
     print(f"run(): max rel diff x {ex.max():.2e}, diag(P) {ep.max():.2e}")
@@ -111,7 +117,9 @@ def test_matches_filterpy_every_step(data, alpha, beta, kappa) -> None:
 
 def test_filter_converges_to_true_bias(data) -> None:
     u, z = data
-    xs, pd = ours(0.5, 2.0, 0.0).run(u, z)
+    us = ours(0.5, 2.0, 0.0)
+    us.predict(u[0])
+    xs, pd = us.run(z, np.append(u[1:], 0.0))
     assert abs(xs[-1, 2] - 0.3) < 0.05
     assert np.all(pd > 0)
 
@@ -192,7 +200,7 @@ def test_core_validates_without_wrapper() -> None:
     with pytest.raises(ValueError, match="^length_m:"):
         _core.DemoUkf(x0=X0, P0=P0, Q=Q, R=R, alpha=0.5, beta=2.0, kappa=0.0, length_m=0.0)
     with pytest.raises(ValueError, match="^z:"):
-        ours(0.5, 2.0, 0.0)._core.run(np.zeros(4), np.zeros((3, 2)))
+        ours(0.5, 2.0, 0.0)._core.run(np.zeros((3, 2)), np.zeros(4))
 
 
 def test_bad_step_inputs_name_field() -> None:
@@ -204,9 +212,9 @@ def test_bad_step_inputs_name_field() -> None:
     with pytest.raises(ValueError, match="^Q:"):
         us.predict(0.0, Q=np.eye(2))
     with pytest.raises(ValueError, match="^z:"):
-        us.run(np.zeros(5), np.zeros((4, 2)))
+        us.run(np.zeros((4, 2)), np.zeros(5))
     with pytest.raises(ValueError, match="^u:"):
-        us.run(np.full(3, np.nan), np.zeros((3, 2)))
+        us.run(np.zeros((3, 2)), np.full(3, np.nan))
     with pytest.raises(ValueError, match="^R:"):
         us.R = np.eye(2) * np.nan
 
@@ -217,8 +225,8 @@ def test_run_non_strict_skips_bad_rows(data) -> None:
     z[100] = np.nan
     us = ours(0.5, 2.0, 0.0)
     with pytest.raises(UkfStepError, match="first at step 100 \\(update\\)"):
-        us._core.run(u[:500], z, strict=True)
+        us._core.run(z, u[:500], strict=True)
     us = ours(0.5, 2.0, 0.0)
-    xs, pd = us.run(u[:500], z, strict=False)
+    xs, pd = us.run(z, u[:500], strict=False)
     assert np.all(np.isfinite(xs)) and np.all(np.isfinite(pd))
     assert us.recoveries()["rejected"] == 1

@@ -4,7 +4,7 @@ The numerics run in the compiled core (`sensaug._core`, Rust); this package is
 the Python API for scripting experiments around it.
 """
 from sensaug import _core
-from sensaug._core import GainEstimator, GoalIntegrator, Plant, TrajectoryEstimator
+from sensaug._core import GainEstimator, GoalIntegrator, Plant, TrajectoryEstimator, UkfStepError
 from sensaug.config import ConfigError, PhaseConfig, ScenarioConfig
 from sensaug.experiment import Trial, run
 from sensaug.logs import Log, load_log
@@ -18,7 +18,6 @@ from sensaug.lqr import (
     robot_gain_vector,
 )
 from sensaug.sweep import sweep
-from sensaug.ukf import PendulumUKF, UkfStepError
 
 __all__ = [
     "_core",
@@ -26,7 +25,6 @@ __all__ = [
     "GainEstimator",
     "GoalIntegrator",
     "Log",
-    "PendulumUKF",
     "PhaseConfig",
     "Plant",
     "RiccatiConvergenceError",

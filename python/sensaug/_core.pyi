@@ -10,41 +10,6 @@ from numpy.typing import NDArray
 class RiccatiConvergenceError(RuntimeError):
     """The solver did not converge, or its solution failed the residual or closed-loop check."""
 
-def care(
-    a: npt.NDArray[np.float64],
-    b: npt.NDArray[np.float64],
-    q: npt.NDArray[np.float64],
-    r: npt.NDArray[np.float64],
-    /,
-) -> npt.NDArray[np.float64]:
-    """Stabilising CARE solution X of A'X + XA - X B R^-1 B' X + Q = 0.
-
-    Arguments:
-        a: (n, n), 1 <= n <= 6. b: (n, m), 1 <= m <= min(n, 3). q: (n, n) PSD. r: (m, m) PD.
-
-    Raises:
-        ValueError: bad shape or input, not stabilisable, not detectable.
-        RiccatiConvergenceError: no convergence, residual > 1e-10, or not stabilising.
-
-    Returns:
-        X, (n, n).
-    """
-
-def dare(
-    a: npt.NDArray[np.float64],
-    b: npt.NDArray[np.float64],
-    q: npt.NDArray[np.float64],
-    r: npt.NDArray[np.float64],
-    /,
-) -> npt.NDArray[np.float64]:
-    """Stabilising DARE solution X of X = A'XA - A'XB (R + B'XB)^-1 B'XA + Q.
-
-    Arguments, Raises: as `care`.
-
-    Returns:
-        X, (n, n).
-    """
-
 def lqr(
     a: npt.NDArray[np.float64],
     b: npt.NDArray[np.float64],
@@ -54,9 +19,17 @@ def lqr(
     *,
     discrete: bool = False,
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """LQR gain and Riccati solution (K, X); K = R^-1 B'X, or (R + B'XB)^-1 B'XA if discrete.
+    """LQR gain and stabilising Riccati solution (K, X); K = R^-1 B'X, or (R + B'XB)^-1 B'XA if discrete.
 
-    Arguments, Raises: as `care`.
+    X solves the CARE A'X + XA - X B R^-1 B' X + Q = 0, or if discrete the DARE
+    X = A'XA - A'XB (R + B'XB)^-1 B'XA + Q (`sensaug.care` / `sensaug.dare` return X).
+
+    Arguments:
+        a: (n, n), 1 <= n <= 6. b: (n, m), 1 <= m <= min(n, 3). q: (n, n) PSD. r: (m, m) PD.
+
+    Raises:
+        ValueError: bad shape or input, not stabilisable, not detectable.
+        RiccatiConvergenceError: no convergence, residual > 1e-10, or not stabilising.
 
     Returns:
         (K (m, n), X (n, n)).
@@ -70,106 +43,11 @@ def agent_gains(*, mass: float, damping: float, q_pos: float, q_vel: float) -> t
     """
 # --- end riccati ---
 
-# --- ukf ---
-
+# --- errors ---
 
 class UkfStepError(RuntimeError):
     """A UKF predict/update was rejected (state unchanged) or reset P (state valid)."""
-
-@final
-class DemoUkf:
-    """Merwe-scaled UKF on the built-in pendulum model (N = 3, M = 2).
-
-    Arguments are float64 numpy arrays; the Python wrapper
-    `sensaug.ukf.PendulumUKF` converts and validates them first.
-
-    Raises:
-        ValueError: an argument is malformed; the message starts with its name.
-    """
-
-    def __init__(
-        self,
-        *,
-        x0: NDArray[np.float64],
-        P0: NDArray[np.float64],
-        Q: NDArray[np.float64],
-        R: NDArray[np.float64],
-        alpha: float,
-        beta: float,
-        kappa: float,
-        dt_s: float = 1e-3,
-        length_m: float = 0.5,
-        mass_kg: float = 1.0,
-        damping_nms: float = 0.1,
-        gravity_mps2: float = 9.81,
-    ) -> None: ...
-    def predict(self, u: float, *, Q: NDArray[np.float64] | None = None) -> str:
-        """One predict with torque `u`.
-
-        Returns:
-            "nominal" or "resymmetrised:<stage>".
-
-        Raises:
-            UkfStepError: rejected (state unchanged) or P reset.
-        """
-    def update(self, z: NDArray[np.float64], *, R: NDArray[np.float64] | None = None) -> str:
-        """One update with measurement `z` of shape (2,).
-
-        Returns:
-            "nominal" or "resymmetrised:<stage>".
-
-        Raises:
-            UkfStepError: rejected (state unchanged) or P reset.
-        """
-    def run(
-        self, u: NDArray[np.float64], z: NDArray[np.float64], *, strict: bool = True
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """predict(u[k]) then update(z[k]) for all k, in Rust.
-
-        Returns:
-            (xs, Pdiag), each of shape (T, 3).
-
-        Raises:
-            ValueError: shape mismatch or non-contiguous input.
-            UkfStepError: with strict, if any step errored (after the run).
-        """
-    def reset(self, x: NDArray[np.float64], P: NDArray[np.float64]) -> None: ...
-    def recoveries(self) -> dict[str, int]: ...
-    @property
-    def x(self) -> NDArray[np.float64]: ...
-    @property
-    def P(self) -> NDArray[np.float64]: ...
-    @property
-    def x_prior(self) -> NDArray[np.float64]: ...
-    @property
-    def P_prior(self) -> NDArray[np.float64]: ...
-    @property
-    def x_post(self) -> NDArray[np.float64]: ...
-    @property
-    def P_post(self) -> NDArray[np.float64]: ...
-    @property
-    def Q(self) -> NDArray[np.float64]: ...
-    @Q.setter
-    def Q(self, value: NDArray[np.float64]) -> None: ...
-    @property
-    def R(self) -> NDArray[np.float64]: ...
-    @R.setter
-    def R(self, value: NDArray[np.float64]) -> None: ...
-    @property
-    def P_reset(self) -> NDArray[np.float64]: ...
-    @P_reset.setter
-    def P_reset(self, value: NDArray[np.float64]) -> None: ...
-    @property
-    def y(self) -> NDArray[np.float64]: ...
-    @property
-    def S(self) -> NDArray[np.float64]: ...
-    @property
-    def K(self) -> NDArray[np.float64]: ...
-    @property
-    def Wm(self) -> NDArray[np.float64]: ...
-    @property
-    def Wc(self) -> NDArray[np.float64]: ...
-# --- end ukf ---
+# --- end errors ---
 
 # --- plant ---
 
@@ -194,7 +72,11 @@ class Plant:
             ValueError: non-finite torque (state unchanged).
         """
     def run(self, torques: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Every torque in turn; positions and velocities after each step."""
+        """Every torque in turn; positions and velocities after each step.
+
+        Raises:
+            ValueError: ``torques[k]`` non-finite (nothing stepped), or not C-contiguous.
+        """
 
 # --- estimators ---
 
@@ -232,7 +114,19 @@ class GainEstimator:
         *,
         strict: bool = True,
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """update(y[k]) then predict(u[k], dtau[k], dtau_h[k]) for every k; posteriors ``(xs, Pdiag)``."""
+        """update(y[k]) then predict(u[k], dtau[k], dtau_h[k]) for every k, in one core call.
+
+        Arguments:
+            y: (T, 3) measurements, C-contiguous. u, dtau, dtau_h: (T,) each.
+            strict: raise the first step error after the run (the filter has handled it).
+
+        Returns:
+            ``(xs, Pdiag)``, each (T, 6): the posterior after each update and its diagonal.
+
+        Raises:
+            ValueError: a shape or length that does not fit, naming the argument.
+            UkfStepError: with strict, if any step errored.
+        """
     @property
     def x(self) -> NDArray[np.float64]: ...
     @property
@@ -273,7 +167,8 @@ class TrajectoryEstimator:
         dtau_h: NDArray[np.float64],
         *,
         strict: bool = True,
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """As ``GainEstimator.run`` with ``y`` of shape (T, 5)."""
     def partner_target(self, x: float) -> float:
         """``tau_h^ = x - (x - tau_h)^``."""
     @property
@@ -311,6 +206,28 @@ class GoalIntegrator:
         """``y`` = ``[x - tau, xdot]`` or ``[x - tau, xdot, x - tau_h^]``."""
     def predict(self, u: float, dtau: float = 0.0, dtau_h: float = 0.0) -> str:
         """``u``: all known torque (own plus estimated partner); ``dtau_h`` must be 0."""
+    def run(
+        self,
+        y: NDArray[np.float64],
+        u: NDArray[np.float64],
+        dtau: NDArray[np.float64],
+        *,
+        partner_floor: float = 0.0,
+        strict: bool = True,
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """update(y[k], partner_floor) then predict(u[k], dtau[k]) for every k, in one core call.
+
+        Arguments:
+            y: (T, 2) own measurements, or (T, 3) with the partner channel ``x - tau_h^``.
+            u, dtau: (T,) each. partner_floor, strict: as ``update`` and ``GainEstimator.run``.
+
+        Returns:
+            ``(xs, Pdiag)``, each (T, 2), of the integrated filter.
+
+        Raises:
+            ValueError: a shape or length that does not fit, or a bad ``partner_floor``.
+            UkfStepError: with strict, if any step errored.
+        """
     @property
     def x(self) -> NDArray[np.float64]: ...
     @property
@@ -320,7 +237,12 @@ class GoalIntegrator:
     @property
     def P_own(self) -> NDArray[np.float64]: ...
     @property
+    def x_prior(self) -> NDArray[np.float64]: ...
+    @property
+    def P_prior(self) -> NDArray[np.float64]: ...
+    @property
     def partner_variance(self) -> float: ...
+    def recoveries(self) -> dict[str, int]: ...
 
 # --- scenario ---
 

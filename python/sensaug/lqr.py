@@ -114,7 +114,7 @@ def care(
             stabilisable / (Q, A) not detectable.
         RiccatiConvergenceError: the solver failed its own checks.
     """
-    return _core.care(*_prepare(A, B, Q, R))
+    return _core.lqr(*_prepare(A, B, Q, R), discrete=False)[1]
 
 
 def dare(
@@ -125,7 +125,7 @@ def dare(
     Arguments and errors as for :func:`care`; ``A - B K`` with
     ``K = (R + B'XB)^-1 B'XA`` has spectral radius < 1.
     """
-    return _core.dare(*_prepare(A, B, Q, R))
+    return _core.lqr(*_prepare(A, B, Q, R), discrete=True)[1]
 
 
 def lqr(

@@ -21,13 +21,13 @@
 
 pub mod agent;
 pub mod controller;
-pub mod demo_model;
 mod error;
 pub mod estimator;
 pub mod identifier;
 pub mod linalg;
 pub mod plant;
 pub mod protocol;
+pub mod replay;
 pub mod riccati;
 pub mod rng;
 pub mod target;

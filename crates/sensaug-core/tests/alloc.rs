@@ -97,3 +97,50 @@ fn a_full_trial_of_ticks_does_not_allocate() {
     assert_eq!(summary.ticks, 6000);
     assert!(out.iter().all(|r| r.x.is_finite() && r.robot.u.is_finite()));
 }
+
+#[test]
+fn batch_replays_do_not_allocate() {
+    use sensaug_core::replay::{replay, simulate, GoalReplay, Posteriors, Recording};
+    const T: usize = 2_000;
+    let model = common::model();
+    let mut g = GainEstimator::new(model, &common::extended::<3>()).unwrap();
+    let mut gi = GoalIntegrator::new(model, &common::robot().stage3).unwrap();
+    let mut plant = Plant::new(PlantParams {
+        mass: 0.0035,
+        damping: 0.01,
+        coulomb: 0.002,
+        dt_s: 1e-3,
+    })
+    .unwrap();
+    let y: Vec<f64> = (0..3 * T).map(|i| 1e-3 * (i as f64 * 1e-2).sin()).collect();
+    let u: Vec<f64> = (0..T).map(|k| 0.01 * (k as f64 * 1e-3).sin()).collect();
+    let dtau = vec![1e-4; T];
+    let (mut xs, mut var) = (vec![0.0; 6 * T], vec![0.0; 6 * T]);
+    let n = allocations(|| {
+        let rec = Recording {
+            y: &y,
+            u: &u,
+            dtau: Some(&dtau),
+            dtau_h: Some(&dtau),
+        };
+        let mut out = Posteriors {
+            x: &mut xs,
+            var: &mut var,
+        };
+        let report = replay(&mut g, &rec, &mut out).unwrap();
+        std::hint::black_box(report);
+        let mut r = GoalReplay::new(&mut gi, Some(1e-6)).unwrap();
+        let rec = Recording {
+            dtau_h: None,
+            ..rec
+        };
+        let mut out = Posteriors {
+            x: &mut xs[..2 * T],
+            var: &mut var[..2 * T],
+        };
+        std::hint::black_box(replay(&mut r, &rec, &mut out).unwrap());
+        let (x, v) = xs.split_at_mut(T);
+        simulate(&mut plant, &u, x, &mut v[..T]).unwrap();
+    });
+    assert_eq!(n, 0);
+}

@@ -4,7 +4,9 @@
 #![allow(non_snake_case)]
 
 use nalgebra::{Matrix2, SMatrix, SVector, Vector1, Vector2};
-use sensaug_core::demo_model::{DemoUkf, Pendulum};
+#[path = "common/pendulum.rs"]
+mod pendulum;
+use pendulum::{DemoUkf, Pendulum};
 use sensaug_core::ukf::{
     merwe_weights, scaled_cholesky, sigma_points, unscented_covariance, unscented_mean, Arg,
     MerweParams, Phase, Stage, Status, Ukf, UkfError,

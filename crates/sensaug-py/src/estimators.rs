@@ -1,47 +1,99 @@
-//! The paper's three estimators, steppable from Python (to replay recorded
-//! rig data or compare with oracles) and runnable over a whole trial in one
-//! call. Conversion only; the logic is in `sensaug_core::estimator`.
+//! The paper's three estimators with filterpy's conventions: step-wise
+//! `update` / `predict`, and `run` over a whole recording in one core call
+//! (`sensaug_core::replay`). Conversion only.
 #![allow(non_snake_case)]
 
-use crate::convert::{estimator_err, mat_from, mat_to, status_str, to_py, vec_from, vec_to};
-use nalgebra::{SVector, Vector2, Vector3};
-use numpy::{
-    PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods,
-};
+use crate::convert::{mat_from, mat_to, py_err, recoveries_dict, slice, status_str};
+use crate::convert::{vec_from, vec_to};
+use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
+use numpy::{PyUntypedArrayMethods, ToPyArray};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
-use sensaug_core::estimator::{
-    ExtendedFilterConfig, GainEstimator as CoreGain, GoalIntegrator as CoreGoal,
-    GoalIntegratorConfig, HandleModel, TrajectoryEstimator as CoreTrajectory,
-};
+use pyo3::types::PyDict;
+use sensaug_core::estimator::TrajectoryEstimator as CoreTrajectory;
+use sensaug_core::estimator::{ExtendedFilterConfig, GoalIntegratorConfig, HandleModel};
+use sensaug_core::estimator::{GainEstimator as CoreGain, GoalIntegrator as CoreGoal};
+use sensaug_core::replay::{replay, GoalReplay, Posteriors, Recording, Replay};
 use sensaug_core::ukf::MerweParams;
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<GainEstimator>()?;
     m.add_class::<TrajectoryEstimator>()?;
-    m.add_class::<GoalIntegrator>()?;
-    Ok(())
+    m.add_class::<GoalIntegrator>()
 }
 
-/// `(xs (T, 6), Pdiag (T, 6))` of a batch run.
-type Batch<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>);
+/// `(xs (T, n), Pdiag (T, n))` of a run.
+pub type Batch<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>);
 
-fn column<'a>(a: &'a PyReadonlyArray1<'_, f64>, name: &str, len: usize) -> PyResult<&'a [f64]> {
-    let s = a
-        .as_slice()
-        .map_err(|_| PyValueError::new_err(format!("{name}: must be C-contiguous")))?;
-    if s.len() != len {
+/// `names: must be finite` unless every value is.
+fn finite(values: &[f64], names: &str) -> PyResult<()> {
+    if values.iter().all(|v| v.is_finite()) {
+        return Ok(());
+    }
+    Err(PyValueError::new_err(format!(
+        "{names}: must be finite; predict not run"
+    )))
+}
+
+/// A whole recording through [`replay`]: converts the arrays, runs, and
+/// raises the first step error after the run when `strict`.
+pub fn run_batch<'py>(
+    py: Python<'py>,
+    filter: &mut impl Replay,
+    y: &PyReadonlyArray2<'py, f64>,
+    u: &PyReadonlyArray1<'py, f64>,
+    [dtau, dtau_h]: [Option<&PyReadonlyArray1<'py, f64>>; 2],
+    strict: bool,
+) -> PyResult<Batch<'py>> {
+    let (m, n) = (filter.measurement_len(), filter.state_len());
+    if y.shape()[1] != m {
+        let got = y.shape();
         return Err(PyValueError::new_err(format!(
-            "{name}: expected length {len} (one per step), got {}",
-            s.len()
+            "y: expected shape (T, {m}), got {got:?}"
         )));
     }
-    Ok(s)
+    let rec = Recording {
+        y: slice(y, "y")?,
+        u: slice(u, "u")?,
+        dtau: dtau.map(|d| slice(d, "dtau")).transpose()?,
+        dtau_h: dtau_h.map(|d| slice(d, "dtau_h")).transpose()?,
+    };
+    let T = rec.u.len();
+    let (xs, pd) = (
+        PyArray2::zeros(py, [T, n], false),
+        PyArray2::zeros(py, [T, n], false),
+    );
+    let report = {
+        let (mut x, mut var) = (xs.readwrite(), pd.readwrite());
+        let mut out = Posteriors {
+            x: x.as_slice_mut()?,
+            var: var.as_slice_mut()?,
+        };
+        replay(filter, &rec, &mut out).map_err(py_err)?
+    };
+    if strict && report.errors > 0 {
+        return Err(py_err(report));
+    }
+    Ok((xs, pd))
 }
 
-/// One estimator class over the 6-state extended model with `$m` measurements.
-macro_rules! extended_estimator {
-    ($name:ident, $core:ty, $m:literal, $doc:literal, { $($extra:tt)* }) => {
+/// Model and sigma points from the constructors' keywords.
+fn model_sigma(mass: f64, damping: f64, dt: f64, sigma: [f64; 3]) -> (HandleModel, MerweParams) {
+    let [alpha, beta, kappa] = sigma;
+    (
+        HandleModel {
+            mass,
+            damping,
+            dt_s: dt,
+        },
+        MerweParams { alpha, beta, kappa },
+    )
+}
+
+/// A class over the core estimator `$core` whose UKF `self.inner.$f()` gives
+/// the shared getters `x`, `P`, `x_prior`, `P_prior` and `recoveries()`.
+macro_rules! estimator_class {
+    ($name:ident, $core:ty, $f:ident, $doc:literal, { $($methods:tt)* }) => {
         #[doc = $doc]
         #[pyclass(module = "sensaug._core")]
         pub struct $name {
@@ -50,6 +102,40 @@ macro_rules! extended_estimator {
 
         #[pymethods]
         impl $name {
+            $($methods)*
+
+            /// Posterior state.
+            #[getter]
+            fn x<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+                vec_to(py, self.inner.$f().x())
+            }
+            /// Posterior covariance.
+            #[getter]
+            fn P<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+                mat_to(py, self.inner.$f().P())
+            }
+            /// Prior state (after the last predict).
+            #[getter]
+            fn x_prior<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+                vec_to(py, self.inner.$f().x_prior())
+            }
+            /// Prior covariance.
+            #[getter]
+            fn P_prior<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+                mat_to(py, self.inner.$f().P_prior())
+            }
+            /// Counters of the filter's recoveries.
+            fn recoveries<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+                recoveries_dict(py, &self.inner.$f().recoveries())
+            }
+        }
+    };
+}
+
+/// One estimator class over the 6-state extended model with `$m` measurements.
+macro_rules! extended_estimator {
+    ($name:ident, $core:ty, $m:literal, $doc:literal, { $($extra:tt)* }) => {
+        estimator_class!($name, $core, filter, $doc, {
             #[new]
             #[pyo3(signature = (*, mass, Q, R, x0, P0, damping = 0.0, dt = 1e-3, alpha = 1.0, beta = 2.0, kappa = 0.0))]
             #[allow(clippy::too_many_arguments)]
@@ -65,40 +151,32 @@ macro_rules! extended_estimator {
                 beta: f64,
                 kappa: f64,
             ) -> PyResult<Self> {
-                let model = HandleModel { mass, damping, dt_s: dt };
+                let (model, sigma) = model_sigma(mass, damping, dt, [alpha, beta, kappa]);
                 let cfg = ExtendedFilterConfig::<$m> {
-                    x0: vec_from::<6>(&x0, "x0")?,
-                    P0: mat_from::<6, 6>(&P0, "P0")?,
-                    Q: mat_from::<6, 6>(&Q, "Q")?,
-                    R: mat_from::<$m, $m>(&R, "R")?,
-                    sigma: MerweParams { alpha, beta, kappa },
+                    x0: vec_from(&x0, "x0")?,
+                    P0: mat_from(&P0, "P0")?,
+                    Q: mat_from(&Q, "Q")?,
+                    R: mat_from(&R, "R")?,
+                    sigma,
                 };
-                let inner = <$core>::new(model, &cfg).map_err(estimator_err)?;
+                let inner = <$core>::new(model, &cfg).map_err(py_err)?;
                 Ok(Self { inner })
             }
 
             /// Fuse one measurement; returns "nominal" or "resymmetrised:<stage>".
             fn update(&mut self, y: PyReadonlyArray1<'_, f64>) -> PyResult<String> {
                 let y = vec_from::<$m>(&y, "y")?;
-                self.inner.update(&y).map(status_str).map_err(to_py)
+                self.inner.update(&y).map(status_str).map_err(py_err)
             }
 
             /// Propagate with the own torque and the targets' increments.
             #[pyo3(signature = (u, dtau = 0.0, dtau_h = 0.0))]
             fn predict(&mut self, u: f64, dtau: f64, dtau_h: f64) -> PyResult<String> {
-                if !(u.is_finite() && dtau.is_finite() && dtau_h.is_finite()) {
-                    return Err(PyValueError::new_err(
-                        "u, dtau, dtau_h: must be finite; predict not run",
-                    ));
-                }
-                self.inner.predict(u, dtau, dtau_h).map(status_str).map_err(to_py)
+                finite(&[u, dtau, dtau_h], "u, dtau, dtau_h")?;
+                self.inner.predict(u, dtau, dtau_h).map(status_str).map_err(py_err)
             }
 
-            /// A whole recorded trial: for each k, `update(y[k])` then
-            /// `predict(u[k], dtau[k], dtau_h[k])`. Returns the posteriors
-            /// after each update: `(xs (T, 6), Pdiag (T, 6))`. The first
-            /// step error (already handled by the filter) is raised after
-            /// the run when `strict`.
+            /// For each k: `update(y[k])`, then `predict(u[k], dtau[k], dtau_h[k])`.
             #[pyo3(signature = (y, u, dtau, dtau_h, *, strict = true))]
             fn run<'py>(
                 &mut self,
@@ -109,91 +187,17 @@ macro_rules! extended_estimator {
                 dtau_h: PyReadonlyArray1<'py, f64>,
                 strict: bool,
             ) -> PyResult<Batch<'py>> {
-                let T = y.shape()[0];
-                if y.shape() != [T, $m] {
-                    return Err(PyValueError::new_err(format!(
-                        "y: expected shape (T, {}), got {:?}",
-                        $m,
-                        y.shape()
-                    )));
-                }
-                let (u, dtau, dtau_h) = (
-                    column(&u, "u", T)?,
-                    column(&dtau, "dtau", T)?,
-                    column(&dtau_h, "dtau_h", T)?,
-                );
-                let yv = y.as_array();
-                let xs = PyArray2::<f64>::zeros(py, [T, 6], false);
-                let pd = PyArray2::<f64>::zeros(py, [T, 6], false);
-                let mut first_error = None;
-                {
-                    let mut xs_rw = xs.readwrite();
-                    let mut pd_rw = pd.readwrite();
-                    let mut xs_a = xs_rw.as_array_mut();
-                    let mut pd_a = pd_rw.as_array_mut();
-                    for k in 0..T {
-                        let yk = SVector::<f64, $m>::from_fn(|i, _| yv[[k, i]]);
-                        if let Err(e) = self.inner.update(&yk) {
-                            first_error.get_or_insert((k, e));
-                        }
-                        let f = self.inner.filter();
-                        for i in 0..6 {
-                            xs_a[[k, i]] = f.x()[i];
-                            pd_a[[k, i]] = f.P()[(i, i)];
-                        }
-                        if let Err(e) = self.inner.predict(u[k], dtau[k], dtau_h[k]) {
-                            first_error.get_or_insert((k, e));
-                        }
-                    }
-                }
-                if let (true, Some((k, e))) = (strict, first_error) {
-                    let inner = to_py(e);
-                    return Err(PyValueError::new_err(format!(
-                        "step {k}: {}",
-                        inner.value(py)
-                    )));
-                }
-                Ok((xs, pd))
-            }
-
-            /// Posterior state `[x - tau, xdot, x - tau_h, Lhx, Lhv, Lhh]`.
-            #[getter]
-            fn x<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-                vec_to(py, self.inner.filter().x())
-            }
-
-            /// Posterior covariance.
-            #[getter]
-            fn P<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-                mat_to(py, self.inner.filter().P())
-            }
-
-            /// Prior state (after the last predict).
-            #[getter]
-            fn x_prior<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-                vec_to(py, self.inner.filter().x_prior())
-            }
-
-            /// Prior covariance.
-            #[getter]
-            fn P_prior<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-                mat_to(py, self.inner.filter().P_prior())
+                run_batch(py, &mut self.inner, &y, &u, [Some(&dtau), Some(&dtau_h)], strict)
             }
 
             /// Estimated partner gains `[Lhx, Lhv, Lhh]`.
             #[getter]
             fn gains<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-                let x = self.inner.filter().x();
-                vec_to(py, &Vector3::new(x[3], x[4], x[5]))
+                self.inner.filter().x().as_slice()[3..].to_pyarray(py)
             }
 
             $($extra)*
-
-            /// Counters of the filter's recoveries.
-            fn recoveries<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
-                crate::convert::recoveries_dict(py, &self.inner.filter().recoveries())
-            }
-        }
+        });
     };
 }
 
@@ -217,15 +221,23 @@ extended_estimator!(
     }
 );
 
-/// Stage 3: goal integration on `[x - tau, xdot]`, with and without the
-/// partner channel `x - tau_h^`, side by side.
-#[pyclass(module = "sensaug._core")]
-pub struct GoalIntegrator {
-    inner: CoreGoal,
+/// The partner floor a measurement of `len` entries reads (`None`: own only).
+fn partner(len: usize, floor: f64) -> PyResult<Option<f64>> {
+    match len {
+        2 => Ok(None),
+        3 => Ok(Some(floor)),
+        n => Err(PyValueError::new_err(format!(
+            "y: expected 2 entries [x - tau, xdot] or 3 [x - tau, xdot, x - tau_h^], got {n}"
+        ))),
+    }
 }
 
-#[pymethods]
-impl GoalIntegrator {
+estimator_class!(
+    GoalIntegrator,
+    CoreGoal,
+    fused_filter,
+    "Stage 3: goal integration on `[x - tau, xdot]`, with and without the partner channel `x - tau_h^`, side by side; `x`, `P` are the integrated filter's.",
+    {
     #[new]
     #[pyo3(signature = (*, mass, Q, R, x0, P0, damping = 0.0, dt = 1e-3, partner_window_s = 0.2, alpha = 1.0, beta = 2.0, kappa = 0.0))]
     #[allow(clippy::too_many_arguments)]
@@ -242,20 +254,16 @@ impl GoalIntegrator {
         beta: f64,
         kappa: f64,
     ) -> PyResult<Self> {
-        let model = HandleModel {
-            mass,
-            damping,
-            dt_s: dt,
-        };
+        let (model, sigma) = model_sigma(mass, damping, dt, [alpha, beta, kappa]);
         let cfg = GoalIntegratorConfig {
-            x0: vec_from::<2>(&x0, "x0")?,
-            P0: mat_from::<2, 2>(&P0, "P0")?,
-            Q: mat_from::<2, 2>(&Q, "Q")?,
-            R_own: mat_from::<2, 2>(&R, "R")?,
+            x0: vec_from(&x0, "x0")?,
+            P0: mat_from(&P0, "P0")?,
+            Q: mat_from(&Q, "Q")?,
+            R_own: mat_from(&R, "R")?,
             partner_window_s,
-            sigma: MerweParams { alpha, beta, kappa },
+            sigma,
         };
-        let inner = CoreGoal::new(model, &cfg).map_err(estimator_err)?;
+        let inner = CoreGoal::new(model, &cfg).map_err(py_err)?;
         Ok(Self { inner })
     }
 
@@ -264,33 +272,14 @@ impl GoalIntegrator {
     /// variance is estimated online and floored at `partner_floor`).
     #[pyo3(signature = (y, partner_floor = 0.0))]
     fn update(&mut self, y: PyReadonlyArray1<'_, f64>, partner_floor: f64) -> PyResult<String> {
-        let n = y.len();
-        let (own, partner) = match n {
-            2 => (vec_from::<2>(&y, "y")?, None),
-            3 => {
-                let v = vec_from::<3>(&y, "y")?;
-                (Vector2::new(v[0], v[1]), Some((v[2], partner_floor)))
-            }
-            _ => {
-                return Err(PyValueError::new_err(format!(
-                "y: expected 2 entries [x - tau, xdot] or 3 [x - tau, xdot, x - tau_h^], got {n}"
-            )))
-            }
-        };
-        if !(partner_floor.is_finite() && partner_floor >= 0.0) {
-            return Err(PyValueError::new_err(
-                "partner_floor: must be finite and >= 0",
-            ));
-        }
-        self.inner
-            .update(&own, partner)
-            .map(status_str)
-            .map_err(to_py)
+        let y = slice(&y, "y")?;
+        let floor = partner(y.len(), partner_floor)?;
+        let mut one_tick = GoalReplay::new(&mut self.inner, floor).map_err(py_err)?;
+        one_tick.update_row(y).map(status_str).map_err(py_err)
     }
 
     /// Propagate with the known torque `u` (own plus estimated partner) and
-    /// the own target's increment. `dtau_h` is accepted for the common
-    /// estimator signature but must be 0: this state has no `x - tau_h`.
+    /// the own target's increment. `dtau_h` must be 0: this state has no `x - tau_h`.
     #[pyo3(signature = (u, dtau = 0.0, dtau_h = 0.0))]
     fn predict(&mut self, u: f64, dtau: f64, dtau_h: f64) -> PyResult<String> {
         if dtau_h != 0.0 {
@@ -298,24 +287,25 @@ impl GoalIntegrator {
                 "dtau_h: must be 0 for GoalIntegrator (its state is [x - tau, xdot])",
             ));
         }
-        if !(u.is_finite() && dtau.is_finite()) {
-            return Err(PyValueError::new_err(
-                "u, dtau: must be finite; predict not run",
-            ));
-        }
-        self.inner.predict(u, dtau).map(status_str).map_err(to_py)
+        finite(&[u, dtau], "u, dtau")?;
+        self.inner.predict(u, dtau).map(status_str).map_err(py_err)
     }
 
-    /// Integrated posterior `[x - tau, xdot]`.
-    #[getter]
-    fn x<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        vec_to(py, self.inner.fused_filter().x())
-    }
-
-    /// Integrated posterior covariance.
-    #[getter]
-    fn P<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-        mat_to(py, self.inner.fused_filter().P())
+    /// For each k: `update(y[k], partner_floor)`, then `predict(u[k], dtau[k])`.
+    /// The posteriors are the integrated filter's.
+    #[pyo3(signature = (y, u, dtau, *, partner_floor = 0.0, strict = true))]
+    fn run<'py>(
+        &mut self,
+        py: Python<'py>,
+        y: PyReadonlyArray2<'py, f64>,
+        u: PyReadonlyArray1<'py, f64>,
+        dtau: PyReadonlyArray1<'py, f64>,
+        partner_floor: f64,
+        strict: bool,
+    ) -> PyResult<Batch<'py>> {
+        let floor = partner(y.shape()[1], partner_floor)?;
+        let mut r = GoalReplay::new(&mut self.inner, floor).map_err(py_err)?;
+        run_batch(py, &mut r, &y, &u, [Some(&dtau), None], strict)
     }
 
     /// Own-sensing posterior `[x - tau, xdot]`.
@@ -336,3 +326,4 @@ impl GoalIntegrator {
         self.inner.partner_variance()
     }
 }
+);

@@ -1,15 +1,14 @@
 //! Python bindings for `sensaug-core`. Type conversion only: every function
 //! here fills core structs from Python values, calls the core once, and
-//! converts the result back.
+//! converts the result back (`convert` holds the one set of conversions).
 use pyo3::prelude::*;
 
-mod convert;
-mod estimators;
+pub mod convert;
+pub mod estimators;
 mod log;
 mod plant;
 mod riccati;
 mod scenario;
-mod ukf;
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -18,6 +17,10 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     plant::register(m)?;
     riccati::register(m)?;
     scenario::register(m)?;
-    ukf::register(m)?;
-    Ok(())
+    let py = m.py();
+    m.add("UkfStepError", py.get_type::<convert::UkfStepError>())?;
+    m.add(
+        "RiccatiConvergenceError",
+        py.get_type::<convert::RiccatiConvergenceError>(),
+    )
 }

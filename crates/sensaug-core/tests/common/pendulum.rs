@@ -1,5 +1,6 @@
-//! A small nonlinear model for demonstrating and cross-checking the UKF
-//! against filterpy: a damped pendulum driven by a known torque plus an
+//! Test support, not product: a small nonlinear model for cross-checking the
+//! generic UKF against filterpy (`tests/ukf_oracle`, `tests/test_ukf.py`) and
+//! for the UKF's own Rust tests: a damped pendulum driven by a known torque plus an
 //! unknown constant torque bias (a stand-in for a partner's torque), observed
 //! by a marker at the pendulum tip.
 //!
@@ -7,10 +8,11 @@
 //! `u = torque_nm`, measurement `z = [l sin(theta), -l cos(theta)]` in metres
 //! (`M = 2`, tip position with the pivot at the origin, `y` up).
 //! `docs/ukf.md` states the same equations.
+#![allow(dead_code)]
 
 use nalgebra::{SMatrix, SVector};
-
-use crate::ukf::{MerweParams, Ukf, UkfError};
+use sensaug_core::replay::{row, write_posterior, Input, Replay};
+use sensaug_core::ukf::{MerweParams, RunReport, Status, Ukf, UkfError};
 
 /// State size of the demo model.
 pub const N: usize = 3;
@@ -120,7 +122,7 @@ impl Pendulum {
         z: &[f64],
         xs_out: &mut [f64],
         pdiag_out: &mut [f64],
-    ) -> Result<crate::ukf::RunReport, UkfError> {
+    ) -> Result<RunReport, UkfError> {
         ukf.run(
             u,
             z,
@@ -129,5 +131,38 @@ impl Pendulum {
             |x, uk| self.f(x, uk),
             |x| self.h(x),
         )
+    }
+}
+
+/// The demo UKF with its model, replayable by `sensaug_core::replay` in the
+/// estimators' order: update with `z[k]`, then predict with `u[k]`.
+#[derive(Clone, Debug)]
+pub struct PendulumFilter {
+    /// The filter.
+    pub ukf: DemoUkf,
+    /// Its model.
+    pub model: Pendulum,
+}
+
+impl Replay for PendulumFilter {
+    fn measurement_len(&self) -> usize {
+        M
+    }
+    fn state_len(&self) -> usize {
+        N
+    }
+    fn target_increments(&self) -> usize {
+        0
+    }
+    fn update_row(&mut self, z: &[f64]) -> Result<Status, UkfError> {
+        let model = self.model;
+        self.ukf.update(&row::<M>(z), |x| model.h(x))
+    }
+    fn predict_input(&mut self, input: Input) -> Result<Status, UkfError> {
+        let model = self.model;
+        self.ukf.predict(|x| model.f(x, input.u))
+    }
+    fn posterior(&self, x: &mut [f64], var: &mut [f64]) {
+        write_posterior(self.ukf.x(), self.ukf.P(), x, var)
     }
 }

@@ -1,6 +1,8 @@
-"""Unscented Kalman filter on the built-in pendulum demo model.
+"""Test only: the generic UKF on the pendulum model, for the filterpy oracle.
 
-A thin, validating wrapper over the Rust core (`sensaug._core.DemoUkf`), with
+`_ukf_oracle` (this directory's test crate) is built with cargo and loaded
+from the workspace's target directory on import; it is not part of the shipped
+`sensaug` package. `PendulumUKF` is a thin, validating wrapper with
 filterpy's names: ``x``, ``P``, ``Q``, ``R``, ``predict``, ``update``,
 ``x_prior``, ``P_prior``, ``y``, ``S``, ``K``, ``Wm``, ``Wc``. The numbers
 reproduce ``filterpy.kalman.UnscentedKalmanFilter`` with
@@ -15,14 +17,40 @@ N m, measurement tip position ``[l sin(theta), -l cos(theta)]`` in m)::
 
 from __future__ import annotations
 
+import importlib.machinery
+import importlib.util
+import json
+import subprocess
+from pathlib import Path
+from types import ModuleType
 from typing import Any, Final, final
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from sensaug import _core
-
 __all__ = ["PendulumUKF", "UkfStepError"]
+
+_ROOT: Final = Path(__file__).resolve().parents[2]
+
+
+def _build_and_load() -> ModuleType:
+    """`cargo build` the test crate (a no-op when fresh), then import its library."""
+    cargo = ["cargo", "build", "--release", "-q", "-p", "sensaug-ukf-oracle"]
+    subprocess.run(cargo, cwd=_ROOT, check=True, timeout=1800)
+    meta = subprocess.run(
+        ["cargo", "metadata", "--format-version", "1", "--no-deps"],
+        cwd=_ROOT, check=True, timeout=120, capture_output=True, text=True,
+    )
+    library = Path(json.loads(meta.stdout)["target_directory"]) / "release" / "lib_ukf_oracle.so"
+    loader = importlib.machinery.ExtensionFileLoader("_ukf_oracle", str(library))
+    spec = importlib.util.spec_from_file_location("_ukf_oracle", library, loader=loader)
+    assert spec is not None
+    module = importlib.util.module_from_spec(spec)
+    loader.exec_module(module)
+    return module
+
+
+_core = _build_and_load()
 
 UkfStepError = _core.UkfStepError
 
@@ -172,12 +200,13 @@ class PendulumUKF:
         r = None if R is None else _matrix("R", R, _M, spd=True)
         return self._core.update(zz, R=r)
 
-    def run(self, u: ArrayLike, z: ArrayLike, *, strict: bool = True) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Run a whole trial in Rust: ``predict(u[k])`` then ``update(z[k])``.
+    def run(self, z: ArrayLike, u: ArrayLike, *, strict: bool = True) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Replay a whole trial in Rust in the estimators' order
+        (``sensaug_core::replay``): ``update(z[k])`` then ``predict(u[k])``.
 
         Arguments:
-            u: torques, shape (T,).
             z: measurements, shape (T, 2).
+            u: torques, shape (T,).
             strict: raise ``UkfStepError`` if any step was rejected or reset P.
 
         Returns:
@@ -197,7 +226,7 @@ class PendulumUKF:
         if strict and not np.all(np.isfinite(zz)):
             bad = int(np.argmin(np.all(np.isfinite(zz), axis=1)))
             raise ValueError(f"z: must be finite; first bad row {bad} (or pass strict=False to skip bad rows)")
-        return self._core.run(uu, zz, strict=strict)
+        return self._core.run(zz, uu, strict=strict)
 
     def reset(self, x: ArrayLike, P: ArrayLike) -> None:
         """Replace ``x`` and ``P`` (``P`` symmetric positive definite)."""

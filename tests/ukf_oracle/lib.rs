@@ -1,0 +1,187 @@
+//! Test only: the generic UKF on the pendulum model of
+//! `crates/sensaug-core/tests/common/pendulum.rs`, as the Python module
+//! `_ukf_oracle` that `tests/test_ukf.py` builds and checks against filterpy.
+//! Not part of the shipped binding; it reuses the binding's conversions.
+#![allow(non_snake_case)]
+
+#[path = "../../crates/sensaug-core/tests/common/pendulum.rs"]
+mod pendulum;
+
+use _core::convert::{mat_from, mat_to, py_err, recoveries_dict, status_str, vec_from, vec_to};
+use _core::convert::{CoreError, UkfStepError};
+use _core::estimators::{run_batch, Batch};
+use numpy::{PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
+use pendulum::{Pendulum, PendulumFilter, M, N};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use sensaug_core::ukf::MerweParams;
+
+/// Merwe-scaled UKF on the pendulum model (N = 3, M = 2).
+#[pyclass]
+struct DemoUkf {
+    inner: PendulumFilter,
+}
+
+#[pymethods]
+impl DemoUkf {
+    #[new]
+    #[pyo3(signature = (*, x0, P0, Q, R, alpha, beta, kappa, dt_s=1e-3, length_m=0.5, mass_kg=1.0, damping_nms=0.1, gravity_mps2=9.81))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        x0: PyReadonlyArray1<'_, f64>,
+        P0: PyReadonlyArray2<'_, f64>,
+        Q: PyReadonlyArray2<'_, f64>,
+        R: PyReadonlyArray2<'_, f64>,
+        alpha: f64,
+        beta: f64,
+        kappa: f64,
+        dt_s: f64,
+        length_m: f64,
+        mass_kg: f64,
+        damping_nms: f64,
+        gravity_mps2: f64,
+    ) -> PyResult<Self> {
+        let model = Pendulum {
+            dt_s,
+            length_m,
+            mass_kg,
+            damping_nms,
+            gravity_mps2,
+        };
+        let (x0, P0) = (vec_from::<N>(&x0, "x0")?, mat_from::<N, N>(&P0, "P0")?);
+        let (Q, R) = (mat_from::<N, N>(&Q, "Q")?, mat_from::<M, M>(&R, "R")?);
+        let ukf = model
+            .ukf(x0, P0, Q, R, MerweParams { alpha, beta, kappa })
+            .map_err(|e| py_err(CoreError::Setup(e)))?;
+        Ok(Self {
+            inner: PendulumFilter { ukf, model },
+        })
+    }
+
+    /// Predict one step with torque `u` (N m); optional per-call `Q`.
+    #[pyo3(signature = (u, *, Q=None))]
+    fn predict(&mut self, u: f64, Q: Option<PyReadonlyArray2<'_, f64>>) -> PyResult<String> {
+        let (model, ukf) = (self.inner.model, &mut self.inner.ukf);
+        let f = |x: &nalgebra::SVector<f64, N>| model.f(x, u);
+        match Q {
+            Some(q) => ukf.predict_with_q(&mat_from::<N, N>(&q, "Q")?, f),
+            None => ukf.predict(f),
+        }
+        .map(status_str)
+        .map_err(py_err)
+    }
+
+    /// Update with measurement `z` (shape (2,)); optional per-call `R`.
+    #[pyo3(signature = (z, *, R=None))]
+    fn update(
+        &mut self,
+        z: PyReadonlyArray1<'_, f64>,
+        R: Option<PyReadonlyArray2<'_, f64>>,
+    ) -> PyResult<String> {
+        let (model, ukf) = (self.inner.model, &mut self.inner.ukf);
+        let z = vec_from::<M>(&z, "z")?;
+        let h = |x: &nalgebra::SVector<f64, N>| model.h(x);
+        match R {
+            Some(r) => ukf.update_with_r(&z, &mat_from::<M, M>(&r, "R")?, h),
+            None => ukf.update(&z, h),
+        }
+        .map(status_str)
+        .map_err(py_err)
+    }
+
+    /// The estimators' replay: for each k, `update(z[k])` then `predict(u[k])`.
+    #[pyo3(signature = (z, u, *, strict=true))]
+    fn run<'py>(
+        &mut self,
+        py: Python<'py>,
+        z: PyReadonlyArray2<'py, f64>,
+        u: PyReadonlyArray1<'py, f64>,
+        strict: bool,
+    ) -> PyResult<Batch<'py>> {
+        let T = u.shape()[0];
+        if z.shape() != [T, M] {
+            let got = z.shape();
+            let msg = format!("z: expected shape ({T}, {M}) to match u of length {T}, got {got:?}");
+            return Err(pyo3::exceptions::PyValueError::new_err(msg));
+        }
+        run_batch(py, &mut self.inner, &z, &u, [None, None], strict)
+    }
+
+    /// Replace x and P (validated).
+    fn reset(
+        &mut self,
+        x: PyReadonlyArray1<'_, f64>,
+        P: PyReadonlyArray2<'_, f64>,
+    ) -> PyResult<()> {
+        let (x, P) = (vec_from::<N>(&x, "x")?, mat_from::<N, N>(&P, "P")?);
+        self.inner.ukf.reset(x, P).map_err(py_err)
+    }
+
+    fn recoveries<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        recoveries_dict(py, &self.inner.ukf.recoveries())
+    }
+    #[getter]
+    fn x<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        vec_to(py, self.inner.ukf.x())
+    }
+    #[getter]
+    fn P<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        mat_to(py, self.inner.ukf.P())
+    }
+    #[getter]
+    fn x_prior<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        vec_to(py, self.inner.ukf.x_prior())
+    }
+    #[getter]
+    fn P_prior<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        mat_to(py, self.inner.ukf.P_prior())
+    }
+    #[getter]
+    fn Q<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        mat_to(py, self.inner.ukf.Q())
+    }
+    #[setter(Q)]
+    fn set_Q(&mut self, Q: PyReadonlyArray2<'_, f64>) -> PyResult<()> {
+        self.inner
+            .ukf
+            .set_Q(mat_from::<N, N>(&Q, "Q")?)
+            .map_err(py_err)
+    }
+    #[getter]
+    fn R<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        mat_to(py, self.inner.ukf.R())
+    }
+    #[setter(R)]
+    fn set_R(&mut self, R: PyReadonlyArray2<'_, f64>) -> PyResult<()> {
+        self.inner
+            .ukf
+            .set_R(mat_from::<M, M>(&R, "R")?)
+            .map_err(py_err)
+    }
+    #[getter]
+    fn y<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        vec_to(py, self.inner.ukf.y())
+    }
+    #[getter]
+    fn S<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        mat_to(py, self.inner.ukf.S())
+    }
+    #[getter]
+    fn K<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        mat_to(py, self.inner.ukf.K())
+    }
+    #[getter]
+    fn Wm<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        vec_to(py, self.inner.ukf.Wm())
+    }
+    #[getter]
+    fn Wc<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        vec_to(py, self.inner.ukf.Wc())
+    }
+}
+
+#[pymodule]
+fn _ukf_oracle(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<DemoUkf>()?;
+    m.add("UkfStepError", m.py().get_type::<UkfStepError>())
+}
