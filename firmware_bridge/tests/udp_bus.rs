@@ -55,7 +55,9 @@ fn three_peers_exchange_frames_and_never_see_their_own() {
             sent: 1,
             received: 2,
             own_dropped: 1,
-            malformed_dropped: 0
+            malformed_dropped: 0,
+            error_frames: 0,
+            tx_queue_full: 0,
         }
     );
     assert_eq!(b.stats().own_dropped, 1);
