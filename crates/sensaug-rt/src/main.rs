@@ -3,7 +3,7 @@
 //! saves the loop statistics at the end. Exit code 0 only when the protocol
 //! completed.
 
-use sensaug_bridge::protocol::NodeId;
+use sensaug_bridge::protocol::{MessageKind, NodeId};
 use sensaug_core::scenario::{Protocol, Robot};
 use sensaug_rt::config::{parse, ConfigError};
 use sensaug_rt::control::{LoopSettings, Rig, StopReason};
@@ -115,7 +115,16 @@ fn run(args: Args) -> Result<StopReason, String> {
         return Ok(StopReason::Completed);
     }
     let rig = resolved.rig.clone();
-    let transport = sensaug_bridge::open(&rig.can).map_err(|e| format!("rig.can: {e}"))?;
+    let mut transport = sensaug_bridge::open(&rig.can).map_err(|e| format!("rig.can: {e}"))?;
+    // Only this drive's frames wake the loop (a kernel filter on SocketCAN).
+    let drive_ids = [
+        MessageKind::Feedback,
+        MessageKind::Fault,
+        MessageKind::Heartbeat,
+    ];
+    transport
+        .accept_only(&drive_ids.map(|k| k.id(node)))
+        .map_err(|e| format!("rig.can: {e}"))?;
 
     let stop = Arc::new(AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {

@@ -98,6 +98,10 @@ pub struct CanCounters {
     pub bus_received: u64,
     /// Malformed datagrams/frames the transport dropped.
     pub bus_malformed_dropped: u64,
+    /// Error frames the transport received (SocketCAN), counted and dropped.
+    pub bus_error_frames: u64,
+    /// Sends refused at once because the transmit queue was full (SocketCAN).
+    pub bus_tx_queue_full: u64,
 }
 
 /// Everything the loop reports at the end.
