@@ -55,8 +55,8 @@ run() {
     local errs=$!
     local fz=
     if [ "$fuzz" = 1 ]; then
-        # Random ids, lengths, payloads, mixed EFF/FD/RTR frames: 1000 at 4 ms.
-        (sleep 1; exec cangen vcan0 -g 4 -I r -L r -D r -m -n 1000) &
+        # Random ids, lengths, payloads, mixed EFF/FD/RTR frames: 500, one per 8 ms.
+        (sleep 1; exec cangen vcan0 -g 8 -I r -L r -D r -m -n 500) &
         fz=$!
     fi
     note "${name}_loop_start" "$(stamp)"
@@ -75,7 +75,7 @@ run() {
     sleep 0.5
     kill -INT "$dump"
     wait "$dump"
-    note "${name}_cangen_sent" "${fz:+1000}"
+    note "${name}_cangen_sent" "${fz:+500}"
 }
 
 run clean "$REPO/configs/hi5_vcan.toml" 0
