@@ -57,6 +57,8 @@ fn three_peers_exchange_frames_and_never_see_their_own() {
             own_dropped: 1,
             malformed_dropped: 0,
             kernel_dropped: 0,
+            error_frames: 0,
+            tx_queue_full: 0,
         }
     );
     assert_eq!(b.stats().own_dropped, 1);

@@ -588,6 +588,8 @@ impl<'a> Rig<'a> {
         can.bus_received = bus.received;
         can.bus_malformed_dropped = bus.malformed_dropped;
         can.bus_kernel_dropped = bus.kernel_dropped;
+        can.bus_error_frames = bus.error_frames;
+        can.bus_tx_queue_full = bus.tx_queue_full;
         LoopReport {
             ticks: self.ticks_run,
             stop_reason: reason.to_string(),

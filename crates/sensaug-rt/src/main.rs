@@ -5,6 +5,7 @@
 //! set-up error.
 
 use clap::Parser;
+use sensaug_bridge::protocol::MessageKind;
 use sensaug_config::Resolved;
 use sensaug_config::{load_file, validate, ConfigError, ScenarioSpec};
 use sensaug_core::controller::Robot;
@@ -96,7 +97,20 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, String> {
             .to_string()
     })?;
     let rig = &spec.rig;
-    let transport = sensaug_bridge::open(&rig.can).map_err(|e| format!("rig.can: {e}"))?;
+    let mut transport = sensaug_bridge::open(&rig.can).map_err(|e| format!("rig.can: {e}"))?;
+    // Only this node's frames wake the loop (a kernel filter on SocketCAN):
+    // the drive's, and commands to it, which only another sender can have
+    // put on the bus (a socket does not receive its own frames).
+    let node_ids = [
+        MessageKind::Feedback,
+        MessageKind::Fault,
+        MessageKind::Heartbeat,
+        MessageKind::TorqueCommand,
+        MessageKind::SetState,
+    ];
+    transport
+        .accept_only(&node_ids.map(|k| k.id(settings.node)))
+        .map_err(|e| format!("rig.can: {e}"))?;
 
     let stop = Arc::new(AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
@@ -109,9 +123,9 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, String> {
     let (mut sink, writer) = log::start(&log_path, rig.ring_capacity as usize, &meta)
         .map_err(|e| format!("rig.log: {}: {e}", log_path.display()))?;
 
-    let mut rig_loop = Rig::start(settings, transport, robot, Duration::from_secs(5))
-        .map_err(|e| e.to_string())?;
-
+    // Real-time settings before the drive is enabled: from the enable on,
+    // nothing slow may stand between the drive and the first tick (mlockall
+    // can take long enough to trip the drive's watchdog).
     let mut realtime = Vec::new();
     let note = |what: &str, r: std::io::Result<()>, out: &mut Vec<String>| match r {
         Ok(()) => out.push(format!("{what}: ok")),
@@ -138,6 +152,9 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, String> {
             &mut realtime,
         );
     }
+
+    let mut rig_loop = Rig::start(settings, transport, robot, Duration::from_secs(5))
+        .map_err(|e| e.to_string())?;
 
     let reason = rig_loop.run(&mut sink, &stop);
 

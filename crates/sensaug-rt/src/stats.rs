@@ -99,6 +99,10 @@ pub struct CanCounters {
     /// Frames the kernel dropped from the full receive buffer
     /// (`SO_RXQ_OVFL`, UDP bus).
     pub bus_kernel_dropped: u64,
+    /// Error frames the transport received (SocketCAN), counted and dropped.
+    pub bus_error_frames: u64,
+    /// Sends refused at once because the transmit queue was full (SocketCAN).
+    pub bus_tx_queue_full: u64,
 }
 
 /// Everything the loop reports at the end.

@@ -131,6 +131,10 @@ class VirtualHi5:
         self.config.validate()
         self.bus = bus
         self._clock = clock
+        #: On SocketCAN python-can's ``Message.timestamp`` is the kernel's
+        #: arrival time (``SO_TIMESTAMPNS``, wall clock): the watchdog is then
+        #: measured from when a frame arrived, not from when this process read it.
+        self.kernel_timestamps = _has_kernel_timestamps(bus)
         self._Plant = sensaug.Plant
         self.plant = self._new_plant()
         cfg = self.config
@@ -204,21 +208,42 @@ class VirtualHi5:
         """
         end = math.inf if duration_s is None else self._clock() + duration_s
         recv = self.bus.recv
+        # With kernel timestamps: the time up to which the bus has been read
+        # (the last frame's arrival, or when a receive came back empty). A
+        # command still queued in the socket after a stall of this process
+        # is not a missed command.
+        read_until = self._clock()
         while stop is None or not stop.is_set():
             now = self._clock()
             if now >= end:
                 break
-            self.poll(now)
+            self.poll(now, read_until if self.kernel_timestamps else None)
             due = min(self._next_hb_s, end, now + 0.01)
             if self.state == State.ENABLED:
                 due = min(due, self._last_valid_s + self.watchdog_s)
             msg = recv(max(due - now, 0.0))
-            if msg is not None:
-                self.handle(msg, self._clock())
+            if msg is None:
+                read_until = self._clock()
+            else:
+                read_until = self.received_at(msg)
+                self.handle(msg, read_until)
 
-    def poll(self, now: float) -> None:
-        """Watchdog check and heartbeat; called on every loop iteration."""
-        self._check_watchdog(now)
+    def received_at(self, msg: can.Message) -> float:
+        """When ``msg`` arrived, on the drive's clock: the kernel's receive
+        time when the bus has one (SocketCAN), else now."""
+        now = self._clock()
+        if not self.kernel_timestamps:
+            return now
+        # Message.timestamp is CLOCK_REALTIME; its age converts it to our clock.
+        return now - max(time.time() - msg.timestamp, 0.0)
+
+    def poll(self, now: float, read_until: Optional[float] = None) -> None:
+        """Watchdog check and heartbeat; called on every loop iteration.
+
+        ``read_until``: the bus has only been read up to this time (kernel
+        timestamps); the watchdog is checked there instead of at ``now``.
+        """
+        self._check_watchdog(now if read_until is None else min(now, read_until))
         if now >= self._next_hb_s:
             self._send_heartbeat()
             # Skip missed beats instead of bursting after a stall.
@@ -422,6 +447,15 @@ class VirtualHi5:
             out["latency_us_p99"] = round(lat[min(len(lat) - 1, int(0.99 * len(lat)))] * 1e6, 1)
             out["latency_us_max"] = round(lat[-1] * 1e6, 1)
         return out
+
+
+def _has_kernel_timestamps(bus: can.BusABC) -> bool:
+    """python-can's ``socketcan`` bus: every Message.timestamp is SO_TIMESTAMPNS."""
+    try:
+        from can.interfaces.socketcan import SocketcanBus
+    except ImportError:  # not Linux
+        return False
+    return isinstance(bus, SocketcanBus)
 
 
 # -- command line ----------------------------------------------------------------------

@@ -39,6 +39,15 @@ pub trait Transport {
 
     /// Counters since opening.
     fn stats(&self) -> BusStats;
+
+    /// Ask the transport to deliver only data frames with these ids. Set-up
+    /// only. SocketCAN installs them as the kernel filter (`CAN_RAW_FILTER`),
+    /// so other ids never wake the receiver; the UDP bus has no kernel
+    /// filter and keeps delivering every frame (the default: `Ok(())`).
+    fn accept_only(&mut self, ids: &[u32]) -> Result<(), TransportError> {
+        let _ = ids;
+        Ok(())
+    }
 }
 
 /// What a transport has seen since it was opened.
@@ -57,6 +66,12 @@ pub struct BusStats {
     /// full (`SO_RXQ_OVFL`; learnt with the next frame received). Any
     /// non-zero value means frames were lost before `recv` saw them.
     pub kernel_dropped: u64,
+    /// Error frames the kernel reported (SocketCAN only), counted and
+    /// dropped.
+    pub error_frames: u64,
+    /// Sends refused because the transmit queue was full (SocketCAN
+    /// `ENOBUFS`/`EAGAIN`); the frame was dropped without waiting.
+    pub tx_queue_full: u64,
 }
 
 /// Why a transport could not be opened, or could not send or receive.
@@ -99,6 +114,14 @@ pub enum TransportError {
     },
     /// The frame given to `send` breaks the frame invariants.
     InvalidFrame(WireError),
+    /// A receive filter the kernel cannot take (too many ids, an id over
+    /// 11 bits).
+    BadFilter {
+        /// The bus URL.
+        url: String,
+        /// What is wrong with it.
+        reason: String,
+    },
 }
 
 const URL_HELP: &str = "expected 'udp:<port>' (loopback virtual CAN bus on 127.255.255.255, \
@@ -131,6 +154,9 @@ impl fmt::Display for TransportError {
             }
             Self::Io { op, source } => write!(f, "CAN {op} failed: {source}"),
             Self::InvalidFrame(e) => write!(f, "refusing to send an invalid frame: {e}"),
+            Self::BadFilter { url, reason } => {
+                write!(f, "bus URL '{url}': receive filter refused: {reason}")
+            }
         }
     }
 }
