@@ -176,11 +176,12 @@ def read_env(path: Path) -> dict[str, str]:
     return env
 
 
-def read_log(path: Path) -> np.ndarray:
-    """The controller's log: .npy today; a CSV with a header row also works."""
-    if path.read_bytes()[:6] == b"\x93NUMPY":
-        return np.load(path)
-    return np.genfromtxt(path, delimiter=",", names=True)
+def read_log(path: Path) -> Any:
+    """The controller's log (the one log schema, docs/logs.md), read with the
+    documented loader; columns by name, like a structured array."""
+    from sensaug.logs import load_log
+
+    return load_log(path)
 
 
 def drive_summary(stderr: Path) -> Optional[dict[str, Any]]:
@@ -190,7 +191,7 @@ def drive_summary(stderr: Path) -> Optional[dict[str, Any]]:
     return None
 
 
-def match_commands(torque: list[Decoded], log: np.ndarray, scale: float) -> list[int]:
+def match_commands(torque: list[Decoded], log: Any, scale: float) -> list[int]:
     """In bus order, the index of the frame carrying each tick's command
     (sequence ``k mod 256``, torque equal to the log's within half a raw step);
     stops at the first tick with no such frame. Other frames (set-up,
@@ -238,7 +239,7 @@ def check_run(name: str, out: Path, env: dict[str, str], cfg: ScenarioConfig, db
     if not (d / "stats.json").exists():
         return summary
     stats = json.loads((d / "stats.json").read_text())
-    log = read_log(d / "log.npy")
+    log = read_log(d / "log.csv")
     ticks = int(stats["ticks"])
     can = stats["can"]
     node = cfg.rig.node_id

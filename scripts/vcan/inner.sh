@@ -60,7 +60,7 @@ run() {
         fz=$!
     fi
     note "${name}_loop_start" "$(stamp)"
-    timeout 300 "$RT" "$config" --can socketcan:vcan0 --log "$dir/log.npy" --stats "$dir/stats.json" \
+    timeout 300 "$RT" "$config" --can socketcan:vcan0 --log "$dir/log.csv" --stats "$dir/stats.json" \
         > "$dir/rt.stdout" 2> "$dir/rt.stderr"
     note "${name}_rt_rc" $?
     note "${name}_loop_end" "$(stamp)"
