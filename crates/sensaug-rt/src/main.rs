@@ -199,8 +199,8 @@ fn log_metadata(resolved: &Resolved<'_>, s: &LoopSettings) -> serde_json::Value 
         source: sensaug_log::Source::Rig,
         config: serde_json::to_value(spec).unwrap_or(serde_json::Value::Null),
         resolved: serde_json::json!({
-            "robot_gains": resolved.robot.gains,
-            "partner_gains": resolved.partner.gains,
+            "robot": {"gains": resolved.robot.gains},
+            "partner": {"gains": resolved.partner.gains},
             "dt_s": resolved.dt_s,
             "rad_per_unit": resolved.rad_per_unit,
         }),
