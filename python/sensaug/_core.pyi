@@ -20,7 +20,7 @@ def care(
     """Stabilising CARE solution X of A'X + XA - X B R^-1 B' X + Q = 0.
 
     Arguments:
-        a: (n, n), 1 <= n <= 6. b: (n, m), 1 <= m <= min(n, 3). q: (n, n) PSD. r: (m, m) PD.
+        a: (n, n), 1 <= n <= 6. b: (n, m), 1 <= m <= n. q: (n, n) PSD. r: (m, m) PD.
 
     Raises:
         ValueError: bad shape or input, not stabilisable, not detectable.

@@ -1,6 +1,6 @@
 //! Riccati / LQR bindings: numpy <-> `SMatrix` conversion and error mapping
-//! only. Runtime shapes `n in 1..=6`, `m in 1..=min(n, 3)` are dispatched to
-//! the const-generic core by [`dispatch!`].
+//! only. Runtime shapes `n in 1..=6`, `m in 1..=n` are dispatched to the
+//! const-generic core by [`dispatch!`].
 //!
 //! Errors: bad inputs (non-finite, asymmetric, indefinite weights, not
 //! stabilisable / detectable, bad agent parameters, bad shapes) raise
@@ -23,9 +23,6 @@ create_exception!(
     PyRuntimeError,
     "A Riccati solve did not converge or its solution failed the residual or closed-loop check."
 );
-
-/// Largest input count the binding instantiates.
-const MAX_INPUTS: usize = 3;
 
 fn to_py_err(e: RiccatiError) -> PyErr {
     match e {
@@ -64,10 +61,9 @@ fn shapes(
         )));
     }
     let (bn, m) = b.dim();
-    if bn != n || m == 0 || m > n.min(MAX_INPUTS) {
+    if bn != n || m == 0 || m > n {
         return Err(PyValueError::new_err(format!(
-            "B: expected shape (n, m) = ({n}, m) with 1 <= m <= {}, got {:?}",
-            n.min(MAX_INPUTS),
+            "B: expected shape (n, m) = ({n}, m) with 1 <= m <= {n}, got {:?}",
             b.dim()
         )));
     }
@@ -99,12 +95,18 @@ macro_rules! dispatch {
             (4, 1) => $f::<4, 1>($($arg),*),
             (4, 2) => $f::<4, 2>($($arg),*),
             (4, 3) => $f::<4, 3>($($arg),*),
+            (4, 4) => $f::<4, 4>($($arg),*),
             (5, 1) => $f::<5, 1>($($arg),*),
             (5, 2) => $f::<5, 2>($($arg),*),
             (5, 3) => $f::<5, 3>($($arg),*),
+            (5, 4) => $f::<5, 4>($($arg),*),
+            (5, 5) => $f::<5, 5>($($arg),*),
             (6, 1) => $f::<6, 1>($($arg),*),
             (6, 2) => $f::<6, 2>($($arg),*),
             (6, 3) => $f::<6, 3>($($arg),*),
+            (6, 4) => $f::<6, 4>($($arg),*),
+            (6, 5) => $f::<6, 5>($($arg),*),
+            (6, 6) => $f::<6, 6>($($arg),*),
             (n, m) => Err(PyValueError::new_err(format!(
                 "unsupported dimensions n = {n}, m = {m}"
             ))),
