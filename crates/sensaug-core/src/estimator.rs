@@ -94,12 +94,23 @@ pub fn extended_process(
     dtau: f64,
     dtau_h: f64,
 ) -> Extended {
-    let (dx, v_next) = model.kinematics(z[1], u + partner_torque(z));
     let mut next = *z;
-    next[0] = z[0] + dx - dtau;
-    next[1] = v_next;
-    next[E_H] = z[E_H] + dx - dtau_h;
+    next.fixed_rows_mut::<GAINS>(0)
+        .copy_from(&extended_process_moving(model, z, u, dtau, dtau_h));
     next
+}
+
+/// The moving part of [`extended_process`], `[e', v', e_h']` (the gains
+/// `L' = L` are constant, which `Ukf::predict_partial` exploits).
+pub fn extended_process_moving(
+    model: &HandleModel,
+    z: &Extended,
+    u: f64,
+    dtau: f64,
+    dtau_h: f64,
+) -> Vector3<f64> {
+    let (dx, v_next) = model.kinematics(z[1], u + partner_torque(z));
+    Vector3::new(z[0] + dx - dtau, v_next, z[E_H] + dx - dtau_h)
 }
 
 /// `Some(sel)` at compile time, or a compile error naming a bad selection.
@@ -177,7 +188,7 @@ impl GainEstimator {
     pub fn predict(&mut self, u: f64, dtau: f64, dtau_h: f64) -> Result<Status, UkfError> {
         let model = self.model;
         self.ukf
-            .predict(|z| extended_process(&model, z, u, dtau, dtau_h))
+            .predict_partial(|z| extended_process_moving(&model, z, u, dtau, dtau_h))
     }
 
     /// The estimated partner gains `[Lhx, Lhv, Lhh]`.
@@ -234,7 +245,7 @@ impl TrajectoryEstimator {
     pub fn predict(&mut self, u: f64, dtau: f64, dtau_h: f64) -> Result<Status, UkfError> {
         let model = self.model;
         self.ukf
-            .predict(|z| extended_process(&model, z, u, dtau, dtau_h))
+            .predict_partial(|z| extended_process_moving(&model, z, u, dtau, dtau_h))
     }
 
     /// `tau_h^ = x - (x - tau_h)^`, given the handle position `x`.

@@ -340,12 +340,12 @@ pub fn unscented_covariance<const D: usize, const S: usize>(
     // mirrored: (Wc_i d_j) d_k and (Wc_i d_k) d_j differ in the last bit, and
     // the factorisation that follows reads the upper triangle.
     let mut cols = [[0.0f64; D]; D];
-    for (i, w) in Wc.iter().enumerate() {
-        let c = chi.column(i);
+    let m = mean.as_slice();
+    for (c, w) in chi.as_slice().chunks_exact(D).zip(Wc.as_slice()) {
         let mut d = [0.0f64; D];
         let mut wd = [0.0f64; D];
         for j in 0..D {
-            d[j] = c[j] - mean[j];
+            d[j] = c[j] - m[j];
             wd[j] = w * d[j];
         }
         for (col, dk) in cols.iter_mut().zip(d) {
@@ -476,6 +476,27 @@ enum Posterior {
     Filterpy,
     /// `P - K Pxz'` on one triangle (selection `h`).
     Symmetric,
+}
+
+/// `chi_f,i = f(chi_i)` for the sigma points of `(x, L)` (`sigma_points`),
+/// formed one at a time: `chi_0 = x`, `chi_{1+k} = x + L e_k`,
+/// `chi_{1+N+k} = x - L e_k`. `None` if any output is not finite.
+fn propagate<const N: usize, const R: usize, const S: usize>(
+    x: &SVector<f64, N>,
+    L: &SMatrix<f64, N, N>,
+    f: &mut impl FnMut(&SVector<f64, N>) -> SVector<f64, R>,
+) -> Option<SMatrix<f64, R, S>> {
+    let mut chi_f = SMatrix::<f64, R, S>::zeros();
+    for i in 0..S {
+        let mut xi = *x;
+        if i >= 1 && i <= N {
+            xi += L.column(i - 1);
+        } else if i > N && i <= 2 * N {
+            xi -= L.column(i - 1 - N);
+        }
+        chi_f.set_column(i, &f(&xi));
+    }
+    all_finite(&chi_f).then_some(chi_f)
 }
 
 /// Re-symmetrisation used by the recovery policy: `A <- (A + A') / 2`.
@@ -716,40 +737,73 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         self.predict_impl(Some(Q), f)
     }
 
-    /// [`Ukf::predict_with_q`] with a checked per-call `Q`, or the default.
-    fn predict_impl(
+    /// Per tick: [`Ukf::predict`] for a process that moves only the first
+    /// `R` states: `f` returns their new values, states `R..N` are constant
+    /// (random walks driven by `Q`, like the estimators' partner gains).
+    ///
+    /// With `d_i = chi_f,i - x-` for the moving rows and the sigma points
+    /// `x +- L e_k` (weights `w = Wc_1 = 1 / (2 (N + lambda))`), the unscented
+    /// sums have closed forms for the constant rows `b`:
+    /// `x-_b = x_b`, `P-_bb = P_bb + Q_bb` (`2 w L_b L_b' = P_bb`),
+    /// `P-_tb = w sum_k (f(x + L e_k) - f(x - L e_k)) L_b,k' + Q_tb`,
+    /// and `P-_tt = sum Wc d d' + Q_tt` as in [`Ukf::predict`]. Equal to
+    /// `predict` with the full `f` up to rounding, with the same errors,
+    /// repairs and re-draw.
+    pub fn predict_partial<const R: usize>(
         &mut self,
-        Q: Option<&SMatrix<f64, N, N>>,
-        mut f: impl FnMut(&SVector<f64, N>) -> SVector<f64, N>,
+        mut f: impl FnMut(&SVector<f64, N>) -> SVector<f64, R>,
     ) -> Result<Status, UkfError> {
+        const { assert!(R >= 1 && R <= N, "R must be in 1..=N") };
         let mut pending = Pending::default();
         let mut P = self.P;
         let L = self.factor(&mut P, Stage::PredictSigmaPoints, &mut pending);
-        // chi_f,i = f(chi_i), the sigma points (`sigma_points`) formed one
-        // at a time: chi_0 = x, chi_{1+k} = x + L e_k, chi_{1+N+k} = x - L e_k.
-        let mut chi_f = SMatrix::<f64, N, S>::zeros();
-        for i in 0..S {
-            let mut xi = self.x;
-            if i >= 1 && i <= N {
-                xi += L.column(i - 1);
-            } else if i > N && i <= 2 * N {
-                xi -= L.column(i - 1 - N);
-            }
-            chi_f.set_column(i, &f(&xi));
-        }
-        if !all_finite(&chi_f) {
+        // chi_f,i = f(chi_i) for the moving rows only.
+        let Some(chi_f) = propagate(&self.x, &L, &mut f) else {
             return self.reject(UkfError::NonFiniteProcess);
+        };
+        // x-_t = sum_i Wm_i chi_f,i ; x-_b = x_b
+        let x_t = unscented_mean(&self.Wm, &chi_f);
+        let mut x_prior = self.x;
+        x_prior.fixed_rows_mut::<R>(0).copy_from(&x_t);
+        // P-_tt = sum_i Wc_i d_i d_i' + Q_tt
+        let Q = &self.Q;
+        let Q_tt = Q.fixed_view::<R, R>(0, 0).into_owned();
+        let P_tt = unscented_covariance(&self.Wc, &chi_f, &x_t, &Q_tt);
+        // D = [f(x + L e_k) - f(x - L e_k)]_k (R x N); T = w D L' (R x N),
+        // whose columns c >= R are P-_tb without Q.
+        let D = SMatrix::<f64, R, N>::from_fn(|r, k| chi_f[(r, 1 + k)] - chi_f[(r, 1 + N + k)]);
+        let T = (D * L.transpose()) * self.Wc[1];
+        // P- = [[P-_tt, T_b + Q_tb], [.., P_bb + Q_bb]], mirrored from the upper triangle.
+        let mut P_prior = P;
+        for c in 0..N {
+            for r in 0..=c {
+                let v = if c < R {
+                    P_tt[(r, c)]
+                } else if r < R {
+                    T[(r, c)] + Q[(r, c)]
+                } else {
+                    P[(r, c)] + Q[(r, c)]
+                };
+                P_prior[(r, c)] = v;
+                P_prior[(c, r)] = v;
+            }
         }
-        // x- = sum_i Wm_i chi_f,i
-        let x_prior = unscented_mean(&self.Wm, &chi_f);
-        // P- = sum_i Wc_i (chi_f,i - x-)(chi_f,i - x-)' + Q
-        let mut P_prior = unscented_covariance(&self.Wc, &chi_f, &x_prior, Q.unwrap_or(&self.Q));
         if !all_finite(&x_prior) || !all_finite(&P_prior) {
             return self.reject(UkfError::NonFiniteResult {
                 phase: Phase::Predict,
             });
         }
-        // filterpy quirk mirrored: re-draw sigma points from (x-, P-) now.
+        self.commit_prior(x_prior, P_prior, pending)
+    }
+
+    /// The end of a predict: filterpy's re-draw of the sigma points from
+    /// `(x-, P-)` (repairing `P-` if needed), then commit.
+    fn commit_prior(
+        &mut self,
+        x_prior: SVector<f64, N>,
+        mut P_prior: SMatrix<f64, N, N>,
+        mut pending: Pending,
+    ) -> Result<Status, UkfError> {
         let sigmas = self.draw(&x_prior, &mut P_prior, Stage::PredictRedraw, &mut pending);
         self.x = x_prior;
         self.P = P_prior;
@@ -759,6 +813,32 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         self.sigmas_fresh = true;
         self.recoveries.predicts = self.recoveries.predicts.saturating_add(1);
         self.finish(pending)
+    }
+
+    /// [`Ukf::predict_with_q`] with a checked per-call `Q`, or the default.
+    fn predict_impl(
+        &mut self,
+        Q: Option<&SMatrix<f64, N, N>>,
+        mut f: impl FnMut(&SVector<f64, N>) -> SVector<f64, N>,
+    ) -> Result<Status, UkfError> {
+        let mut pending = Pending::default();
+        let mut P = self.P;
+        let L = self.factor(&mut P, Stage::PredictSigmaPoints, &mut pending);
+        // chi_f,i = f(chi_i)
+        let Some(chi_f) = propagate(&self.x, &L, &mut f) else {
+            return self.reject(UkfError::NonFiniteProcess);
+        };
+        // x- = sum_i Wm_i chi_f,i
+        let x_prior = unscented_mean(&self.Wm, &chi_f);
+        // P- = sum_i Wc_i (chi_f,i - x-)(chi_f,i - x-)' + Q
+        let P_prior = unscented_covariance(&self.Wc, &chi_f, &x_prior, Q.unwrap_or(&self.Q));
+        if !all_finite(&x_prior) || !all_finite(&P_prior) {
+            return self.reject(UkfError::NonFiniteResult {
+                phase: Phase::Predict,
+            });
+        }
+        // filterpy quirk mirrored: re-draw sigma points from (x-, P-) now.
+        self.commit_prior(x_prior, P_prior, pending)
     }
 
     /// Per tick: update with the default `R`. See [`Ukf::update_with_r`].

@@ -199,6 +199,51 @@ fn selection_update_equals_sigma_point_update() {
     }
 }
 
+/// `predict_partial` (closed forms for constant states) against `predict`
+/// with the full process, on a 4-state filter whose last two states are
+/// constant parameters of the first two (as the estimators' gains are).
+#[test]
+fn partial_predict_equals_full_predict() {
+    type F4 = Ukf<4, 1, 9>;
+    let moving = |s: &SVector<f64, 4>, u: f64| {
+        Vector2::new(
+            s[0] + DT * s[1],
+            s[1] + DT * (u - s[2] * s[0] - s[3] * s[1]),
+        )
+    };
+    let full = |s: &SVector<f64, 4>, u: f64| {
+        let m = moving(s, u);
+        SVector::<f64, 4>::new(m[0], m[1], s[2], s[3])
+    };
+    let h = |s: &SVector<f64, 4>| Vector1::new(s[0]);
+    for p in [params(1.0, 2.0, 0.0), params(0.5, 2.0, 1.0)] {
+        let x0 = SVector::<f64, 4>::new(0.3, 0.0, 2.0, 0.5);
+        let P0 = SMatrix::<f64, 4, 4>::from_diagonal(&SVector::<f64, 4>::new(0.1, 0.1, 1.0, 0.5));
+        let mut Q = SMatrix::<f64, 4, 4>::identity() * 1e-4;
+        Q[(0, 2)] = 2e-5;
+        Q[(2, 0)] = 2e-5;
+        let mut a = F4::new(x0, P0, Q, SMatrix::<f64, 1, 1>::new(1e-3), p).expect("valid");
+        let mut b = a.clone();
+        let mut worst = 0.0f64;
+        for k in 0..2000 {
+            let (u, z) = (u_at(k), Vector1::new(z_at(k)));
+            assert_eq!(a.predict(|s| full(s, u)), Ok(Status::Nominal));
+            assert_eq!(b.predict_partial(|s| moving(s, u)), Ok(Status::Nominal));
+            assert_eq!(b.P(), &b.P().transpose(), "P- exactly symmetric");
+            worst = worst
+                .max(max_abs(&(a.x() - b.x())) / max_abs(a.x()))
+                .max(max_abs(&(a.P() - b.P())) / max_abs(a.P()));
+            assert_eq!(a.update(&z, h), b.update(&z, h));
+        }
+        eprintln!(
+            "alpha {}: partial vs full predict, max rel diff {worst:.2e}",
+            p.alpha
+        );
+        assert!(worst <= 1e-12, "alpha {}: rel diff {worst:e}", p.alpha);
+        assert_eq!(a.recoveries(), b.recoveries());
+    }
+}
+
 #[test]
 fn update_before_predict_draws_from_current_state() {
     // filterpy would use all-zero sigma points here (K ~ 0); we draw from
