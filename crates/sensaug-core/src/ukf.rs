@@ -282,8 +282,11 @@ pub fn scaled_cholesky<const N: usize>(
             }
         }
         let d = col[j];
-        // A pivot that is NaN, zero or negative: not positive definite.
-        if d.is_nan() || d <= 0.0 {
+        // A pivot that is NaN, zero, negative or infinite: not positive
+        // definite (or overflow). This also covers every L_ij below the
+        // diagonal: it enters pivot i as -L_ij^2, so a NaN or infinite L_ij
+        // makes that pivot NaN or -inf.
+        if !d.is_finite() || d <= 0.0 {
             return None;
         }
         let d = libm::sqrt(d);
@@ -292,8 +295,7 @@ pub fn scaled_cholesky<const N: usize>(
             *v /= d;
         }
     }
-    let L = SMatrix::<f64, N, N>::from_data(nalgebra::ArrayStorage(l));
-    all_finite(&L).then_some(L)
+    Some(SMatrix::<f64, N, N>::from_data(nalgebra::ArrayStorage(l)))
 }
 
 /// Merwe sigma points from the factor `L` of `(n + lambda) P`:
@@ -528,7 +530,11 @@ pub struct Ukf<const N: usize, const M: usize, const S: usize> {
     c: f64,
     Wm: SVector<f64, S>,
     Wc: SVector<f64, S>,
-    sigmas_f: SMatrix<f64, N, S>,
+    // The sigma points re-drawn at the end of `predict`, kept as their
+    // centre and scaled factor (`sigmas_f()` forms them): the selection
+    // update never needs the points themselves.
+    sigma_center: SVector<f64, N>,
+    sigma_factor: SMatrix<f64, N, N>,
     sigmas_fresh: bool,
     x_prior: SVector<f64, N>,
     P_prior: SMatrix<f64, N, N>,
@@ -587,7 +593,8 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
             Wc,
             // filterpy starts sigmas_f as zeros; we mark them stale instead
             // (see `update`).
-            sigmas_f: SMatrix::zeros(),
+            sigma_center: SVector::zeros(),
+            sigma_factor: SMatrix::zeros(),
             sigmas_fresh: false,
             x_prior: x0,
             P_prior: P0,
@@ -804,12 +811,13 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         mut P_prior: SMatrix<f64, N, N>,
         mut pending: Pending,
     ) -> Result<Status, UkfError> {
-        let sigmas = self.draw(&x_prior, &mut P_prior, Stage::PredictRedraw, &mut pending);
+        let L = self.factor(&mut P_prior, Stage::PredictRedraw, &mut pending);
         self.x = x_prior;
         self.P = P_prior;
         self.x_prior = x_prior;
         self.P_prior = P_prior;
-        self.sigmas_f = sigmas;
+        self.sigma_center = x_prior;
+        self.sigma_factor = L;
         self.sigmas_fresh = true;
         self.recoveries.predicts = self.recoveries.predicts.saturating_add(1);
         self.finish(pending)
@@ -879,8 +887,10 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         let mut pending = Pending::default();
         let mut P = self.P;
         let drawn;
+        let fresh;
         let chi = if self.sigmas_fresh {
-            &self.sigmas_f
+            fresh = self.sigmas_f();
+            &fresh
         } else {
             drawn = self.draw(&self.x, &mut P, Stage::UpdateSigmaPoints, &mut pending);
             &drawn
@@ -1168,8 +1178,10 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         &self.Wc
     }
     /// Sigma points (columns) re-drawn at the end of the last `predict`.
-    pub fn sigmas_f(&self) -> &SMatrix<f64, N, S> {
-        &self.sigmas_f
+    /// (Formed on demand from the stored centre and factor; zeros before the
+    /// first `predict`, as filterpy's.)
+    pub fn sigmas_f(&self) -> SMatrix<f64, N, S> {
+        sigma_points(&self.sigma_center, &self.sigma_factor)
     }
     /// The sigma point parameters.
     pub fn params(&self) -> &MerweParams {

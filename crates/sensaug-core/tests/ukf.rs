@@ -351,7 +351,7 @@ fn snapshot(u: &Lin) -> Snapshot {
         *u.P(),
         *u.x_prior(),
         *u.P_prior(),
-        *u.sigmas_f(),
+        u.sigmas_f(),
         *u.K(),
         *u.y(),
         *u.S(),
