@@ -1,14 +1,15 @@
-"""Times the oracles (scipy, filterpy) on the problems `cargo bench` times.
+"""The peers (filterpy, scipy) and sensaug's Python API on the problems of
+crates/sensaug-core/benches/workloads/mod.rs (same matrices, same settings,
+same measurements), timed one call at a time.
 
-Run by `benches/run.sh` right after the criterion benches, so both sets of
-medians come from one run on the same machine. Prints medians per call.
-The same matrices as crates/sensaug-core/benches/numerics.rs.
+``benches/report.py`` imports :func:`calls` and :func:`per_call_ns` and runs
+them in the same run as the Rust harness, so every ratio in BENCHMARKS.md is
+measured side by side. Run alone, this prints the medians and tails.
 """
 from __future__ import annotations
 
-import json
 import time
-from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import scipy.linalg
@@ -18,88 +19,122 @@ import sensaug
 
 M, DT = 0.0035, 1e-3
 
+WARM_UP_CALLS = 50
 
-def median_us(fn, *, repeat: int = 2000, inner: int = 5) -> float:
-    for _ in range(50):
+
+def per_call_ns(fn: Callable[[], object], calls: int) -> dict[str, float]:
+    """Median, p99, p99.9 and max (ns) of ``calls`` individually timed calls."""
+    for _ in range(WARM_UP_CALLS):
         fn()
-    samples = []
-    for _ in range(repeat // inner):
-        t0 = time.perf_counter_ns()
-        for _ in range(inner):
-            fn()
-        samples.append((time.perf_counter_ns() - t0) / inner / 1e3)
-    return float(np.median(samples))
+    samples = np.empty(calls)
+    clock = time.perf_counter_ns
+    for i in range(calls):
+        t0 = clock()
+        fn()
+        samples[i] = clock() - t0
+    empty = np.empty(calls)
+    for i in range(calls):
+        t0 = clock()
+        empty[i] = clock() - t0
+    return {
+        "calls": calls,
+        "median_ns": float(np.median(samples)),
+        "p99_ns": float(np.quantile(samples, 0.99)),
+        "p999_ns": float(np.quantile(samples, 0.999)),
+        "max_ns": float(samples.max()),
+        "timer_overhead_median_ns": float(np.median(empty)),
+    }
 
 
 def fx(z, dt, u=0.0, dtau=0.0, dtau_h=0.0):
+    """The reference discrete model of docs/model.md (as tests/test_estimators.py)."""
     e, v, eh, lx, lv, lh = z
     a = (u - lx * e - lv * v - lh * eh) / M
     dx = dt * v + 0.5 * dt * dt * a
     return np.array([e + dx - dtau, v + dt * a, eh + dx - dtau_h, lx, lv, lh])
 
 
-def filterpy_step(dim_z: int):
+P0 = np.diag([1e-4] * 3 + [1.0] * 3)
+
+
+def filterpy_step(dim_z: int) -> Callable[[], None]:
+    """update(y) then predict(u, dtau, dtau_h), as workloads::ukf_step_3/5."""
     pts = MerweScaledSigmaPoints(6, alpha=1.0, beta=2.0, kappa=0.0)
     hx = (lambda z: z[:3]) if dim_z == 3 else (lambda z: z[[0, 1, 3, 4, 5]])
     f = UnscentedKalmanFilter(dim_x=6, dim_z=dim_z, dt=DT, fx=fx, hx=hx, points=pts)
-    f.P = np.diag([1e-4] * 3 + [1.0] * 3)
+    f.x, f.P = np.zeros(6), P0.copy()
     f.Q, f.R = 1e-2 * np.eye(6), 1e-7 * np.eye(dim_z)
-    f.predict(u=0.0)
+    f.sigmas_f = pts.sigma_points(f.x, f.P)
     k = [0]
 
-    def step():
+    def step() -> None:
         k[0] += 1
         s = np.sin(k[0] * 1e-3)
-        f.update(np.array([s, 0.1, s, 0.0, 2.0][:dim_z]) if dim_z == 3 else np.array([s, 0.1, 0.0, 0.0, 2.0]))
-        f.predict(u=0.01 * s, dtau=1e-3, dtau_h=1e-3)
+        if dim_z == 3:
+            f.update(np.array([s, 0.1, s]))
+            f.predict(u=0.01 * s, dtau=1e-3, dtau_h=1e-3)
+        else:
+            f.update(np.array([s, 0.1, 0.0, 0.0, 2.0]))
+            f.predict(u=0.01 * s, dtau=1e-3, dtau_h=0.0)
 
     return step
 
 
-def ours_step_python():
-    g = sensaug.GainEstimator(mass=M, Q=1e-2 * np.eye(6), R=1e-7 * np.eye(3), x0=np.zeros(6), P0=np.diag([1e-4] * 3 + [1.0] * 3))
-    y = np.array([0.1, 0.1, 0.1])
+def sensaug_step_python(dim_z: int) -> Callable[[], None]:
+    """The same step through sensaug's Python estimators (one FFI call each)."""
+    kw = dict(mass=M, dt=DT, Q=1e-2 * np.eye(6), R=1e-7 * np.eye(dim_z), x0=np.zeros(6), P0=P0)
+    est = sensaug.GainEstimator(**kw) if dim_z == 3 else sensaug.TrajectoryEstimator(**kw)
+    k = [0]
 
-    def step():
-        g.update(y)
-        g.predict(0.001, 1e-3, 1e-3)
+    def step() -> None:
+        k[0] += 1
+        s = np.sin(k[0] * 1e-3)
+        if dim_z == 3:
+            est.update(np.array([s, 0.1, s]))
+            est.predict(0.01 * s, 1e-3, 1e-3)
+        else:
+            est.update(np.array([s, 0.1, 0.0, 0.0, 2.0]))
+            est.predict(0.01 * s, 1e-3, 0.0)
 
     return step
 
 
-def criterion_medians() -> dict[str, float]:
-    """Medians (us) from criterion's estimates of the run that just finished."""
-    root = Path(__file__).resolve().parents[1] / "target" / "criterion"
-    out = {}
-    for est in root.glob("**/new/estimates.json"):
-        name = json.loads((est.parent / "benchmark.json").read_text())["full_id"]
-        out[name] = json.loads(est.read_text())["median"]["point_estimate"] / 1e3
-    return out
-
-
-def main() -> None:
+def problems() -> dict[str, tuple]:
+    """(A, B, Q, R) of the Riccati workloads, by workload name."""
     A2 = np.array([[0.0, 1.0], [0.0, -0.5]])
     B2 = np.array([[0.0], [1.0 / M]])
     A3 = np.array([[0.0, 1.0, 0.0], [0.0, -0.1, 1.0], [0.5, 0.0, -1.0]])
     B3 = np.array([[0.0], [0.0], [1.0]])
-    Ad2, Bd2 = np.array([[1.0, 1e-3], [0.0, 1.0]]), np.array([[5e-7], [1e-3]])
-    Ad3, Bd3 = np.eye(3) + 1e-2 * A3, 1e-2 * B3
     R = np.eye(1)
-    rows = [
-        ("ukf_step/6_states_3_measurements", "filterpy", median_us(filterpy_step(3))),
-        ("ukf_step/6_states_5_measurements", "filterpy", median_us(filterpy_step(5))),
-        ("ukf_step/6_states_3_measurements", "sensaug via Python", median_us(ours_step_python())),
-        ("care/2_states", "scipy", median_us(lambda: scipy.linalg.solve_continuous_are(A2, B2, np.eye(2), R))),
-        ("care/3_states", "scipy", median_us(lambda: scipy.linalg.solve_continuous_are(A3, B3, np.eye(3), R))),
-        ("dare/2_states", "scipy", median_us(lambda: scipy.linalg.solve_discrete_are(Ad2, Bd2, np.eye(2), R))),
-        ("dare/3_states", "scipy", median_us(lambda: scipy.linalg.solve_discrete_are(Ad3, Bd3, np.eye(3), R))),
-        ("care/3_states", "sensaug via Python", median_us(lambda: sensaug.care(A3, B3, np.eye(3), R))),
+    return {
+        "care/2_states": (A2, B2, np.eye(2), R),
+        "care/3_states": (A3, B3, np.eye(3), R),
+        "dare/2_states": (np.array([[1.0, 1e-3], [0.0, 1.0]]), np.array([[5e-7], [1e-3]]), np.eye(2), R),
+        "dare/3_states": (np.eye(3) + 1e-2 * A3, 1e-2 * B3, np.eye(3), R),
+    }
+
+
+def calls() -> list[tuple[str, str, Callable[[], object]]]:
+    """(workload, implementation, call) for every peer and Python-API row."""
+    rows: list[tuple[str, str, Callable[[], object]]] = [
+        ("ukf_step/6_states_3_measurements", "filterpy", filterpy_step(3)),
+        ("ukf_step/6_states_5_measurements", "filterpy", filterpy_step(5)),
+        ("ukf_step/6_states_3_measurements", "sensaug via Python", sensaug_step_python(3)),
+        ("ukf_step/6_states_5_measurements", "sensaug via Python", sensaug_step_python(5)),
     ]
-    rows += [(name, "sensaug (Rust)", us) for name, us in criterion_medians().items()]
-    rows.sort(key=lambda r: (r[0], r[1]))
-    print(f"{'benchmark':36s} {'implementation':20s} {'median (us)':>12s}")
-    for name, impl, us in rows:
-        print(f"{name:36s} {impl:20s} {us:12.2f}")
+    for name, (A, B, Q, R) in problems().items():
+        scipy_solve = scipy.linalg.solve_continuous_are if name.startswith("care") else scipy.linalg.solve_discrete_are
+        ours = sensaug.care if name.startswith("care") else sensaug.dare
+        rows.append((name, "scipy", lambda f=scipy_solve, a=(A, B, Q, R): f(*a)))
+        rows.append((name, "sensaug via Python", lambda f=ours, a=(A, B, Q, R): f(*a)))
+    return rows
+
+
+def main() -> None:
+    print(f"{'benchmark':36s} {'implementation':20s} {'median (us)':>12s} {'p99 (us)':>10s}")
+    for name, impl, fn in calls():
+        t = per_call_ns(fn, 2000)
+        print(f"{name:36s} {impl:20s} {t['median_ns'] / 1e3:12.2f} {t['p99_ns'] / 1e3:10.2f}")
 
 
 if __name__ == "__main__":

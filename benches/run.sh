@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
-# Criterion benches of the Rust core, then the oracles (scipy, filterpy) on
-# the same problems, in one run: compare the medians side by side.
+# Writes BENCHMARKS.md from one run: the Rust workloads (per-call timings and
+# callgrind instruction counts) and the peers (filterpy, scipy) and the Python
+# API on the same problems, side by side (benches/report.py). The criterion
+# benches (including the robot tick) stay available separately:
+#   cargo bench -p sensaug-core --bench numerics
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
-rm -rf target/criterion
-cargo bench -p sensaug-core --bench numerics -- --warm-up-time 1 --measurement-time 3
-.venv/bin/python benches/compare_oracles.py
+.venv/bin/python benches/report.py "$@"

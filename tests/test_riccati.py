@@ -59,12 +59,13 @@ def _well_posed(A, B, C, discrete: bool) -> bool:
     return True
 
 
-def _random_system(rng: np.random.Generator, n: int, discrete: bool):
-    """One well-posed (A, B, Q, R) and the number of rejected draws before it."""
+def _random_system(rng: np.random.Generator, n: int, discrete: bool, inputs: int | None = None):
+    """One well-posed (A, B, Q, R) and the number of rejected draws before it;
+    ``m`` is drawn in ``1..min(n, 3)`` unless ``inputs`` fixes it."""
     rejected = 0
     while True:
         A = rng.standard_normal((n, n)) / np.sqrt(n)
-        m = int(rng.integers(1, min(n, 3) + 1))
+        m = int(rng.integers(1, min(n, 3) + 1)) if inputs is None else inputs
         B = rng.standard_normal((n, m))
         p = int(rng.integers(1, n + 1))
         C = rng.standard_normal((p, n))
@@ -129,6 +130,26 @@ def test_random_systems_match_scipy(n: int, discrete: bool) -> None:
         f"\n{kind} n={n}: max rel diff vs scipy {worst_diff:.2e}, max residual ours "
         f"{worst_res:.2e}, scipy {worst_scipy_res:.2e}, redrawn {rejected_total}"
     )
+
+
+@pytest.mark.parametrize("n,m", [(n, m) for n in range(4, 7) for m in range(4, n + 1)])
+@pytest.mark.parametrize("discrete", [False, True], ids=["care", "dare"])
+def test_more_than_three_inputs_match_scipy(n: int, m: int, discrete: bool) -> None:
+    """Every 1 <= m <= n <= 6 is instantiated; m > 3 against scipy, 100 draws each."""
+    rng = np.random.default_rng(7000 + 100 * n + 10 * m + int(discrete))
+    ours_solve = sensaug.dare if discrete else sensaug.care
+    scipy_solve = sla.solve_discrete_are if discrete else sla.solve_continuous_are
+    residual = dare_residual if discrete else care_residual
+    for i in range(100):
+        A, B, Q, R, _ = _random_system(rng, n, discrete, inputs=m)
+        assert B.shape == (n, m)
+        X = ours_solve(A, B, Q, R)
+        Xs = scipy_solve(A, B, Q, R)
+        diff = np.linalg.norm(X - Xs) / np.linalg.norm(Xs)
+        assert residual(A, B, Q, R, X) <= RES_TOL, f"sample {i}"
+        assert diff <= REL_TOL, f"sample {i}: rel diff {diff:.2e}"
+    K, _ = sensaug.lqr(A, B, Q, R, discrete=discrete)
+    assert K.shape == (m, n)
 
 
 @pytest.mark.parametrize("seed", range(5))

@@ -25,7 +25,7 @@ def lqr(
     X = A'XA - A'XB (R + B'XB)^-1 B'XA + Q (`sensaug.care` / `sensaug.dare` return X).
 
     Arguments:
-        a: (n, n), 1 <= n <= 6. b: (n, m), 1 <= m <= min(n, 3). q: (n, n) PSD. r: (m, m) PD.
+        a: (n, n), 1 <= n <= 6. b: (n, m), 1 <= m <= n. q: (n, n) PSD. r: (m, m) PD.
 
     Raises:
         ValueError: bad shape or input, not stabilisable, not detectable.

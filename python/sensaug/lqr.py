@@ -1,8 +1,11 @@
 """Algebraic Riccati equations and LQR gains (eq.LQRrobot, eq.LQRhuman).
 
 numpy in, numpy out. The solvers are the allocation-free Rust core
-(``sensaug._core``); this module checks shapes and values first so that every
-``ValueError`` names the offending argument and says how to fix it.
+(``sensaug._core``), which checks every value itself (finite, symmetric,
+definite, stabilisable, detectable) and names the argument. This module only
+converts to 2-D float arrays before the call; when the core rejects the input,
+it re-runs its own, slower checks to say how to fix it (the eigenvalue checks
+cost a valid call several times the solve, so they run only on failure).
 
 Errors
 ------
@@ -18,6 +21,8 @@ See ``docs/riccati.md`` for the algorithm and tolerances.
 """
 
 from __future__ import annotations
+
+from typing import Callable, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -37,20 +42,23 @@ __all__ = [
 RiccatiConvergenceError = _core.RiccatiConvergenceError
 
 MAX_STATES = 6
-MAX_INPUTS = 3
 _SYMMETRY_TOL = 1e-10
+_T = TypeVar("_T")
 
 
-def _as_matrix(name: str, value: npt.ArrayLike) -> npt.NDArray[np.float64]:
+def _as_2d(name: str, value: npt.ArrayLike) -> npt.NDArray[np.float64]:
     try:
-        arr = np.array(value, dtype=np.float64, order="C", copy=True)
+        arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{name}: expected a 2-D array of real numbers ({exc})") from None
     if arr.ndim != 2:
         raise ValueError(f"{name}: expected a 2-D array, got {arr.ndim}-D with shape {arr.shape}")
+    return arr
+
+
+def _check_finite(name: str, arr: npt.NDArray[np.float64]) -> None:
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name}: contains NaN or infinite entries; pass finite values")
-    return arr
 
 
 def _check_weight(name: str, w: npt.NDArray[np.float64], *, definite: bool) -> None:
@@ -68,22 +76,24 @@ def _check_weight(name: str, w: npt.NDArray[np.float64], *, definite: bool) -> N
         )
 
 
-def _prepare(
-    A: npt.ArrayLike, B: npt.ArrayLike, Q: npt.ArrayLike, R: npt.ArrayLike
-) -> tuple[npt.NDArray[np.float64], ...]:
-    a = _as_matrix("A", A)
-    b = _as_matrix("B", B)
-    q = _as_matrix("Q", Q)
-    r = _as_matrix("R", R)
+def _check_values(
+    a: npt.NDArray[np.float64],
+    b: npt.NDArray[np.float64],
+    q: npt.NDArray[np.float64],
+    r: npt.NDArray[np.float64],
+) -> None:
+    """The full checks, in order, raising a ``ValueError`` that says how to fix
+    the first problem; run only after the core has rejected the input."""
+    for name, arr in (("A", a), ("B", b), ("Q", q), ("R", r)):
+        _check_finite(name, arr)
     n = a.shape[0]
     if a.shape[0] != a.shape[1] or not 1 <= n <= MAX_STATES:
         raise ValueError(
             f"A: expected a square shape (n, n) with 1 <= n <= {MAX_STATES}, got {a.shape}"
         )
-    mmax = min(n, MAX_INPUTS)
-    if b.shape[0] != n or not 1 <= b.shape[1] <= mmax:
+    if b.shape[0] != n or not 1 <= b.shape[1] <= n:
         raise ValueError(
-            f"B: expected shape (n, m) = ({n}, m) with 1 <= m <= {mmax}, got {b.shape}"
+            f"B: expected shape (n, m) = ({n}, m) with 1 <= m <= {n}, got {b.shape}"
         )
     m = b.shape[1]
     if q.shape != (n, n):
@@ -92,7 +102,28 @@ def _prepare(
         raise ValueError(f"R: expected shape (m, m) = ({m}, {m}), got {r.shape}")
     _check_weight("Q", q, definite=False)
     _check_weight("R", r, definite=True)
-    return a, b, q, r
+
+
+def _solve(
+    fn: Callable[..., _T],
+    A: npt.ArrayLike,
+    B: npt.ArrayLike,
+    Q: npt.ArrayLike,
+    R: npt.ArrayLike,
+    **kwargs: bool,
+) -> _T:
+    """Converts, calls the core ``fn``; on a ``ValueError`` from the core,
+    raises the more helpful message of :func:`_check_values` if it finds the
+    problem, else the core's own."""
+    args = (_as_2d("A", A), _as_2d("B", B), _as_2d("Q", Q), _as_2d("R", R))
+    try:
+        return fn(*args, **kwargs)
+    except ValueError:
+        try:
+            _check_values(*args)
+        except ValueError as detailed:
+            raise detailed from None
+        raise
 
 
 def care(
@@ -102,7 +133,7 @@ def care(
 
     Arguments:
         A: state matrix, shape (n, n), 1 <= n <= 6.
-        B: input matrix, shape (n, m), 1 <= m <= min(n, 3).
+        B: input matrix, shape (n, m), 1 <= m <= n.
         Q: symmetric positive semidefinite state weight, shape (n, n).
         R: symmetric positive definite input weight, shape (m, m).
 
@@ -114,7 +145,7 @@ def care(
             stabilisable / (Q, A) not detectable.
         RiccatiConvergenceError: the solver failed its own checks.
     """
-    return _core.lqr(*_prepare(A, B, Q, R), discrete=False)[1]
+    return _solve(_core.lqr, A, B, Q, R, discrete=False)[1]
 
 
 def dare(
@@ -125,7 +156,7 @@ def dare(
     Arguments and errors as for :func:`care`; ``A - B K`` with
     ``K = (R + B'XB)^-1 B'XA`` has spectral radius < 1.
     """
-    return _core.lqr(*_prepare(A, B, Q, R), discrete=True)[1]
+    return _solve(_core.lqr, A, B, Q, R, discrete=True)[1]
 
 
 def lqr(
@@ -148,7 +179,7 @@ def lqr(
     Raises:
         As :func:`care`.
     """
-    return _core.lqr(*_prepare(A, B, Q, R), discrete=discrete)
+    return _solve(_core.lqr, A, B, Q, R, discrete=discrete)
 
 
 def agent_gains(mass: float, damping: float, q_pos: float, q_vel: float) -> tuple[float, float]:

@@ -12,7 +12,7 @@
 //! computes its command `u_k`, then `predict` with `u_k` and the targets'
 //! increments `tau[k+1] - tau[k]` (0 for a target the agent does not know).
 
-use crate::ukf::{MerweParams, Status, Ukf, UkfError};
+use crate::ukf::{MerweParams, Selection, Status, Ukf, UkfError};
 use nalgebra::{SMatrix, SVector, Vector2, Vector3};
 
 /// Extended state (eq.state-extended): `[e, v, e_h, Lhx, Lhv, Lhh]` with
@@ -95,22 +95,57 @@ pub fn extended_process(
     dtau: f64,
     dtau_h: f64,
 ) -> Extended {
-    let (dx, v_next) = model.kinematics(z[1], u + partner_torque(z));
     let mut next = *z;
-    next[0] = z[0] + dx - dtau;
-    next[1] = v_next;
-    next[E_H] = z[E_H] + dx - dtau_h;
+    next.fixed_rows_mut::<GAINS>(0)
+        .copy_from(&extended_process_moving(model, z, u, dtau, dtau_h));
     next
 }
 
-/// Stage-1 measurement (eq.measurement-extended_control): `y1 = [e, v, e_h]`.
-pub fn gain_measurement(z: &Extended) -> Vector3<f64> {
-    Vector3::new(z[0], z[1], z[E_H])
+/// The moving part of [`extended_process`], `[e', v', e_h']` (the gains
+/// `L' = L` are constant, which `Ukf::predict_partial` exploits).
+pub fn extended_process_moving(
+    model: &HandleModel,
+    z: &Extended,
+    u: f64,
+    dtau: f64,
+    dtau_h: f64,
+) -> Vector3<f64> {
+    let (dx, v_next) = model.kinematics(z[1], u + partner_torque(z));
+    Vector3::new(z[0] + dx - dtau, v_next, z[E_H] + dx - dtau_h)
 }
 
-/// Stage-2 measurement (eq.measurement-extended): `y2 = [e, v, Lhx, Lhv, Lhh]`.
+/// `Some(sel)` at compile time, or a compile error naming a bad selection.
+const fn checked<const N: usize, const M: usize>(sel: Option<Selection<N, M>>) -> Selection<N, M> {
+    match sel {
+        Some(s) => s,
+        None => panic!("measurement selection index out of range"),
+    }
+}
+
+/// Stage-1 measurement (eq.measurement-extended_control) as a selection:
+/// `y1 = [e, v, e_h]`.
+pub const GAIN_MEASUREMENT: Selection<6, 3> = checked(Selection::new([0, 1, E_H]));
+
+/// Stage-2 measurement (eq.measurement-extended) as a selection:
+/// `y2 = [e, v, Lhx, Lhv, Lhh]`.
+pub const TRAJECTORY_MEASUREMENT: Selection<6, 5> =
+    checked(Selection::new([0, 1, GAINS, GAINS + 1, GAINS + 2]));
+
+/// Own sensing in goal integration: `y = [e, v]`.
+pub const OWN_MEASUREMENT: Selection<2, 2> = checked(Selection::new([0, 1]));
+
+/// Goal integration with the partner channel: `y = [e, v, e]`.
+pub const FUSED_MEASUREMENT: Selection<2, 3> = checked(Selection::new([0, 1, 0]));
+
+/// Stage-1 measurement function [`GAIN_MEASUREMENT`]: `y1 = [e, v, e_h]`.
+pub fn gain_measurement(z: &Extended) -> Vector3<f64> {
+    GAIN_MEASUREMENT.apply(z)
+}
+
+/// Stage-2 measurement function [`TRAJECTORY_MEASUREMENT`]:
+/// `y2 = [e, v, Lhx, Lhv, Lhh]`.
 pub fn trajectory_measurement(z: &Extended) -> SVector<f64, 5> {
-    SVector::<f64, 5>::new(z[0], z[1], z[GAINS], z[GAINS + 1], z[GAINS + 2])
+    TRAJECTORY_MEASUREMENT.apply(z)
 }
 
 /// UKF settings shared by the extended-state estimators.
@@ -146,7 +181,7 @@ impl GainEstimator {
 
     /// Per tick: fuse `y1 = [x - tau, xdot, x - tau_h]`.
     pub fn update(&mut self, y: &Vector3<f64>) -> Result<Status, UkfError> {
-        self.ukf.update(y, gain_measurement)
+        self.ukf.update_selected(y, &GAIN_MEASUREMENT)
     }
 
     /// Per tick: propagate with the own torque `u` and both targets'
@@ -154,7 +189,7 @@ impl GainEstimator {
     pub fn predict(&mut self, u: f64, dtau: f64, dtau_h: f64) -> Result<Status, UkfError> {
         let model = self.model;
         self.ukf
-            .predict(|z| extended_process(&model, z, u, dtau, dtau_h))
+            .predict_partial(|z| extended_process_moving(&model, z, u, dtau, dtau_h))
     }
 
     /// The estimated partner gains `[Lhx, Lhv, Lhh]`.
@@ -187,7 +222,7 @@ impl TrajectoryEstimator {
 
     /// Per tick: fuse `y2 = [x - tau, xdot, Lhx^, Lhv^, Lhh^]`.
     pub fn update(&mut self, y: &SVector<f64, 5>) -> Result<Status, UkfError> {
-        self.ukf.update(y, trajectory_measurement)
+        self.ukf.update_selected(y, &TRAJECTORY_MEASUREMENT)
     }
 
     /// Per tick: as [`TrajectoryEstimator::update`] with this tick's
@@ -197,7 +232,8 @@ impl TrajectoryEstimator {
         y: &SVector<f64, 5>,
         R: &SMatrix<f64, 5, 5>,
     ) -> Result<Status, UkfError> {
-        self.ukf.update_with_r(y, R, trajectory_measurement)
+        self.ukf
+            .update_selected_with_r(y, R, &TRAJECTORY_MEASUREMENT)
     }
 
     /// Phase start: restart from `x0` with covariance `P0`.
@@ -210,7 +246,7 @@ impl TrajectoryEstimator {
     pub fn predict(&mut self, u: f64, dtau: f64, dtau_h: f64) -> Result<Status, UkfError> {
         let model = self.model;
         self.ukf
-            .predict(|z| extended_process(&model, z, u, dtau, dtau_h))
+            .predict_partial(|z| extended_process_moving(&model, z, u, dtau, dtau_h))
     }
 
     /// `tau_h^ = x - (x - tau_h)^`, given the handle position `x`.
@@ -244,16 +280,17 @@ pub fn error_process(model: &HandleModel, s: &Vector2<f64>, u: f64, dtau: f64) -
     Vector2::new(s[0] + dx - dtau, v_next)
 }
 
-/// Own sensing only: `y = [e, v]`.
+/// Own sensing only ([`OWN_MEASUREMENT`]): `y = [e, v]`.
 pub fn own_measurement(s: &Vector2<f64>) -> Vector2<f64> {
-    *s
+    OWN_MEASUREMENT.apply(s)
 }
 
-/// With the partner channel (section "Goal integration"): `y = [e, v, e]`,
-/// the third entry being `x - tau_h^`, another view of `x - tau` when both
-/// agents track the same target.
+/// With the partner channel (section "Goal integration",
+/// [`FUSED_MEASUREMENT`]): `y = [e, v, e]`, the third entry being
+/// `x - tau_h^`, another view of `x - tau` when both agents track the same
+/// target.
 pub fn fused_measurement(s: &Vector2<f64>) -> Vector3<f64> {
-    Vector3::new(s[0], s[1], s[0])
+    FUSED_MEASUREMENT.apply(s)
 }
 
 /// Online variance of the partner channel `x - tau_h^` (a Mehra-style
@@ -380,7 +417,7 @@ impl GoalIntegrator {
         y_own: &Vector2<f64>,
         partner: Option<(f64, f64)>,
     ) -> Result<Status, UkfError> {
-        let own_status = self.own.update(y_own, own_measurement);
+        let own_status = self.own.update_selected(y_own, &OWN_MEASUREMENT);
         let fused_status = match partner {
             Some((e_partner, floor)) if e_partner.is_finite() && floor.is_finite() => {
                 let prior_e = self.fused.x()[0];
@@ -391,7 +428,8 @@ impl GoalIntegrator {
                 r.fixed_view_mut::<2, 2>(0, 0).copy_from(&self.r_own);
                 r[(2, 2)] = var;
                 let y = Vector3::new(y_own[0], y_own[1], e_partner);
-                self.fused.update_with_r(&y, &r, fused_measurement)
+                self.fused
+                    .update_selected_with_r(&y, &r, &FUSED_MEASUREMENT)
             }
             _ => {
                 // No usable channel this tick: the fused filter degrades to own sensing.
@@ -399,7 +437,8 @@ impl GoalIntegrator {
                 r.fixed_view_mut::<2, 2>(0, 0).copy_from(&self.r_own);
                 r[(2, 2)] = UNINFORMATIVE_VARIANCE;
                 let y = Vector3::new(y_own[0], y_own[1], y_own[0]);
-                self.fused.update_with_r(&y, &r, fused_measurement)
+                self.fused
+                    .update_selected_with_r(&y, &r, &FUSED_MEASUREMENT)
             }
         };
         combine(own_status, fused_status)

@@ -21,13 +21,14 @@
 
 use core::fmt;
 
-use nalgebra::{Cholesky, Complex, SMatrix, Schur};
+use nalgebra::allocator::Allocator;
+use nalgebra::{Cholesky, Complex, Const, DefaultAllocator, DimDiff, DimSub, SMatrix, Schur, U1};
 
 use crate::linalg::{all_finite, hermitian_positive_definite, symmetrize, Lu};
 
 /// Largest state dimension the solvers accept (checked at compile time).
 ///
-/// The eigenvalue checks embed `A` into a `6 x 6` matrix (see
+/// The eigenvalue checks have one concrete Schur instance per size (see
 /// [`eigenvalues`]), which is what bounds `N`.
 pub const MAX_STATES: usize = 6;
 
@@ -666,31 +667,53 @@ fn is_stable<const N: usize>(A: &SMatrix<f64, N, N>, domain: Domain) -> bool {
     })
 }
 
-/// Eigenvalues of `A` via nalgebra's real Schur decomposition.
+/// Eigenvalues of `A` via nalgebra's real Schur decomposition, in the first
+/// `N` entries; the other `6 - N` entries are the padding value `-0.5`,
+/// strictly stable in both continuous and discrete time, so they never
+/// trigger a PBH test nor fail a stability check.
 ///
 /// nalgebra's `Schur` needs `Const<N>: DimSub<U1>`, which generic code
-/// cannot state without typenum where-clauses on every caller. Instead `A`
-/// is embedded as the leading block of the `6 x 6` matrix
-/// `diag(A, -0.5 I)`: the spectrum is that of `A` plus `6 - N` copies of
-/// `-0.5`, which is strictly stable in both continuous and discrete time and
-/// so never triggers a PBH test nor fails a stability check. The block
-/// structure survives the Hessenberg reduction exactly. Returns `None` if
-/// the QR iteration does not converge.
+/// cannot state without typenum where-clauses on every caller, so `A` is
+/// copied into a matrix of the same, concrete size (one arm per `N`; a
+/// `6 x 6` embedding of every `A` used to cost a 2-state solve most of its
+/// time). Returns `None` if the QR iteration does not converge.
 pub fn eigenvalues<const N: usize>(A: &SMatrix<f64, N, N>) -> Option<[Complex<f64>; MAX_STATES]> {
     const { assert!(N >= 1 && N <= MAX_STATES, "N must be in 1..=6") };
-    let mut padded = SMatrix::<f64, MAX_STATES, MAX_STATES>::identity() * PAD_EIGENVALUE;
-    padded.fixed_view_mut::<N, N>(0, 0).copy_from(A);
-    let schur = Schur::try_new(padded, f64::EPSILON, 10_000)?;
-    let ev = schur.complex_eigenvalues();
-    let mut out = [Complex::new(0.0, 0.0); MAX_STATES];
-    for (o, e) in out.iter_mut().zip(ev.iter()) {
+    let mut out = [Complex::new(PAD_EIGENVALUE, 0.0); MAX_STATES];
+    let converged = match N {
+        1 => {
+            out[0] = Complex::new(A[(0, 0)], 0.0);
+            true
+        }
+        2 => schur_eigenvalues::<N, 2>(A, &mut out),
+        3 => schur_eigenvalues::<N, 3>(A, &mut out),
+        4 => schur_eigenvalues::<N, 4>(A, &mut out),
+        5 => schur_eigenvalues::<N, 5>(A, &mut out),
+        _ => schur_eigenvalues::<N, 6>(A, &mut out),
+    };
+    let finite = out.iter().all(|l| l.re.is_finite() && l.im.is_finite());
+    (converged && finite).then_some(out)
+}
+
+/// The eigenvalues of `A` (`N == K`) from the real Schur form of its
+/// `K x K` copy, written to `out[..K]`. `false` if the QR iteration does not
+/// converge.
+fn schur_eigenvalues<const N: usize, const K: usize>(
+    A: &SMatrix<f64, N, N>,
+    out: &mut [Complex<f64>; MAX_STATES],
+) -> bool
+where
+    Const<K>: DimSub<U1>,
+    DefaultAllocator: Allocator<Const<K>, DimDiff<Const<K>, U1>> + Allocator<DimDiff<Const<K>, U1>>,
+{
+    let m = SMatrix::<f64, K, K>::from_fn(|i, j| A.get((i, j)).copied().unwrap_or(0.0));
+    let Some(schur) = Schur::try_new(m, f64::EPSILON, 10_000) else {
+        return false;
+    };
+    for (o, e) in out.iter_mut().zip(schur.complex_eigenvalues().iter()) {
         *o = *e;
     }
-    if out.iter().all(|l| l.re.is_finite() && l.im.is_finite()) {
-        Some(out)
-    } else {
-        None
-    }
+    true
 }
 
 // ---------------------------------------------------------------------------

@@ -20,6 +20,8 @@
 
 use nalgebra::{Cholesky, SMatrix, SVector};
 
+pub use crate::linalg::all_finite;
+
 /// Van der Merwe's scaled sigma point parameters (filterpy
 /// `MerweScaledSigmaPoints(n, alpha, beta, kappa)`).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -244,18 +246,56 @@ pub fn merwe_weights<const S: usize>(
 /// upper triangle of `P` (as scipy's `cholesky(c P)` does, whose upper factor
 /// is `U = L'`). `None` if `c P` is not positive definite or anything is not
 /// finite.
+///
+/// Column by column (left-looking, the operation order of nalgebra's
+/// `Cholesky`, so the factor is the same to the last bit), for `i >= j`:
+/// `a_ij = c P_ji - sum_{k<j} L_jk L_ik`, `L_jj = sqrt(a_jj)`,
+/// `L_ij = a_ij / L_jj`. Written out so the tick needs no transpose, no
+/// copy of `c P` and no second pass for the finiteness of the factor.
 pub fn scaled_cholesky<const N: usize>(
     P: &SMatrix<f64, N, N>,
     c: f64,
 ) -> Option<SMatrix<f64, N, N>> {
-    // nalgebra reads the lower triangle; the lower triangle of P' is the
-    // upper triangle of P, which is what LAPACK potrf(uplo='U') reads.
-    let A = P.transpose() * c;
-    if !all_finite(&A) {
+    if !P
+        .as_slice()
+        .iter()
+        .fold(true, |ok, v| ok & (v * c).is_finite())
+    {
         return None;
     }
-    let L = Cholesky::new(A)?.unpack();
-    all_finite(&L).then_some(L)
+    // l[j][i] = L_ij: plain column-major arrays.
+    let p = P.as_slice();
+    let mut l = [[0.0f64; N]; N];
+    for j in 0..N {
+        let (done, rest) = l.split_at_mut(j);
+        let col = &mut rest[0];
+        // a_ij = c P_ji (upper triangle of P, as LAPACK potrf(uplo='U') reads
+        // it; column-major, so P_ji is p[i N + j])
+        for i in j..N {
+            col[i] = p[i * N + j] * c;
+        }
+        for lk in done.iter() {
+            // a_ij += (-L_jk) L_ik for i >= j, in nalgebra's order (axpy)
+            let f = -lk[j];
+            for i in j..N {
+                col[i] += f * lk[i];
+            }
+        }
+        let d = col[j];
+        // A pivot that is NaN, zero, negative or infinite: not positive
+        // definite (or overflow). This also covers every L_ij below the
+        // diagonal: it enters pivot i as -L_ij^2, so a NaN or infinite L_ij
+        // makes that pivot NaN or -inf.
+        if !d.is_finite() || d <= 0.0 {
+            return None;
+        }
+        let d = libm::sqrt(d);
+        col[j] = d;
+        for v in col[j + 1..].iter_mut() {
+            *v /= d;
+        }
+    }
+    Some(SMatrix::<f64, N, N>::from_data(nalgebra::ArrayStorage(l)))
 }
 
 /// Merwe sigma points from the factor `L` of `(n + lambda) P`:
@@ -297,10 +337,31 @@ pub fn unscented_covariance<const D: usize, const S: usize>(
     mean: &SVector<f64, D>,
     noise: &SMatrix<f64, D, D>,
 ) -> SMatrix<f64, D, D> {
+    // Rank-1 updates P += (Wc_i d) d', column by column on plain arrays (so
+    // the compiler unrolls and vectorises them), then the upper triangle is
+    // mirrored: (Wc_i d_j) d_k and (Wc_i d_k) d_j differ in the last bit, and
+    // the factorisation that follows reads the upper triangle.
+    let mut cols = [[0.0f64; D]; D];
+    let m = mean.as_slice();
+    for (c, w) in chi.as_slice().chunks_exact(D).zip(Wc.as_slice()) {
+        let mut d = [0.0f64; D];
+        let mut wd = [0.0f64; D];
+        for j in 0..D {
+            d[j] = c[j] - m[j];
+            wd[j] = w * d[j];
+        }
+        for (col, dk) in cols.iter_mut().zip(d) {
+            for (p, wdj) in col.iter_mut().zip(wd) {
+                *p += wdj * dk;
+            }
+        }
+    }
     let mut P = SMatrix::<f64, D, D>::zeros();
-    for i in 0..S {
-        let d = chi.column(i) - mean;
-        P += (d * d.transpose()) * Wc[i];
+    for k in 0..D {
+        for j in 0..=k {
+            P[(j, k)] = cols[k][j];
+            P[(k, j)] = cols[k][j];
+        }
     }
     P + noise
 }
@@ -353,14 +414,96 @@ pub fn posterior_covariance<const N: usize, const M: usize>(
     P - K * (S * K.transpose())
 }
 
+/// Posterior covariance of a linear (selection) update, `P+ = P- - K Pxz'`
+/// (equal to `P- - K S K'` since `K S = Pxz`): the symmetric correction
+/// `K Pxz'` is computed on one triangle (`i <= j`) and mirrored.
+pub fn posterior_covariance_symmetric<const N: usize, const M: usize>(
+    P: &SMatrix<f64, N, N>,
+    K: &SMatrix<f64, N, M>,
+    Pxz: &SMatrix<f64, N, M>,
+) -> SMatrix<f64, N, N> {
+    let mut out = *P;
+    for j in 0..N {
+        for i in 0..=j {
+            let mut c = 0.0;
+            for m in 0..M {
+                c += K[(i, m)] * Pxz[(j, m)];
+            }
+            out[(i, j)] -= c;
+            if i != j {
+                out[(j, i)] -= c;
+            }
+        }
+    }
+    out
+}
+
+/// A measurement that reads state entries: `h(x) = [x[i_0], ..., x[i_{M-1}]]`,
+/// i.e. `H x` with `H` the rows `i_0..i_{M-1}` of the `N x N` identity
+/// (an index may repeat). [`Ukf::update_selected`] exploits it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Selection<const N: usize, const M: usize> {
+    indices: [usize; M],
+}
+
+impl<const N: usize, const M: usize> Selection<N, M> {
+    /// `None` if an index is `>= N`. In a `const` item, a bad index is a
+    /// compile error (see the estimators' measurement selections).
+    pub const fn new(indices: [usize; M]) -> Option<Self> {
+        let mut k = 0;
+        while k < M {
+            if indices[k] >= N {
+                return None;
+            }
+            k += 1;
+        }
+        Some(Self { indices })
+    }
+
+    /// The state indices read, in measurement order.
+    pub fn indices(&self) -> &[usize; M] {
+        &self.indices
+    }
+
+    /// `h(x) = H x`.
+    pub fn apply(&self, x: &SVector<f64, N>) -> SVector<f64, M> {
+        SVector::<f64, M>::from_fn(|k, _| x[self.indices[k]])
+    }
+}
+
+/// Which posterior covariance formula an update uses.
+#[derive(Clone, Copy)]
+enum Posterior {
+    /// `P - K S K'`, filterpy's (generic `h`).
+    Filterpy,
+    /// `P - K Pxz'` on one triangle (selection `h`).
+    Symmetric,
+}
+
+/// `chi_f,i = f(chi_i)` for the sigma points of `(x, L)` (`sigma_points`),
+/// formed one at a time: `chi_0 = x`, `chi_{1+k} = x + L e_k`,
+/// `chi_{1+N+k} = x - L e_k`. `None` if any output is not finite.
+fn propagate<const N: usize, const R: usize, const S: usize>(
+    x: &SVector<f64, N>,
+    L: &SMatrix<f64, N, N>,
+    f: &mut impl FnMut(&SVector<f64, N>) -> SVector<f64, R>,
+) -> Option<SMatrix<f64, R, S>> {
+    let mut chi_f = SMatrix::<f64, R, S>::zeros();
+    for i in 0..S {
+        let mut xi = *x;
+        if i >= 1 && i <= N {
+            xi += L.column(i - 1);
+        } else if i > N && i <= 2 * N {
+            xi -= L.column(i - 1 - N);
+        }
+        chi_f.set_column(i, &f(&xi));
+    }
+    all_finite(&chi_f).then_some(chi_f)
+}
+
 /// Re-symmetrisation used by the recovery policy: `A <- (A + A') / 2`.
 pub fn symmetrise<const D: usize>(A: &SMatrix<f64, D, D>) -> SMatrix<f64, D, D> {
     (A + A.transpose()) * 0.5
-}
-
-/// `true` if every entry is finite.
-pub fn all_finite<const R: usize, const C: usize>(A: &SMatrix<f64, R, C>) -> bool {
-    A.iter().all(|v| v.is_finite())
 }
 
 /// Recovery bookkeeping of one call, committed only with the new state.
@@ -387,7 +530,11 @@ pub struct Ukf<const N: usize, const M: usize, const S: usize> {
     c: f64,
     Wm: SVector<f64, S>,
     Wc: SVector<f64, S>,
-    sigmas_f: SMatrix<f64, N, S>,
+    // The sigma points re-drawn at the end of `predict`, kept as their
+    // centre and scaled factor (`sigmas_f()` forms them): the selection
+    // update never needs the points themselves.
+    sigma_center: SVector<f64, N>,
+    sigma_factor: SMatrix<f64, N, N>,
     sigmas_fresh: bool,
     x_prior: SVector<f64, N>,
     P_prior: SMatrix<f64, N, N>,
@@ -446,7 +593,8 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
             Wc,
             // filterpy starts sigmas_f as zeros; we mark them stale instead
             // (see `update`).
-            sigmas_f: SMatrix::zeros(),
+            sigma_center: SVector::zeros(),
+            sigma_factor: SMatrix::zeros(),
             sigmas_fresh: false,
             x_prior: x0,
             P_prior: P0,
@@ -513,9 +661,32 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         Ok(())
     }
 
-    /// Sigma points of `(x, P)`, repairing `P` in place if needed: plain
-    /// factorisation; else re-symmetrise `P` and retry; else `P <- P_reset`
-    /// (whose factor was computed at set-up, so this cannot fail).
+    /// The scaled factor `L` of `P` that sigma points are drawn with,
+    /// repairing `P` in place if needed: plain factorisation; else
+    /// re-symmetrise `P` and retry; else `P <- P_reset` (whose factor was
+    /// computed at set-up, so this cannot fail).
+    fn factor(
+        &self,
+        P: &mut SMatrix<f64, N, N>,
+        stage: Stage,
+        pending: &mut Pending,
+    ) -> SMatrix<f64, N, N> {
+        if let Some(L) = scaled_cholesky(P, self.c) {
+            return L;
+        }
+        *P = symmetrise(P);
+        if let Some(L) = scaled_cholesky(P, self.c) {
+            pending.resymmetrised += 1;
+            pending.last_resym = Some(stage);
+            return L;
+        }
+        *P = self.P_reset;
+        pending.resets += 1;
+        pending.last_reset = Some(stage);
+        self.L_reset
+    }
+
+    /// Sigma points of `(x, P)`, repairing `P` as [`Ukf::factor`] does.
     fn draw(
         &self,
         x: &SVector<f64, N>,
@@ -523,19 +694,7 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         stage: Stage,
         pending: &mut Pending,
     ) -> SMatrix<f64, N, S> {
-        if let Some(L) = scaled_cholesky(P, self.c) {
-            return sigma_points(x, &L);
-        }
-        *P = symmetrise(P);
-        if let Some(L) = scaled_cholesky(P, self.c) {
-            pending.resymmetrised += 1;
-            pending.last_resym = Some(stage);
-            return sigma_points(x, &L);
-        }
-        *P = self.P_reset;
-        pending.resets += 1;
-        pending.last_reset = Some(stage);
-        sigma_points(x, &self.L_reset)
+        sigma_points(x, &self.factor(P, stage, pending))
     }
 
     /// Count a rejected call; the state is untouched.
@@ -563,8 +722,8 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         &mut self,
         f: impl FnMut(&SVector<f64, N>) -> SVector<f64, N>,
     ) -> Result<Status, UkfError> {
-        let Q = self.Q;
-        self.predict_with_q(&Q, f)
+        // The default Q was validated at set-up: no copy, no re-check.
+        self.predict_impl(None, f)
     }
 
     /// Per tick: unscented predict with a per-call process noise `Q`.
@@ -577,43 +736,117 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
     pub fn predict_with_q(
         &mut self,
         Q: &SMatrix<f64, N, N>,
-        mut f: impl FnMut(&SVector<f64, N>) -> SVector<f64, N>,
+        f: impl FnMut(&SVector<f64, N>) -> SVector<f64, N>,
     ) -> Result<Status, UkfError> {
         if !all_finite(Q) {
             return self.reject(UkfError::NonFiniteArgument { which: Arg::Q });
         }
+        self.predict_impl(Some(Q), f)
+    }
+
+    /// Per tick: [`Ukf::predict`] for a process that moves only the first
+    /// `R` states: `f` returns their new values, states `R..N` are constant
+    /// (random walks driven by `Q`, like the estimators' partner gains).
+    ///
+    /// With `d_i = chi_f,i - x-` for the moving rows and the sigma points
+    /// `x +- L e_k` (weights `w = Wc_1 = 1 / (2 (N + lambda))`), the unscented
+    /// sums have closed forms for the constant rows `b`:
+    /// `x-_b = x_b`, `P-_bb = P_bb + Q_bb` (`2 w L_b L_b' = P_bb`),
+    /// `P-_tb = w sum_k (f(x + L e_k) - f(x - L e_k)) L_b,k' + Q_tb`,
+    /// and `P-_tt = sum Wc d d' + Q_tt` as in [`Ukf::predict`]. Equal to
+    /// `predict` with the full `f` up to rounding, with the same errors,
+    /// repairs and re-draw.
+    pub fn predict_partial<const R: usize>(
+        &mut self,
+        mut f: impl FnMut(&SVector<f64, N>) -> SVector<f64, R>,
+    ) -> Result<Status, UkfError> {
+        const { assert!(R >= 1 && R <= N, "R must be in 1..=N") };
         let mut pending = Pending::default();
         let mut P = self.P;
-        let chi = self.draw(&self.x, &mut P, Stage::PredictSigmaPoints, &mut pending);
-        // chi_f,i = f(chi_i)
-        let mut chi_f = SMatrix::<f64, N, S>::zeros();
-        for i in 0..S {
-            let xi: SVector<f64, N> = chi.column(i).into_owned();
-            let fi = f(&xi);
-            if !all_finite(&fi) {
-                return self.reject(UkfError::NonFiniteProcess);
+        let L = self.factor(&mut P, Stage::PredictSigmaPoints, &mut pending);
+        // chi_f,i = f(chi_i) for the moving rows only.
+        let Some(chi_f) = propagate(&self.x, &L, &mut f) else {
+            return self.reject(UkfError::NonFiniteProcess);
+        };
+        // x-_t = sum_i Wm_i chi_f,i ; x-_b = x_b
+        let x_t = unscented_mean(&self.Wm, &chi_f);
+        let mut x_prior = self.x;
+        x_prior.fixed_rows_mut::<R>(0).copy_from(&x_t);
+        // P-_tt = sum_i Wc_i d_i d_i' + Q_tt
+        let Q = &self.Q;
+        let Q_tt = Q.fixed_view::<R, R>(0, 0).into_owned();
+        let P_tt = unscented_covariance(&self.Wc, &chi_f, &x_t, &Q_tt);
+        // D = [f(x + L e_k) - f(x - L e_k)]_k (R x N); T = w D L' (R x N),
+        // whose columns c >= R are P-_tb without Q.
+        let D = SMatrix::<f64, R, N>::from_fn(|r, k| chi_f[(r, 1 + k)] - chi_f[(r, 1 + N + k)]);
+        let T = (D * L.transpose()) * self.Wc[1];
+        // P- = [[P-_tt, T_b + Q_tb], [.., P_bb + Q_bb]], mirrored from the upper triangle.
+        let mut P_prior = P;
+        for c in 0..N {
+            for r in 0..=c {
+                let v = if c < R {
+                    P_tt[(r, c)]
+                } else if r < R {
+                    T[(r, c)] + Q[(r, c)]
+                } else {
+                    P[(r, c)] + Q[(r, c)]
+                };
+                P_prior[(r, c)] = v;
+                P_prior[(c, r)] = v;
             }
-            chi_f.set_column(i, &fi);
         }
+        if !all_finite(&x_prior) || !all_finite(&P_prior) {
+            return self.reject(UkfError::NonFiniteResult {
+                phase: Phase::Predict,
+            });
+        }
+        self.commit_prior(x_prior, P_prior, pending)
+    }
+
+    /// The end of a predict: filterpy's re-draw of the sigma points from
+    /// `(x-, P-)` (repairing `P-` if needed), then commit.
+    fn commit_prior(
+        &mut self,
+        x_prior: SVector<f64, N>,
+        mut P_prior: SMatrix<f64, N, N>,
+        mut pending: Pending,
+    ) -> Result<Status, UkfError> {
+        let L = self.factor(&mut P_prior, Stage::PredictRedraw, &mut pending);
+        self.x = x_prior;
+        self.P = P_prior;
+        self.x_prior = x_prior;
+        self.P_prior = P_prior;
+        self.sigma_center = x_prior;
+        self.sigma_factor = L;
+        self.sigmas_fresh = true;
+        self.recoveries.predicts = self.recoveries.predicts.saturating_add(1);
+        self.finish(pending)
+    }
+
+    /// [`Ukf::predict_with_q`] with a checked per-call `Q`, or the default.
+    fn predict_impl(
+        &mut self,
+        Q: Option<&SMatrix<f64, N, N>>,
+        mut f: impl FnMut(&SVector<f64, N>) -> SVector<f64, N>,
+    ) -> Result<Status, UkfError> {
+        let mut pending = Pending::default();
+        let mut P = self.P;
+        let L = self.factor(&mut P, Stage::PredictSigmaPoints, &mut pending);
+        // chi_f,i = f(chi_i)
+        let Some(chi_f) = propagate(&self.x, &L, &mut f) else {
+            return self.reject(UkfError::NonFiniteProcess);
+        };
         // x- = sum_i Wm_i chi_f,i
         let x_prior = unscented_mean(&self.Wm, &chi_f);
         // P- = sum_i Wc_i (chi_f,i - x-)(chi_f,i - x-)' + Q
-        let mut P_prior = unscented_covariance(&self.Wc, &chi_f, &x_prior, Q);
+        let P_prior = unscented_covariance(&self.Wc, &chi_f, &x_prior, Q.unwrap_or(&self.Q));
         if !all_finite(&x_prior) || !all_finite(&P_prior) {
             return self.reject(UkfError::NonFiniteResult {
                 phase: Phase::Predict,
             });
         }
         // filterpy quirk mirrored: re-draw sigma points from (x-, P-) now.
-        let sigmas = self.draw(&x_prior, &mut P_prior, Stage::PredictRedraw, &mut pending);
-        self.x = x_prior;
-        self.P = P_prior;
-        self.x_prior = x_prior;
-        self.P_prior = P_prior;
-        self.sigmas_f = sigmas;
-        self.sigmas_fresh = true;
-        self.recoveries.predicts = self.recoveries.predicts.saturating_add(1);
-        self.finish(pending)
+        self.commit_prior(x_prior, P_prior, pending)
     }
 
     /// Per tick: update with the default `R`. See [`Ukf::update_with_r`].
@@ -653,10 +886,14 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         }
         let mut pending = Pending::default();
         let mut P = self.P;
+        let drawn;
+        let fresh;
         let chi = if self.sigmas_fresh {
-            self.sigmas_f
+            fresh = self.sigmas_f();
+            &fresh
         } else {
-            self.draw(&self.x, &mut P, Stage::UpdateSigmaPoints, &mut pending)
+            drawn = self.draw(&self.x, &mut P, Stage::UpdateSigmaPoints, &mut pending);
+            &drawn
         };
         // Z_i = h(chi_i)
         let mut Z = SMatrix::<f64, M, S>::zeros();
@@ -671,10 +908,97 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         // z_bar = sum_i Wm_i Z_i
         let z_bar = unscented_mean(&self.Wm, &Z);
         // S = sum_i Wc_i (Z_i - z_bar)(Z_i - z_bar)' + R
-        let mut S_innov = unscented_covariance(&self.Wc, &Z, &z_bar, R);
+        let S_innov = unscented_covariance(&self.Wc, &Z, &z_bar, R);
         // Pxz = sum_i Wc_i (chi_i - x)(Z_i - z_bar)'
-        let Pxz = cross_covariance(&self.Wc, &chi, &self.x, &Z, &z_bar);
-        if !all_finite(&z_bar) || !all_finite(&S_innov) || !all_finite(&Pxz) {
+        let Pxz = cross_covariance(&self.Wc, chi, &self.x, &Z, &z_bar);
+        self.correct(z, &z_bar, S_innov, &Pxz, &P, pending, Posterior::Filterpy)
+    }
+
+    /// Per tick: update with the default `R` for a measurement that selects
+    /// state entries, `h(x) = H x` with `H` the rows of `I` named by `sel`.
+    /// See [`Ukf::update_selected_with_r`].
+    pub fn update_selected(
+        &mut self,
+        z: &SVector<f64, M>,
+        sel: &Selection<N, M>,
+    ) -> Result<Status, UkfError> {
+        // The default R was validated at set-up: no copy, no re-check.
+        self.update_selected_impl(z, None, sel)
+    }
+
+    /// Per tick: [`Ukf::update_with_r`] for `h = sel`, in closed form.
+    ///
+    /// The sigma points of the update are `x +- L e_k` with
+    /// `L L' = (N + lambda) P` (filterpy's re-draw at the end of `predict`),
+    /// and a selection is linear, so the unscented sums are exact:
+    /// `z_bar = H x`, `S = H P H' + R`, `Pxz = P H'` (`P` read from its upper
+    /// triangle, as the factorisation reads it). The update is then the
+    /// linear Kalman update on sub-blocks of `P`: `K = Pxz S^-1` (Cholesky
+    /// solve), `x+ = x + K (z - H x)`, `P+ = P - K Pxz'` (`= P - K S K'`,
+    /// one triangle computed, mirrored). Equal to the sigma-point update up
+    /// to rounding; errors and repairs are the same as [`Ukf::update_with_r`]
+    /// (a selection cannot return NaN, so `NonFiniteMeasurementModel` does
+    /// not occur).
+    pub fn update_selected_with_r(
+        &mut self,
+        z: &SVector<f64, M>,
+        R: &SMatrix<f64, M, M>,
+        sel: &Selection<N, M>,
+    ) -> Result<Status, UkfError> {
+        if !all_finite(z) {
+            return self.reject(UkfError::NonFiniteMeasurement);
+        }
+        if !all_finite(R) {
+            return self.reject(UkfError::NonFiniteArgument { which: Arg::R });
+        }
+        self.update_selected_impl(z, Some(R), sel)
+    }
+
+    /// [`Ukf::update_selected_with_r`] with a checked per-call `R`, or the
+    /// default.
+    fn update_selected_impl(
+        &mut self,
+        z: &SVector<f64, M>,
+        R: Option<&SMatrix<f64, M, M>>,
+        sel: &Selection<N, M>,
+    ) -> Result<Status, UkfError> {
+        if !all_finite(z) {
+            return self.reject(UkfError::NonFiniteMeasurement);
+        }
+        let R = R.unwrap_or(&self.R);
+        let mut pending = Pending::default();
+        let mut P = self.P;
+        if !self.sigmas_fresh {
+            // The generic path draws sigma points here: the same
+            // factorisation, with the same repairs of P.
+            let _ = self.factor(&mut P, Stage::UpdateSigmaPoints, &mut pending);
+        }
+        let idx = sel.indices();
+        // P as the sigma points see it: its upper triangle.
+        let Pu = |i: usize, j: usize| if i <= j { P[(i, j)] } else { P[(j, i)] };
+        // z_bar = H x
+        let z_bar = sel.apply(&self.x);
+        // S = H P H' + R ; Pxz = P H'
+        let S_innov = SMatrix::<f64, M, M>::from_fn(|a, b| Pu(idx[a], idx[b]) + R[(a, b)]);
+        let Pxz = SMatrix::<f64, N, M>::from_fn(|r, b| Pu(r, idx[b]));
+        self.correct(z, &z_bar, S_innov, &Pxz, &P, pending, Posterior::Symmetric)
+    }
+
+    /// The correction shared by both update paths, from `z_bar`, `S`, `Pxz`
+    /// and the prior `P`: factor `S` (with the recovery policy), then
+    /// `K = Pxz S^-1`, `y = z - z_bar`, `x+ = x + K y`, and `P+` as chosen.
+    #[allow(clippy::too_many_arguments)]
+    fn correct(
+        &mut self,
+        z: &SVector<f64, M>,
+        z_bar: &SVector<f64, M>,
+        mut S_innov: SMatrix<f64, M, M>,
+        Pxz: &SMatrix<f64, N, M>,
+        P: &SMatrix<f64, N, N>,
+        mut pending: Pending,
+        posterior: Posterior,
+    ) -> Result<Status, UkfError> {
+        if !all_finite(z_bar) || !all_finite(&S_innov) || !all_finite(Pxz) {
             return self.reject(UkfError::NonFiniteResult {
                 phase: Phase::Update,
             });
@@ -704,13 +1028,17 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
             }
         };
         // K = Pxz S^-1
-        let K = kalman_gain(&Pxz, &chol_S);
+        let K = kalman_gain(Pxz, &chol_S);
         // y = z - z_bar
         let y = z - z_bar;
         // x+ = x- + K y
         let x_new = posterior_mean(&self.x, &K, &y);
-        // P+ = P- - K S K'
-        let P_new = posterior_covariance(&P, &K, &S_innov);
+        let P_new = match posterior {
+            // P+ = P- - K S K'
+            Posterior::Filterpy => posterior_covariance(P, &K, &S_innov),
+            // P+ = P- - K Pxz'
+            Posterior::Symmetric => posterior_covariance_symmetric(P, &K, Pxz),
+        };
         if !all_finite(&K) || !all_finite(&x_new) || !all_finite(&P_new) {
             return self.reject(UkfError::NonFiniteResult {
                 phase: Phase::Update,
@@ -850,8 +1178,10 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         &self.Wc
     }
     /// Sigma points (columns) re-drawn at the end of the last `predict`.
-    pub fn sigmas_f(&self) -> &SMatrix<f64, N, S> {
-        &self.sigmas_f
+    /// (Formed on demand from the stored centre and factor; zeros before the
+    /// first `predict`, as filterpy's.)
+    pub fn sigmas_f(&self) -> SMatrix<f64, N, S> {
+        sigma_points(&self.sigma_center, &self.sigma_factor)
     }
     /// The sigma point parameters.
     pub fn params(&self) -> &MerweParams {

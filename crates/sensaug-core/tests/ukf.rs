@@ -9,7 +9,7 @@ mod pendulum;
 use pendulum::{DemoUkf, Pendulum};
 use sensaug_core::ukf::{
     merwe_weights, scaled_cholesky, sigma_points, unscented_covariance, unscented_mean, Arg,
-    MerweParams, Phase, Stage, Status, Ukf, UkfError,
+    MerweParams, Phase, Selection, Stage, Status, Ukf, UkfError,
 };
 
 type Lin = Ukf<2, 1, 5>;
@@ -156,6 +156,96 @@ fn equals_linear_kalman_filter() {
     }
 }
 
+/// The closed-form update for selections against the sigma-point update on
+/// the same filter: a nonlinear 3-state process (so `P` is not that of a
+/// linear filter), measurements of entries 2 and 0 (index order and a
+/// skipped entry exercised), 2000 steps, and an update before any predict.
+#[test]
+fn selection_update_equals_sigma_point_update() {
+    type F3 = Ukf<3, 2, 7>;
+    let sel = Selection::<3, 2>::new([2, 0]).expect("indices < 3");
+    assert!(Selection::<3, 2>::new([0, 3]).is_none());
+    let f = |s: &SVector<f64, 3>, u: f64| {
+        SVector::<f64, 3>::new(
+            s[0] + DT * s[1],
+            s[1] + DT * (u - libm::sin(s[0]) - 0.1 * s[1] * s[2]),
+            s[2],
+        )
+    };
+    let h = |s: &SVector<f64, 3>| Vector2::new(s[2], s[0]);
+    for p in [params(1.0, 2.0, 0.0), params(0.5, 2.0, 1.0)] {
+        let P0 = SMatrix::<f64, 3, 3>::new(0.3, 0.05, 0.0, 0.05, 0.2, 0.01, 0.0, 0.01, 0.5);
+        let x0 = SVector::<f64, 3>::new(0.2, 0.0, 1.0);
+        let Q = SMatrix::<f64, 3, 3>::identity() * 1e-5;
+        let R = Matrix2::new(1e-3, 0.0, 0.0, 2e-3);
+        let mut a = F3::new(x0, P0, Q, R, p).expect("valid");
+        let mut b = a.clone();
+        let z0 = Vector2::new(0.9, 0.25);
+        assert_eq!(a.update(&z0, h), b.update_selected(&z0, &sel));
+        let mut worst = 0.0f64;
+        for k in 0..2000 {
+            let (u, z) = (u_at(k), Vector2::new(1.0 + 0.1 * z_at(k), z_at(k)));
+            assert_eq!(a.predict(|s| f(s, u)), b.predict(|s| f(s, u)));
+            assert_eq!(a.update(&z, h), Ok(Status::Nominal));
+            assert_eq!(b.update_selected(&z, &sel), Ok(Status::Nominal));
+            worst = worst
+                .max(max_abs(&(a.x() - b.x())) / max_abs(a.x()))
+                .max(max_abs(&(a.P() - b.P())) / max_abs(a.P()));
+        }
+        eprintln!(
+            "alpha {}: selection vs sigma points, max rel diff {worst:.2e}",
+            p.alpha
+        );
+        assert!(worst <= 1e-12, "alpha {}: rel diff {worst:e}", p.alpha);
+        assert_eq!(a.recoveries(), b.recoveries());
+    }
+}
+
+/// `predict_partial` (closed forms for constant states) against `predict`
+/// with the full process, on a 4-state filter whose last two states are
+/// constant parameters of the first two (as the estimators' gains are).
+#[test]
+fn partial_predict_equals_full_predict() {
+    type F4 = Ukf<4, 1, 9>;
+    let moving = |s: &SVector<f64, 4>, u: f64| {
+        Vector2::new(
+            s[0] + DT * s[1],
+            s[1] + DT * (u - s[2] * s[0] - s[3] * s[1]),
+        )
+    };
+    let full = |s: &SVector<f64, 4>, u: f64| {
+        let m = moving(s, u);
+        SVector::<f64, 4>::new(m[0], m[1], s[2], s[3])
+    };
+    let h = |s: &SVector<f64, 4>| Vector1::new(s[0]);
+    for p in [params(1.0, 2.0, 0.0), params(0.5, 2.0, 1.0)] {
+        let x0 = SVector::<f64, 4>::new(0.3, 0.0, 2.0, 0.5);
+        let P0 = SMatrix::<f64, 4, 4>::from_diagonal(&SVector::<f64, 4>::new(0.1, 0.1, 1.0, 0.5));
+        let mut Q = SMatrix::<f64, 4, 4>::identity() * 1e-4;
+        Q[(0, 2)] = 2e-5;
+        Q[(2, 0)] = 2e-5;
+        let mut a = F4::new(x0, P0, Q, SMatrix::<f64, 1, 1>::new(1e-3), p).expect("valid");
+        let mut b = a.clone();
+        let mut worst = 0.0f64;
+        for k in 0..2000 {
+            let (u, z) = (u_at(k), Vector1::new(z_at(k)));
+            assert_eq!(a.predict(|s| full(s, u)), Ok(Status::Nominal));
+            assert_eq!(b.predict_partial(|s| moving(s, u)), Ok(Status::Nominal));
+            assert_eq!(b.P(), &b.P().transpose(), "P- exactly symmetric");
+            worst = worst
+                .max(max_abs(&(a.x() - b.x())) / max_abs(a.x()))
+                .max(max_abs(&(a.P() - b.P())) / max_abs(a.P()));
+            assert_eq!(a.update(&z, h), b.update(&z, h));
+        }
+        eprintln!(
+            "alpha {}: partial vs full predict, max rel diff {worst:.2e}",
+            p.alpha
+        );
+        assert!(worst <= 1e-12, "alpha {}: rel diff {worst:e}", p.alpha);
+        assert_eq!(a.recoveries(), b.recoveries());
+    }
+}
+
 #[test]
 fn update_before_predict_draws_from_current_state() {
     // filterpy would use all-zero sigma points here (K ~ 0); we draw from
@@ -263,7 +353,7 @@ fn snapshot(u: &Lin) -> Snapshot {
         *u.P(),
         *u.x_prior(),
         *u.P_prior(),
-        *u.sigmas_f(),
+        u.sigmas_f(),
         *u.K(),
         *u.y(),
         *u.S(),

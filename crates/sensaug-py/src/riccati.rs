@@ -1,5 +1,5 @@
 //! Riccati / LQR bindings: conversion only. Runtime shapes `n in 1..=6`,
-//! `m in 1..=min(n, 3)` are dispatched to the const-generic core.
+//! `m in 1..=n` are dispatched to the const-generic core.
 //!
 //! Bad inputs (non-finite, asymmetric, indefinite weights, not stabilisable /
 //! detectable, bad shapes) raise `ValueError`; a solve that fails its own
@@ -12,9 +12,6 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use sensaug_core::riccati;
 
-/// Largest input count the binding instantiates.
-const MAX_INPUTS: usize = 3;
-
 type Arrays<'a, 'py> = [&'a PyReadonlyArray2<'py, f64>; 4];
 type Pair<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>);
 
@@ -26,7 +23,7 @@ fn dims([a, b, ..]: Arrays<'_, '_>) -> PyResult<(usize, usize)> {
         let msg = format!("A: expected a square (n, n) array with 1 <= n <= {max}, got {got:?}");
         return Err(PyValueError::new_err(msg));
     }
-    let (m, max) = (b.shape()[1], n.min(MAX_INPUTS));
+    let (m, max) = (b.shape()[1], n);
     if b.shape() != [n, m] || !(1..=max).contains(&m) {
         let got = b.shape();
         let msg = format!("B: expected shape (n, m) = ({n}, m) with 1 <= m <= {max}, got {got:?}");
@@ -72,12 +69,18 @@ fn solve<'py>(py: Python<'py>, arrays: Arrays<'_, 'py>, discrete: bool) -> PyRes
         (4, 1),
         (4, 2),
         (4, 3),
+        (4, 4),
         (5, 1),
         (5, 2),
         (5, 3),
+        (5, 4),
+        (5, 5),
         (6, 1),
         (6, 2),
-        (6, 3)
+        (6, 3),
+        (6, 4),
+        (6, 5),
+        (6, 6)
     )
 }
 

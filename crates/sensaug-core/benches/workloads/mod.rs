@@ -1,0 +1,151 @@
+//! The per-tick and set-up problems that are timed and counted, defined once:
+//! `benches/numerics.rs` (criterion) and `examples/perf_harness.rs`
+//! (per-call timings and callgrind instruction counts for `BENCHMARKS.md`)
+//! both run these closures. `benches/compare_oracles.py` times filterpy and
+//! scipy on the same problems (same matrices, same measurements).
+#![allow(dead_code)]
+
+use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector3};
+use sensaug_core::estimator::{
+    ExtendedFilterConfig, GainEstimator, HandleModel, TrajectoryEstimator,
+};
+use sensaug_core::riccati::{care, dare};
+use sensaug_core::ukf::MerweParams;
+use std::hint::black_box;
+
+/// One benchmarked call, repeated by the runners.
+pub type Call = Box<dyn FnMut()>;
+
+/// A workload: its name and the set-up that returns its call.
+pub type Workload = (&'static str, fn() -> Call);
+
+/// Handle mass of the Hi5 experiment (kg m^2), as in `compare_oracles.py`.
+pub const MASS: f64 = 0.0035;
+/// Tick (s).
+pub const DT: f64 = 1e-3;
+
+/// The 3-state system timed here and in `benches/compare_oracles.py`.
+pub fn system3() -> (Matrix3<f64>, SMatrix<f64, 3, 1>) {
+    (
+        Matrix3::new(0.0, 1.0, 0.0, 0.0, -0.1, 1.0, 0.5, 0.0, -1.0),
+        SMatrix::<f64, 3, 1>::new(0.0, 0.0, 1.0),
+    )
+}
+
+/// The estimators' settings in the oracle script: `P0 = diag(1e-4 x3, 1 x3)`,
+/// `Q = 1e-2 I`, `R = 1e-7 I`, Merwe `(1, 2, 0)`.
+fn extended<const R: usize>() -> ExtendedFilterConfig<R> {
+    let mut P0 = SMatrix::<f64, 6, 6>::identity();
+    for i in 0..3 {
+        P0[(i, i)] = 1e-4;
+    }
+    ExtendedFilterConfig {
+        x0: SVector::zeros(),
+        P0,
+        Q: SMatrix::identity() * 1e-2,
+        R: SMatrix::identity() * 1e-7,
+        sigma: MerweParams {
+            alpha: 1.0,
+            beta: 2.0,
+            kappa: 0.0,
+        },
+    }
+}
+
+fn model() -> HandleModel {
+    HandleModel {
+        mass: MASS,
+        damping: 0.0,
+        dt_s: DT,
+    }
+}
+
+/// Stage 1: `update(y1)` then `predict(u, dtau, dtau_h)`, 6 states, 3
+/// measurements.
+pub fn ukf_step_3() -> Call {
+    let mut g = GainEstimator::new(model(), &extended::<3>()).expect("valid estimator");
+    // Sanity before timing: a step succeeds and stays finite.
+    let _ = g
+        .update(&Vector3::new(0.1, 0.0, 0.1))
+        .expect("first update");
+    assert!(g.filter().x().iter().all(|v| v.is_finite()));
+    let mut k = 0u64;
+    Box::new(move || {
+        k += 1;
+        let s = (k as f64 * 1e-3).sin();
+        let _ = g.update(black_box(&Vector3::new(s, 0.1, s)));
+        let _ = g.predict(black_box(0.01 * s), 1e-3, 1e-3);
+    })
+}
+
+/// Stage 2: `update(y2)` then `predict`, 6 states, 5 measurements.
+pub fn ukf_step_5() -> Call {
+    let mut t = TrajectoryEstimator::new(model(), &extended::<5>()).expect("valid estimator");
+    let y0 = SVector::<f64, 5>::new(0.1, 0.1, 0.0, 0.0, 2.0);
+    let _ = t.update(&y0).expect("first update");
+    assert!(t.filter().x().iter().all(|v| v.is_finite()));
+    let mut k = 0u64;
+    Box::new(move || {
+        k += 1;
+        let s = (k as f64 * 1e-3).sin();
+        let _ = t.update(black_box(&SVector::<f64, 5>::new(s, 0.1, 0.0, 0.0, 2.0)));
+        let _ = t.predict(black_box(0.01 * s), 1e-3, 0.0);
+    })
+}
+
+/// CARE, 2 states (the agents' reduced problem).
+pub fn care_2() -> Call {
+    let A = Matrix2::new(0.0, 1.0, 0.0, -0.5);
+    let B = SMatrix::<f64, 2, 1>::new(0.0, 1.0 / MASS);
+    let R = SMatrix::<f64, 1, 1>::identity();
+    assert!(care(&A, &B, &Matrix2::identity(), &R).is_ok());
+    Box::new(move || {
+        let _ = black_box(care(black_box(&A), &B, &Matrix2::identity(), &R));
+    })
+}
+
+/// CARE, 3 states.
+pub fn care_3() -> Call {
+    let (A, B) = system3();
+    let R = SMatrix::<f64, 1, 1>::identity();
+    assert!(care(&A, &B, &Matrix3::identity(), &R).is_ok());
+    Box::new(move || {
+        let _ = black_box(care(black_box(&A), &B, &Matrix3::identity(), &R));
+    })
+}
+
+/// DARE, 2 states (the 1 kHz double integrator).
+pub fn dare_2() -> Call {
+    let A = Matrix2::new(1.0, 1e-3, 0.0, 1.0);
+    let B = SMatrix::<f64, 2, 1>::new(5e-7, 1e-3);
+    let R = SMatrix::<f64, 1, 1>::identity();
+    assert!(dare(&A, &B, &Matrix2::identity(), &R).is_ok());
+    Box::new(move || {
+        let _ = black_box(dare(black_box(&A), &B, &Matrix2::identity(), &R));
+    })
+}
+
+/// DARE, 3 states (the 3-state system discretised with step 1e-2).
+pub fn dare_3() -> Call {
+    let (A3, B3) = system3();
+    let A = Matrix3::identity() + A3 * 1e-2;
+    let B = B3 * 1e-2;
+    let R = SMatrix::<f64, 1, 1>::identity();
+    assert!(dare(&A, &B, &Matrix3::identity(), &R).is_ok());
+    Box::new(move || {
+        let _ = black_box(dare(black_box(&A), &B, &Matrix3::identity(), &R));
+    })
+}
+
+/// Every workload by name (the names of the criterion benches and of the
+/// rows of `BENCHMARKS.md`).
+pub fn all() -> [Workload; 6] {
+    [
+        ("ukf_step/6_states_3_measurements", ukf_step_3),
+        ("ukf_step/6_states_5_measurements", ukf_step_5),
+        ("care/2_states", care_2),
+        ("care/3_states", care_3),
+        ("dare/2_states", dare_2),
+        ("dare/3_states", dare_3),
+    ]
+}
