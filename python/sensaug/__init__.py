@@ -17,6 +17,7 @@ from sensaug.lqr import (
     partner_gain_vector,
     robot_gain_vector,
 )
+from sensaug.replay import replay
 from sensaug.sweep import sweep
 
 __all__ = [
@@ -38,6 +39,7 @@ __all__ = [
     "load_log",
     "lqr",
     "partner_gain_vector",
+    "replay",
     "robot_gain_vector",
     "run",
     "sweep",

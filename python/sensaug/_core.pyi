@@ -256,6 +256,30 @@ def run_scenario(config: dict) -> tuple[dict[str, NDArray[Any]], dict[str, int]]
         ValueError: a setting out of range (the message names its path).
     """
 
+# --- replay (sensaug.replay, docs/logs.md "Replay") ---
+
+def replay_robot(
+    text: str,
+    x_meas: NDArray[np.float64],
+    xdot_meas: NDArray[np.float64],
+    fresh: NDArray[np.bool_],
+    /,
+    *,
+    format: str = "toml",
+) -> tuple[dict[str, NDArray[Any]], dict[str, int]]:
+    """Re-runs the robot's controller (configuration text) over recorded
+    measurements: tick ``k`` fuses ``(x_meas[k], xdot_meas[k])`` when
+    ``fresh[k]``, else only predicts, exactly as online.
+
+    Returns ``(columns, counters)``: one array per column of the log schema
+    (the controller's columns plus ``tick``, ``t``, ``x_meas``,
+    ``xdot_meas``, ``fresh``; the rest unknown) and the robot's counters.
+
+    Raises:
+        ConfigError: the configuration is invalid.
+        ValueError: the arrays' lengths differ or one is not C-contiguous.
+    """
+
 # --- log (the one log schema, docs/logs.md) ---
 
 def log_schema() -> dict[str, Any]:

@@ -12,6 +12,7 @@
 //! (state unchanged or `P` reset) and is counted in the [`RunReport`]. Slice
 //! length errors are reported before anything runs.
 
+use crate::controller::{Robot, RobotCounters, RobotTick};
 use crate::estimator::{GainEstimator, GoalIntegrator, TrajectoryEstimator};
 use crate::plant::Plant;
 use crate::ukf::{Phase, RunReport, Status, StepError, UkfError};
@@ -89,6 +90,8 @@ pub enum ReplayArg {
     Torques,
     /// Plant velocities out.
     Vs,
+    /// The robot's per-tick output ([`replay_robot`]).
+    RobotTicks,
 }
 
 impl ReplayArg {
@@ -104,6 +107,7 @@ impl ReplayArg {
             ReplayArg::PartnerFloor => "partner_floor",
             ReplayArg::Torques => "torques",
             ReplayArg::Vs => "vs",
+            ReplayArg::RobotTicks => "out",
         }
     }
 }
@@ -356,4 +360,27 @@ pub fn simulate(
         (*x, *v) = (s.x, s.v);
     }
     Ok(())
+}
+
+/// Re-runs the robot's controller offline over a recorded trial: for each
+/// tick `k`, `out[k] = robot.tick_with(k, measurements[k])`, the very call
+/// (and so the same step order: update with the measurement, command,
+/// predict) that the rig loop and the simulation make online. `None` is a
+/// tick without a fresh measurement (predict only, the command on the last
+/// one), as online. `robot` must be new (built from the recording's
+/// configuration, its protocol and seed) for the numbers to repeat bit for
+/// bit. Ticks after the protocol's end give [`RobotTick::NONE`].
+///
+/// Returns the robot's counters after the last tick; a length mismatch is
+/// reported before anything runs. Allocation-free.
+pub fn replay_robot(
+    robot: &mut Robot<'_>,
+    measurements: &[Option<(f64, f64)>],
+    out: &mut [RobotTick],
+) -> Result<RobotCounters, ReplayError> {
+    check_len(ReplayArg::RobotTicks, measurements.len(), out.len())?;
+    for (k, (m, o)) in measurements.iter().zip(out.iter_mut()).enumerate() {
+        *o = robot.tick_with(k as u64, *m);
+    }
+    Ok(robot.counters())
 }

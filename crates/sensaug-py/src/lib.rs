@@ -7,6 +7,7 @@ pub mod convert;
 pub mod estimators;
 mod log;
 mod plant;
+mod replay;
 mod riccati;
 mod scenario;
 
@@ -15,6 +16,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     estimators::register(m)?;
     log::register(m)?;
     plant::register(m)?;
+    replay::register(m)?;
     riccati::register(m)?;
     scenario::register(m)?;
     let py = m.py();

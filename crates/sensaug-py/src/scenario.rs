@@ -28,7 +28,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     Ok(())
 }
 
-fn config_err(e: sensaug_config::ConfigError) -> PyErr {
+pub(crate) fn config_err(e: sensaug_config::ConfigError) -> PyErr {
     ConfigError::new_err(e.to_string())
 }
 
@@ -42,7 +42,7 @@ fn format(name: &str) -> PyResult<Format> {
     }
 }
 
-fn load(text: &str, fmt: &str) -> PyResult<ScenarioSpec> {
+pub(crate) fn load(text: &str, fmt: &str) -> PyResult<ScenarioSpec> {
     sensaug_config::load_str(text, format(fmt)?).map_err(config_err)
 }
 
