@@ -51,3 +51,47 @@ pub enum ScenarioError {
         got: usize,
     },
 }
+
+impl core::fmt::Display for ScenarioError {
+    /// The field at fault and what to do, for people (no debug output).
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match *self {
+            ScenarioError::PhaseCount(n) => write!(f, "phases: has {n} phases; give 1 to 4"),
+            ScenarioError::InvalidPhase { phase, field } => write!(
+                f,
+                "phases[{phase}].{field}: out of range for the loop period"
+            ),
+            ScenarioError::InvalidTarget {
+                phase,
+                which,
+                error,
+            } => write!(
+                f,
+                "phases[{phase}].{which}[{}].{}: out of range (amplitudes finite, periods and \
+                 durations > 0, frequencies >= 0)",
+                error.part, error.field
+            ),
+            ScenarioError::NoPartnerGains { phase } => write!(
+                f,
+                "phases[{phase}].kind: needs an earlier gains phase or prior partner gains"
+            ),
+            ScenarioError::InvalidSetting(name) => {
+                write!(
+                    f,
+                    "{name}: out of range; finite, and > 0 where it is a limit"
+                )
+            }
+            ScenarioError::Plant(_) => write!(
+                f,
+                "plant: mass > 0, damping and coulomb >= 0, dt_s > 0 (all finite)"
+            ),
+            ScenarioError::Estimator { stage, .. } => write!(
+                f,
+                "robot.{stage}: rejected by the filter; check its covariances and sigma points"
+            ),
+            ScenarioError::OutputTooShort { needed, got } => {
+                write!(f, "output: {got} records for a trial of {needed} ticks")
+            }
+        }
+    }
+}

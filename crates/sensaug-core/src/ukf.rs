@@ -526,7 +526,6 @@ pub struct Ukf<const N: usize, const M: usize, const S: usize> {
     R: SMatrix<f64, M, M>,
     P_reset: SMatrix<f64, N, N>,
     L_reset: SMatrix<f64, N, N>,
-    params: MerweParams,
     c: f64,
     Wm: SVector<f64, S>,
     Wc: SVector<f64, S>,
@@ -587,7 +586,6 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
             R,
             P_reset: P0,
             L_reset: L0,
-            params,
             c,
             Wm,
             Wc,
@@ -1182,10 +1180,6 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
     /// first `predict`, as filterpy's.)
     pub fn sigmas_f(&self) -> SMatrix<f64, N, S> {
         sigma_points(&self.sigma_center, &self.sigma_factor)
-    }
-    /// The sigma point parameters.
-    pub fn params(&self) -> &MerweParams {
-        &self.params
     }
     /// The covariance `P` is reset to on an unrecoverable factorisation.
     pub fn reset_covariance(&self) -> &SMatrix<f64, N, N> {

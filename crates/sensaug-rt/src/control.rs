@@ -204,7 +204,7 @@ pub enum StartError {
 impl fmt::Display for StartError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            StartError::Scenario(e) => write!(f, "virtual human: {e:?}"),
+            StartError::Scenario(e) => write!(f, "virtual human: {e}"),
             StartError::Drive(s) => write!(f, "drive: {s}"),
         }
     }
