@@ -101,6 +101,17 @@ def test_the_integrating_partner_logs_its_own_estimates(results):
     assert np.std(on["e_meas"][m] - e) == pytest.approx(np.sqrt(presets.INFERIOR_R), rel=0.05)
 
 
+def test_the_state_source_flips_the_sign_of_the_small_lhh_bias(results):
+    """docs/model.md: acting on the measured state the Lhh bias is positive,
+    on the true state negative (seeds 0-11: +0.0004 / -0.0082 at Lhh = 3)."""
+    rows = {(name, value): df for name, value, df in results.sensitivity}
+    for lhh in (2, 3):
+        name = f"virtual human acts on (Lhh = {lhh})"
+        measured, true = rows[(name, "measured")], rows[(name, "true")]
+        assert ((measured["Lhh_hat"] - lhh) > 0).all()
+        assert ((true["Lhh_hat"] - lhh) < 0).all()
+
+
 def test_importing_the_plot_modules_selects_no_backend():
     code = "import sys, sensaug.figures, sensaug.plots; print('matplotlib.pyplot' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
