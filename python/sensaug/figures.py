@@ -493,8 +493,8 @@ def _claims(r: Results) -> list[list[str]]:
     err = (g["Lhh_hat"] - g["partner.gains.lhh"]).abs()
     rows.append([
         "fig:varying_games: the robot always estimates a value near the partner's gain, with a small error",
-        f"max over {len(g)} trials |Lhh^ - Lhh| = {err.max():.4f} N m/deg; max |Lhx^| = "
-        f"{g['Lhx_hat'].abs().max():.4f}, max |Lhv^| = {g['Lhv_hat'].abs().max():.5f}",
+        f"max over {len(g)} trials of abs(Lhh^ - Lhh) = {err.max():.4f} N m/deg; max abs(Lhx^) = "
+        f"{g['Lhx_hat'].abs().max():.4f}, max abs(Lhv^) = {g['Lhv_hat'].abs().max():.5f}",
         f"Lhh in {{0, 0.5, 1, 1.5, 2}}, seeds 0-{b.games_seeds - 1}, mean of the last 8 s",
         "yes (every trial within 0.01)" if err.max() < 0.01 else "**no** (some trial off by >= 0.01)",
     ])
@@ -539,7 +539,7 @@ def _claims(r: Results) -> list[list[str]]:
     sep = float(np.mean(np.abs(sims[0]["tau"] - sims[0]["tau_h"])[sims[0].phase_mask(0)]))
     rows.append([
         "fig.same-weight A: the position is exactly midway between the targets",
-        f"mean |x - (tau + tau_h)/2| in the last 0.2 s before each target jump (last 8 s of the gain phase): "
+        f"mean abs(x - (tau + tau_h)/2) in the last 0.2 s before each target jump (last 8 s of the gain phase): "
         f"max {1e3 * max(mid):.2f} mm over seeds (targets {sep:.2f} m apart; between jumps x moves to the new midpoint "
         "in ~0.5 s)",
         f"simulation section, seeds 0-{b.sim_seeds - 1}",
@@ -613,7 +613,8 @@ def report(r: Results, figures: list[str]) -> str:
         "",
         "Written by `sensaug figures" + (" --quick" if b == Budget.quick() else "") + "` (python/sensaug/figures.py). "
         "Every number below comes from the trials of this run; seeds are stated per row (each seed sets "
-        "`world.seed` and `robot.seed = seed + 1000003`, `sensaug.sweep`).",
+        "`world.seed` and `robot.seed = seed + 1000003`, `sensaug.sweep`). "
+        f"Code: git commit {experiment._git_commit() or 'unknown'}; written {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.",
         "",
         "Figures (PNG and PDF): " + ", ".join(f"`{f}`" for f in figures) + ".",
         "",
