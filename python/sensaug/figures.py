@@ -83,7 +83,7 @@ class Budget:
 
     @classmethod
     def quick(cls) -> "Budget":
-        return cls(games_seeds=3, rmse_seeds=3, rmse_noise=(0.01, 0.1, 1.0, 3.0), sensitivity_seeds=2, sim_seeds=2)
+        return cls(games_seeds=3, rmse_seeds=3, rmse_noise=(0.01, 0.3, 3.0), sensitivity_seeds=1, sim_seeds=2)
 
 
 @dataclass
