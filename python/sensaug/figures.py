@@ -411,7 +411,7 @@ def fig_integration(trials: dict[str, Trial]) -> Figure:
         a.plot(t[late], x[late] - trial["e_meas"][late], ".", ms=1.0, color="tab:orange", label="robot's view")
         a.plot(t[late], x[late] - trial["e_h_meas"][late], ".", ms=1.0, color="tab:blue", label="human's view")
         a.plot(t[late], trial["tau"][late], "k-", lw=1.2, label=r"target $\tau = \tau_h$")
-        a.set(xlabel=r"$t$ (s)", ylabel="target (m)", title=f"{name}: each partner's measured target")
+        a.set(xlabel=r"$t$ (s)", ylabel="measured target (m)", title=f"{name}")
         a.legend(loc="upper right", fontsize=7, markerscale=6)
         a = ax[row, 1]
         settled = trial.phase_mask(i, skip_s=2.0)
@@ -429,7 +429,7 @@ def fig_integration(trials: dict[str, Trial]) -> Figure:
             a.plot(t[settled], 1e3 * rms[settled], ls, color=c, lw=1.0, label=f"{lab} (RMSE {1e3 * r:.1f} mm)")
         a.set_yscale("log")
         a.set_ylim(1.0, 100.0)
-        a.set(xlabel=r"$t$ (s)", ylabel="estimation error, 0.2 s RMS (mm)", title=f"{name.split(':')[0]}: error with / without integration")
+        a.set(xlabel=r"$t$ (s)", ylabel="error, 0.2 s RMS (mm)", title=f"{name.split(':')[0]}: target-estimation error")
         a.legend(loc="upper right", fontsize=7, ncol=2)
     return fig
 
