@@ -31,6 +31,7 @@ CLASS = {
     "IntegratorSpec": "IntegratorConfig",
     "RobotSpec": "RobotConfig",
     "PartnerSpec": "PartnerConfig",
+    "PartnerIntegrationSpec": "PartnerIntegrationConfig",
     "RealtimeSpec": "RealtimeConfig",
     "RigSpec": "RigConfig",
 }
@@ -40,8 +41,17 @@ def camel(kind: str) -> str:
     return "".join(p.capitalize() for p in kind.split("_"))
 
 
+def optional_ref(s: dict) -> dict | None:
+    """The ``$ref`` branch of an optional table (``anyOf: [$ref, null]``)."""
+    branches = s.get("anyOf") or []
+    refs = [b for b in branches if "$ref" in b]
+    if len(branches) == 2 and len(refs) == 1 and {"type": "null"} in branches:
+        return refs[0]
+    return None
+
+
 def ref_name(s: dict) -> str | None:
-    r = s.get("$ref")
+    r = s.get("$ref") or (optional_ref(s) or {}).get("$ref")
     return r.rsplit("/", 1)[-1] if r else None
 
 
@@ -60,6 +70,9 @@ class Gen:
         return [f'{indent}"""{ls[0]}'] + [f"{indent}{x}" for x in ls[1:]] + [f'{indent}"""']
 
     def py_type(self, s: dict) -> str:
+        opt = optional_ref(s)
+        if opt is not None:
+            return f"{self.py_type(opt)} | None"
         name = ref_name(s)
         if name:
             if name.startswith("Covariance"):
@@ -150,7 +163,10 @@ class Gen:
         if kind is not None:
             self.lines.append('        kw.pop("kind", None)')
         for p, c in convs.items():
-            if c:
+            if c and optional_ref(props[p]) is not None:
+                self.lines.append(f"        if kw.get({p!r}) is not None:")
+                self.lines.append(f"            kw[{p!r}] = {c}(kw[{p!r}])")
+            elif c:
                 self.lines.append(f"        if {p!r} in kw:")
                 self.lines.append(f"            kw[{p!r}] = {c}(kw[{p!r}])")
         self.lines.append("        return cls(**kw)")

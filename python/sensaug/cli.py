@@ -11,6 +11,8 @@
 * ``rig CONFIG.toml`` runs one trial on the virtual rig.
 * ``preset {hi5,hi5-rig,simulation}`` prints a preset as TOML.
 * ``sweep FILE --grid PATH=V1,V2 --seeds N --out DIR`` runs a grid over seeds.
+* ``figures --out DIR [--quick]`` writes every computational figure of the
+  paper (PNG and PDF, named after its label) and REPORT.md.
 * ``check FILE`` validates a configuration exactly as ``sensaug-rt --check``.
 * ``schema`` prints the configuration's JSON Schema.
 """
@@ -269,6 +271,9 @@ def main(argv: list[str] | None = None) -> int:
     sw.add_argument("--seeds", type=int, default=12, help="seeds 0..N-1 per grid point (default 12)")
     sw.add_argument("--workers", type=int, default=None, help="threads (default: one per core)")
     sw.add_argument("--out", type=Path, default=Path("out/sweep"), help="output folder (default out/sweep)")
+    fg = sub.add_parser("figures", help="every computational figure of the paper (PNG, PDF) and REPORT.md")
+    fg.add_argument("--out", type=Path, default=Path("out/figures"), help="output folder (default out/figures)")
+    fg.add_argument("--quick", action="store_true", help="reduced budget of trials and seeds (the tests' report)")
     c = sub.add_parser("check", help="validate a configuration file exactly as sensaug-rt --check does")
     c.add_argument("config", help="TOML (or .json) configuration file")
     sub.add_parser("schema", help="print the configuration's JSON Schema (fields, units, defaults, bounds)")
@@ -290,6 +295,16 @@ def main(argv: list[str] | None = None) -> int:
             return run_config(args.config, args.out)
         if args.command == "sweep":
             return sweep_command(args.config, args.grid, args.seeds, args.workers, args.out)
+        if args.command == "figures":
+            import matplotlib
+
+            matplotlib.use("Agg")
+            from sensaug import figures
+
+            t0 = time.perf_counter()
+            written = figures.write_all(args.out, quick=args.quick)
+            print(f"{len(written)} files in {args.out} ({time.perf_counter() - t0:.1f} s); see {args.out / 'REPORT.md'}")
+            return 0
         if args.command == "rig":
             return rig_demo(ScenarioConfig.from_toml(args.config), args.out, True)
         cfg = {"hi5": presets.hi5_experiment, "hi5-rig": presets.hi5_rig, "simulation": presets.simulation_section}[args.name]()

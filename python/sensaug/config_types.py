@@ -150,14 +150,46 @@ def _list_of(conv: Callable[[dict[str, Any]], Any]) -> Callable[[list[Any]], lis
 
 
 @dataclass
+class PartnerIntegrationConfig:
+    """`[partner.integration]`: the partner runs the robot's controller on the mirrored protocol
+    (the robot's filter settings; needs estimates_robot): in integration phases it sees its
+    own target through white noise and fuses the robot's estimated target with it.
+    """
+
+    integrate: bool = True
+    """Let the integrated estimate drive the partner's command."""
+    seed: int = 2
+    """Seed of the partner's target-view noise."""
+    target_noise_std: float = 0.0
+    """Std of the white noise on the partner's view of its own target in every integration phase
+    (position unit).
+    """
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> PartnerIntegrationConfig:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        return cls(**kw)
+
+
+@dataclass
 class PartnerConfig:
     """`[partner]`: the virtual human, with imposed gains or LQR weights (give one, not both)."""
 
+    acts_on: Literal["measured", "true"] = 'measured'
+    """Which handle state the virtual human's torque law reads (simulation only): "measured", the
+    robot's noisy sample (one position-noise draw in both x - tau and x - tau_h, as inside the
+    rig loop), or "true".
+    """
     estimates_robot: bool = False
     """The partner also identifies the robot (the simulation section)."""
     gains: list[float] | None = None
     """Imposed gains [Lhx, Lhv, Lhh] over xi = [x - tau, xdot, x - tau_h] (the Hi5 virtual human:
     [0, 0, Lhh]).
+    """
+    integration: PartnerIntegrationConfig | None = None
+    """The partner's goal integration (the simulation section's "Goal integration"); absent: off,
+    the partner tracks its own target exactly.
     """
     q_pos: float | None = None
     """LQR weight on the partner's own position error (instead of gains)."""
@@ -170,6 +202,8 @@ class PartnerConfig:
     def from_dict(cls, d: dict[str, Any]) -> PartnerConfig:
         """From a plain dict as the schema describes it (already validated)."""
         kw = dict(d)
+        if kw.get('integration') is not None:
+            kw['integration'] = PartnerIntegrationConfig.from_dict(kw['integration'])
         return cls(**kw)
 
 
@@ -447,7 +481,7 @@ class ScenarioConfig:
 
     phases: list[PhaseConfig]
     """The protocol: 1 to 4 phases run in order."""
-    partner: PartnerConfig = field(default_factory=lambda: PartnerConfig.from_dict({'estimates_robot': False, 'gains': [0.0, 0.0, 2.0], 'torque_limit': 1000.0}))
+    partner: PartnerConfig = field(default_factory=lambda: PartnerConfig.from_dict({'acts_on': 'measured', 'estimates_robot': False, 'gains': [0.0, 0.0, 2.0], 'torque_limit': 1000.0}))
     """The partner: the virtual human (simulation, and inside the rig loop)."""
     plant: PlantConfig = field(default_factory=lambda: PlantConfig.from_dict({'coulomb': 0.0, 'damping': 0.0, 'dt_s': 0.001, 'mass': 0.0035}))
     """The handle as the controller models it."""

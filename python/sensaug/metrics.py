@@ -11,7 +11,13 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["gain_estimate", "partner_target_rmse", "integration_rmse"]
+__all__ = [
+    "gain_estimate",
+    "partner_target_rmse",
+    "integration_rmse",
+    "partner_integration_rmse",
+    "tracking_rmse",
+]
 
 GAIN_FIELDS = ("Lhx_hat", "Lhv_hat", "Lhh_hat")
 
@@ -38,3 +44,19 @@ def integration_rmse(data: np.ndarray, mask: np.ndarray) -> dict[str, float]:
         name: _rmse(data[col][mask], e)
         for name, col in (("measured", "e_meas"), ("own", "e_hat_own"), ("integrated", "e_hat_fused"))
     }
+
+
+def partner_integration_rmse(data: np.ndarray, mask: np.ndarray) -> dict[str, float]:
+    """:func:`integration_rmse` for a goal-integrating partner (simulation
+    section): against ``x - tau_h``, its measured error, its own-sensing and
+    its integrated estimate."""
+    e_h = data["x"][mask] - data["tau_h"][mask]
+    return {
+        name: _rmse(data[col][mask], e_h)
+        for name, col in (("measured", "e_h_meas"), ("own", "e_h_hat_own"), ("integrated", "e_h_hat_fused"))
+    }
+
+
+def tracking_rmse(data: np.ndarray, mask: np.ndarray) -> float:
+    """RMSE of the handle ``x`` against the robot's target ``tau`` over ``mask``."""
+    return _rmse(data["x"][mask], data["tau"][mask])

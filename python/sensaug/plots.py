@@ -1,15 +1,16 @@
-"""Plots of a trial, written as PNG files (matplotlib, headless)."""
+"""Plots of a trial, written as PNG files.
+
+Figures are built as :class:`matplotlib.figure.Figure` objects without
+pyplot, so importing this module selects no backend and saving works headless.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-
-from sensaug.experiment import Trial  # noqa: E402
+from sensaug.experiment import Trial
 
 __all__ = ["write_trial_plots", "write_rig_plots"]
 
@@ -21,7 +22,7 @@ def write_trial_plots(trial: Trial, folder: Path, *, prefix: str) -> list[Path]:
     t = trial["t"]
     written: list[Path] = []
 
-    fig, ax = plt.subplots(figsize=(9, 3.5))
+    fig, ax = _subplots()
     ax.plot(t, trial["tau"], lw=0.8, label="robot target tau")
     ax.plot(t, trial["tau_h"], "--", lw=0.8, label="partner target tau_h")
     ax.plot(t, trial["x"], lw=1.0, label="handle x")
@@ -31,7 +32,7 @@ def write_trial_plots(trial: Trial, folder: Path, *, prefix: str) -> list[Path]:
 
     for i in trial.phases_of("gains"):
         m = trial.phase_mask(i)
-        fig, ax = plt.subplots(figsize=(9, 3.5))
+        fig, ax = _subplots()
         for f, true in zip(("Lhx_hat", "Lhv_hat", "Lhh_hat"), trial.partner_gains):
             line = ax.plot(t[m], trial[f][m], lw=0.8, label=f)[0]
             ax.axhline(true, color=line.get_color(), ls=":", lw=1.0)
@@ -41,7 +42,7 @@ def write_trial_plots(trial: Trial, folder: Path, *, prefix: str) -> list[Path]:
 
     for i in trial.phases_of("trajectory"):
         m = trial.phase_mask(i)
-        fig, ax = plt.subplots(figsize=(9, 3.5))
+        fig, ax = _subplots()
         ax.plot(t[m], trial["tau_h"][m], "r--", lw=1.0, label="tau_h (true)")
         ax.plot(t[m], trial["tau_h_hat"][m], "k", lw=0.8, label="tau_h^ (robot's estimate)")
         ax.set(xlabel="t (s)", ylabel="position", title=f"{prefix}: partner target estimate")
@@ -50,7 +51,7 @@ def write_trial_plots(trial: Trial, folder: Path, *, prefix: str) -> list[Path]:
 
     for i in trial.phases_of("integration"):
         m = trial.phase_mask(i)
-        fig, ax = plt.subplots(figsize=(9, 3.5))
+        fig, ax = _subplots()
         ax.plot(t[m], trial["e_meas"][m], ".", ms=1, color="0.7", label="measured x - tau")
         ax.plot(t[m], trial["e_hat_own"][m], lw=0.8, label="own sensing only")
         ax.plot(t[m], trial["e"][m], "k", lw=1.6, label="true x - tau")
@@ -61,10 +62,14 @@ def write_trial_plots(trial: Trial, folder: Path, *, prefix: str) -> list[Path]:
     return written
 
 
-def _save(fig, path: Path) -> Path:
+def _subplots(figsize: tuple[float, float] = (9, 3.5)):
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots()
+
+
+def _save(fig: Figure, path: Path) -> Path:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path
 
 
@@ -78,7 +83,7 @@ def write_rig_plots(run, folder: Path) -> list[Path]:
     true = run.stats["partner_gains_true"]
 
     m = run.phase_mask("gains")
-    fig, ax = plt.subplots(figsize=(9, 3.5))
+    fig, ax = _subplots()
     for f, tr in zip(("Lhx_hat", "Lhv_hat", "Lhh_hat"), true):
         line = ax.plot(t[m], d[f][m], lw=0.8, label=f)[0]
         ax.axhline(tr, color=line.get_color(), ls=":", lw=1.0)
@@ -87,7 +92,7 @@ def write_rig_plots(run, folder: Path) -> list[Path]:
     written.append(_save(fig, folder / "rig_gains.png"))
 
     m = run.phase_mask("trajectory")
-    fig, ax = plt.subplots(figsize=(9, 3.5))
+    fig, ax = _subplots()
     ax.plot(t[m], d["tau_h"][m], "r--", lw=1.0, label="tau_h (true)")
     ax.plot(t[m], d["tau_h_hat"][m], "k", lw=0.8, label="tau_h^ (robot's estimate)")
     ax.set(xlabel="t (s)", ylabel="position (deg)", title="rig: partner target estimate")
@@ -95,7 +100,7 @@ def write_rig_plots(run, folder: Path) -> list[Path]:
     written.append(_save(fig, folder / "rig_trajectory.png"))
 
     m = run.phase_mask("integration")
-    fig, ax = plt.subplots(figsize=(9, 3.5))
+    fig, ax = _subplots()
     ax.plot(t[m], d["e_meas"][m], ".", ms=1, color="0.7", label="measured x - tau")
     ax.plot(t[m], d["e_hat_own"][m], lw=0.8, label="without integration")
     ax.plot(t[m], d["x"][m] - d["tau"][m], "k", lw=1.6, label="true x - tau")
@@ -104,7 +109,7 @@ def write_rig_plots(run, folder: Path) -> list[Path]:
     ax.legend(loc="upper right", fontsize=8)
     written.append(_save(fig, folder / "rig_integration.png"))
 
-    fig, ax = plt.subplots(figsize=(9, 3.5))
+    fig, ax = _subplots()
     ax.hist(d["wake_latency_us"], bins=200, log=True, color="tab:blue", alpha=0.7, label="wake-up latency")
     ax.hist(d["compute_us"], bins=200, log=True, color="tab:orange", alpha=0.7, label="tick compute")
     ax.set(xlabel="us", ylabel="ticks", title="rig: loop timing")

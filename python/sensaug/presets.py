@@ -15,6 +15,7 @@ from sensaug.config import (
     Harmonics,
     IntegratorConfig,
     PartnerConfig,
+    PartnerIntegrationConfig,
     PhaseConfig,
     PlantConfig,
     RobotConfig,
@@ -25,7 +26,15 @@ from sensaug.config import (
     WorldConfig,
 )
 
-__all__ = ["hi5_experiment", "hi5_rig", "simulation_section", "HI5_LHH_VALUES"]
+__all__ = [
+    "hi5_experiment",
+    "hi5_rig",
+    "simulation_section",
+    "simulation_integration",
+    "HI5_LHH_VALUES",
+    "SUPERIOR_R",
+    "INFERIOR_R",
+]
 
 #: The virtual human's gains of the paper's Hi5 gain sweep.
 HI5_LHH_VALUES = (0.0, 0.5, 1.0, 1.5, 2.0)
@@ -144,3 +153,54 @@ def simulation_section(
             PhaseConfig("trajectory", phase_s, robot_target=[square], partner_target=[square]),
         ],
     )
+
+
+#: The simulation section's measurement-noise covariances of a "superior" and
+#: an "inferior" agent's view of the target (section "Goal integration", m^2).
+SUPERIOR_R = 1e-5
+INFERIOR_R = 1e-3
+#: Offset of the partner's target-view noise seed from the trial seed.
+PARTNER_SEED_OFFSET = 2_000_003
+
+
+def simulation_integration(
+    robot_R: float = INFERIOR_R,
+    partner_R: float = SUPERIOR_R,
+    *,
+    integrate: bool = True,
+    seed: int = 0,
+    phase_s: float = 20.0,
+    motor_noise_std: float = 1.0,
+) -> ScenarioConfig:
+    """The simulation section's goal integration: :func:`simulation_section`
+    (gain and trajectory phases) followed by an integration phase in which
+    both agents track the same 0.1 m, 2 s square wave, each seeing it through
+    white noise of variance ``robot_R`` / ``partner_R`` (m^2) and each fusing
+    the other's estimated target (``partner.integration``) when
+    ``integrate``.
+
+    **Choice** (``docs/model.md``): stage 2's and stage 3's process noise on
+    the error states is 1e-4 per step instead of the paper's 1e-10: with
+    1e-10 the estimated partner target lags every jump of the square wave and
+    the fused estimate is several times worse than the own one.
+    """
+    cfg = simulation_section(seed=seed, phase_s=phase_s, motor_noise_std=motor_noise_std)
+    square = Square(amplitude=0.1, period_s=2.0)
+    cfg.phases.append(
+        PhaseConfig(
+            "integration",
+            phase_s,
+            robot_target=[square],
+            partner_target=[square],
+            target_noise_std=math.sqrt(robot_R),
+        )
+    )
+    r = 1e-10
+    cfg.robot.integrate = integrate
+    cfg.robot.stage2 = TrajectoryFilterConfig(Q=[1e-4] * 3 + [r] * 3, R=[r] * 5, P0=[1e-6] * 3 + [1e-2] * 3)
+    cfg.robot.stage3 = IntegratorConfig(Q=[1e-4, 1e-4], R_sensor=[r, r], P0=[1e-2, 1e-2])
+    cfg.partner.integration = PartnerIntegrationConfig(
+        target_noise_std=math.sqrt(partner_R), integrate=integrate, seed=seed + PARTNER_SEED_OFFSET
+    )
+    cfg.validate()
+    return cfg

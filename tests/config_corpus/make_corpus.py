@@ -302,6 +302,24 @@ case("lqr_partner_and_gains", full({"partner": "gains = [0.0, 0.0, 2.0]\nq_pos =
 case("lqr_q_vel_alone", full({"partner": "q_vel = 1.0\n"}), "partner.q_vel")
 case("lqr_partner_nan", full({"partner": "q_pos = nan\n"}), "partner.q_pos")
 
+# --- the partner's goal integration and state source (simulation section) ----------
+INTEGRATING = "q_pos = 20000.0\nq_vel = 2.0\nestimates_robot = true\n"
+case("valid_partner_integration", full({"partner": INTEGRATING, "partner.integration": "target_noise_std = 0.03\n"}), "valid")
+case("valid_partner_acts_on_true", setting("partner", "acts_on", '"true"'), "valid")
+case("partner_acts_on_unknown", setting("partner", "acts_on", '"estimated"'), "partner.acts_on")
+case("partner_integration_no_estimates", full({"partner.integration": "integrate = true\n"}), "partner.integration")
+case("partner_integration_acts_on_true",
+     full({"partner": INTEGRATING + 'acts_on = "true"\n', "partner.integration": "seed = 3\n"}), "partner.acts_on")
+case("partner_integration_noise_negative",
+     full({"partner": INTEGRATING, "partner.integration": "target_noise_std = -0.1\n"}), "partner.integration.target_noise_std")
+case("partner_integration_unknown_field",
+     full({"partner": INTEGRATING, "partner.integration": "noise = 0.1\n"}), "partner.integration.noise")
+case("partner_integration_trajectory_first",
+     full({"partner": INTEGRATING, "partner.integration": "seed = 3\n",
+           "robot": TABLES["robot"] + "prior_partner_gains = [0.0, 2.0, 141.4]\n"},
+          head=phases("trajectory", "integration")),
+     "partner.integration")
+
 # --- sizes ------------------------------------------------------------------------
 big = ", ".join(["0.0"] * 250_000)
 case("size_over_1mib", BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',

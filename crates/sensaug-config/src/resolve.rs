@@ -9,7 +9,7 @@
 use crate::cov::Cov;
 use crate::error::{num, ConfigError};
 use crate::schema::{
-    PhaseKindSpec, PositionUnit, RigSpec, RobotSpec, ScenarioSpec, ShapeSpec, MAX_PARTS,
+    ActsOnSpec, PhaseKindSpec, PositionUnit, RigSpec, RobotSpec, ScenarioSpec, ShapeSpec, MAX_PARTS,
 };
 use nalgebra::{SVector, Vector2};
 use sensaug_core::controller::{Robot, RobotConfig};
@@ -19,7 +19,7 @@ use sensaug_core::protocol::{Phase, PhaseKind, Protocol};
 use sensaug_core::riccati::agent_gains;
 use sensaug_core::target::{Shape, Target};
 use sensaug_core::ukf::MerweParams;
-use sensaug_core::world::{PartnerConfig, WorldConfig};
+use sensaug_core::world::{PartnerConfig, PartnerIntegration, StateSource, WorldConfig};
 use sensaug_core::ScenarioError;
 
 /// Everything the simulation and the real-time loop need, validated and
@@ -189,6 +189,38 @@ fn robot(r: &RobotSpec, model: HandleModel) -> Result<RobotConfig, ConfigError> 
     })
 }
 
+/// `partner.integration` needs the partner's identification of the robot
+/// (`estimates_robot`, stage 2 is its partner channel), a gain phase first
+/// (the partner knows no prior robot gains) and the measured state.
+fn partner_integration(spec: &ScenarioSpec) -> Result<(), ConfigError> {
+    let pa = &spec.partner;
+    if pa.integration.is_none() {
+        return Ok(());
+    }
+    if !pa.estimates_robot {
+        return Err(ConfigError::new(
+            "partner.integration",
+            "needs partner.estimates_robot = true (the partner's estimate of the robot's target \
+             is its partner channel); set it, or remove [partner.integration]",
+        ));
+    }
+    if pa.acts_on != ActsOnSpec::Measured {
+        return Err(ConfigError::new(
+            "partner.acts_on",
+            "\"true\" is for the virtual human only; a goal-integrating partner acts on its \
+             measurement, like the robot: use \"measured\" or remove [partner.integration]",
+        ));
+    }
+    if spec.phases.first().map(|p| p.kind) != Some(PhaseKindSpec::Gains) {
+        return Err(ConfigError::new(
+            "partner.integration",
+            "the goal-integrating partner estimates the robot's gains first: make phases[0] a \
+             \"gains\" phase, or remove [partner.integration]",
+        ));
+    }
+    Ok(())
+}
+
 fn rig_timing(rig: &RigSpec, dt_s: f64) -> Result<(), ConfigError> {
     sensaug_bridge::transport::BusUrl::parse(&rig.can)
         .map_err(|e| ConfigError::new("rig.can", e.to_string()))?;
@@ -346,6 +378,7 @@ pub fn resolve(spec: &ScenarioSpec) -> Result<Resolved<'_>, ConfigError> {
                 "give either gains = [Lhx, Lhv, Lhh] or the LQR weights q_pos and q_vel, not both",
             )),
         };
+    partner_integration(spec)?;
     rig_timing(&spec.rig, dt_s)?;
 
     let w = &spec.world;
@@ -370,6 +403,15 @@ pub fn resolve(spec: &ScenarioSpec) -> Result<Resolved<'_>, ConfigError> {
             gains: partner_gains,
             torque_limit: pa.torque_limit,
             estimates_robot: pa.estimates_robot,
+            acts_on: match pa.acts_on {
+                ActsOnSpec::Measured => StateSource::Measured,
+                ActsOnSpec::True => StateSource::True,
+            },
+            integration: pa.integration.as_ref().map(|i| PartnerIntegration {
+                target_noise_std: i.target_noise_std,
+                integrate: i.integrate,
+                seed: i.seed,
+            }),
         },
         world,
         dt_s,

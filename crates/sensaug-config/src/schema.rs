@@ -443,6 +443,53 @@ pub struct PartnerSpec {
     /// The partner also identifies the robot (the simulation section).
     #[serde(default)]
     pub estimates_robot: bool,
+    /// Which handle state the virtual human's torque law reads (simulation
+    /// only): "measured", the robot's noisy sample (one position-noise draw
+    /// in both x - tau and x - tau_h, as inside the rig loop), or "true".
+    #[serde(default)]
+    pub acts_on: ActsOnSpec,
+    /// The partner's goal integration (the simulation section's "Goal
+    /// integration"); absent: off, the partner tracks its own target exactly.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub integration: Option<PartnerIntegrationSpec>,
+}
+
+/// The handle state an agent's torque law reads.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum ActsOnSpec {
+    /// The noisy measurement the robot receives.
+    #[default]
+    Measured,
+    /// The true handle state.
+    True,
+}
+
+/// `[partner.integration]`: the partner runs the robot's controller on the
+/// mirrored protocol (the robot's filter settings; needs estimates_robot):
+/// in integration phases it sees its own target through white noise and
+/// fuses the robot's estimated target with it.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct PartnerIntegrationSpec {
+    /// Std of the white noise on the partner's view of its own target in
+    /// every integration phase (position unit).
+    #[schemars(range(min = 0.0, max = MAX_MAGNITUDE))]
+    pub target_noise_std: f64,
+    /// Let the integrated estimate drive the partner's command.
+    pub integrate: bool,
+    /// Seed of the partner's target-view noise.
+    pub seed: u64,
+}
+
+impl Default for PartnerIntegrationSpec {
+    fn default() -> Self {
+        PartnerIntegrationSpec {
+            target_noise_std: 0.0,
+            integrate: true,
+            seed: 2,
+        }
+    }
 }
 
 fn default_torque_limit() -> f64 {
@@ -458,6 +505,8 @@ impl Default for PartnerSpec {
             q_vel: None,
             torque_limit: default_torque_limit(),
             estimates_robot: false,
+            acts_on: ActsOnSpec::Measured,
+            integration: None,
         }
     }
 }

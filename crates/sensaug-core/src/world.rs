@@ -1,15 +1,16 @@
 //! The simulated world of a trial: the true handle, the motor and sensor
 //! noise, the partner agent (a [`VirtualHuman`], and in the simulation
-//! section its mirrored identification of the robot) around a [`Robot`],
-//! run over caller-provided [`TickRecord`] buffers.
+//! section its mirrored identification of the robot, or with goal
+//! integration the robot's own controller on the mirrored protocol) around
+//! a [`Robot`], run over caller-provided [`TickRecord`] buffers.
 //!
 //! Everything is built and validated at set-up; a tick allocates nothing.
 
-use crate::agent::{Guard, VirtualHuman};
+use crate::agent::{mirrored, Guard, VirtualHuman};
 use crate::controller::{Robot, RobotConfig, RobotCounters, RobotTick};
 use crate::identifier::Identifier;
 use crate::plant::{Plant, PlantParams, PlantState};
-use crate::protocol::{Phase, PhaseKind, Protocol, Sample};
+use crate::protocol::{Phase, PhaseKind, Protocol, Sample, MAX_PHASES};
 use crate::rng::Noise;
 use crate::ScenarioError;
 use nalgebra::Vector3;
@@ -30,6 +31,38 @@ pub struct PartnerConfig {
     /// section): an [`Identifier`] with the robot's filter settings on the
     /// mirrored `xi`.
     pub estimates_robot: bool,
+    /// Which handle state the virtual human's torque law reads.
+    pub acts_on: StateSource,
+    /// The partner's goal integration (the simulation section's "Goal
+    /// integration"); `None`: in integration phases the partner tracks its
+    /// own target exactly, as a virtual human does.
+    pub integration: Option<PartnerIntegration>,
+}
+
+/// The handle state an agent's torque law reads.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum StateSource {
+    /// The sensed state: the same noisy `(x, v)` sample the robot receives
+    /// (one position-noise draw enters both `x - tau` and `x - tau_h`).
+    #[default]
+    Measured,
+    /// The true state of the handle.
+    True,
+}
+
+/// Goal integration by the partner: the robot's whole controller
+/// ([`Robot`]) run on the mirrored protocol (own target `tau_h`, partner
+/// target `tau`), with the partner's gains and the robot's filter settings.
+/// Needs `estimates_robot` (its stage 2 is the partner channel).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PartnerIntegration {
+    /// Std of the white noise on the partner's view of its own target in
+    /// integration phases (position unit), >= 0.
+    pub target_noise_std: f64,
+    /// Let the integrated estimate drive the partner's command.
+    pub integrate: bool,
+    /// Seed of the partner's target-view noise.
+    pub seed: u64,
 }
 
 /// The simulated world around the agents.
@@ -78,6 +111,10 @@ pub struct TickRecord {
     pub robot: RobotTick,
     /// The partner's mirrored estimates of the robot.
     pub mirror: PartnerEstimate,
+    /// The goal-integrating partner's own log line (its view of
+    /// `x - tau_h`, its stage-3 estimates); [`RobotTick::NONE`] for a
+    /// virtual human.
+    pub partner: RobotTick,
 }
 
 impl Default for TickRecord {
@@ -95,6 +132,7 @@ impl Default for TickRecord {
             e: 0.0,
             robot: RobotTick::NONE,
             mirror: PartnerEstimate::NONE,
+            partner: RobotTick::NONE,
         }
     }
 }
@@ -130,13 +168,45 @@ pub struct RunSummary {
     pub mirror_errors: u64,
 }
 
+/// The partner agent of a simulated trial.
+// One per trial, built at set-up; without `alloc` there is no box to move
+// the larger variant into, and the size costs nothing per tick.
+#[allow(clippy::large_enum_variant)]
+#[derive(Clone, Debug)]
+enum Partner<'a> {
+    /// A virtual human: its torque law on its true target, reading the
+    /// `acts_on` state, and optionally its identifier of the robot (stages
+    /// 1 and 2; not run in integration phases).
+    Virtual {
+        law: VirtualHuman,
+        acts_on: StateSource,
+        mirror: Option<Identifier>,
+    },
+    /// The goal-integrating partner: the robot's controller on the mirrored
+    /// protocol (see [`PartnerIntegration`]).
+    Mirrored(Robot<'a>),
+}
+
+/// The phases as the partner sees them: targets swapped, the partner's own
+/// target-view noise.
+fn mirrored_phases<'a>(phases: &[Phase<'a>], target_noise_std: f64) -> [Phase<'a>; MAX_PHASES] {
+    let mut out = [phases[0]; MAX_PHASES];
+    for (o, p) in out.iter_mut().zip(phases) {
+        *o = Phase {
+            robot_target: p.partner_target,
+            partner_target: p.robot_target,
+            target_noise_std,
+            ..*p
+        };
+    }
+    out
+}
+
 /// A simulated trial: robot, partner, plant and noise.
 #[derive(Clone, Debug)]
 pub struct Scenario<'a> {
     robot: Robot<'a>,
-    partner: VirtualHuman,
-    /// The partner's identifier of the robot, if it runs one.
-    mirror: Option<Identifier>,
+    partner: Partner<'a>,
     world: WorldConfig,
     plant: Plant,
     noise: Noise,
@@ -168,16 +238,47 @@ impl<'a> Scenario<'a> {
         let virtual_human = VirtualHuman::new(partner.gains, partner.torque_limit)?;
         let cfg = robot;
         let robot = Robot::new(cfg, protocol)?;
-        // The partner knows no prior robot gains.
-        let mirror = if partner.estimates_robot {
-            Some(cfg.identifier(protocol.dt_s(), None)?)
-        } else {
-            None
+        let partner = match partner.integration {
+            None => Partner::Virtual {
+                law: virtual_human,
+                acts_on: partner.acts_on,
+                // The partner knows no prior robot gains.
+                mirror: if partner.estimates_robot {
+                    Some(cfg.identifier(protocol.dt_s(), None)?)
+                } else {
+                    None
+                },
+            },
+            Some(pi) => {
+                if !partner.estimates_robot {
+                    return Err(ScenarioError::InvalidSetting("partner.integration"));
+                }
+                if partner.acts_on != StateSource::Measured {
+                    return Err(ScenarioError::InvalidSetting("partner.acts_on"));
+                }
+                if !(pi.target_noise_std.is_finite() && pi.target_noise_std >= 0.0) {
+                    return Err(ScenarioError::InvalidSetting(
+                        "partner.integration.target_noise_std",
+                    ));
+                }
+                let store = mirrored_phases(phases, pi.target_noise_std);
+                let own = Protocol::new(&store[..phases.len()], world.plant.dt_s)?;
+                // The robot's controller and filter settings, with the
+                // partner's gains in its own (mirrored) xi order.
+                let mirrored_cfg = RobotConfig {
+                    gains: mirrored(partner.gains),
+                    torque_limit: partner.torque_limit,
+                    integrate: pi.integrate,
+                    seed: pi.seed,
+                    prior_partner_gains: None,
+                    ..cfg
+                };
+                Partner::Mirrored(Robot::new(mirrored_cfg, own)?)
+            }
         };
         Ok(Scenario {
             robot,
-            partner: virtual_human,
-            mirror,
+            partner,
             world,
             plant,
             noise: Noise::new(world.seed),
@@ -206,7 +307,14 @@ impl<'a> Scenario<'a> {
             *rec = self.tick(k as u64, &mut summary);
         }
         summary.robot = self.robot.counters();
-        summary.mirror_errors = self.mirror.as_ref().map_or(0, |m| m.tally().errors);
+        summary.mirror_errors = match &self.partner {
+            Partner::Virtual { mirror, .. } => mirror.as_ref().map_or(0, |m| m.tally().errors),
+            Partner::Mirrored(p) => p.counters().estimator_errors,
+        };
+        if let Partner::Mirrored(p) = &self.partner {
+            let c = p.counters();
+            summary.partner_guarded = c.clamped + c.non_finite;
+        }
         Ok(summary)
     }
 
@@ -220,15 +328,30 @@ impl<'a> Scenario<'a> {
         };
         let robot = self.robot.tick_at(&sample, Some((x_meas, v_meas)));
 
-        let (u_h, g) = self
-            .partner
-            .torque(x_meas, v_meas, sample.tau, sample.tau_h);
-        if g != Guard::Passed {
-            summary.partner_guarded += 1;
-        }
-        let mirror = match self.mirror.as_mut() {
-            Some(m) => mirror_tick(m, &sample, (x_meas, v_meas), u_h),
-            None => PartnerEstimate::NONE,
+        let (u_h, mirror, partner) = match &mut self.partner {
+            Partner::Virtual {
+                law,
+                acts_on,
+                mirror,
+            } => {
+                let (x, v) = match acts_on {
+                    StateSource::Measured => (x_meas, v_meas),
+                    StateSource::True => (s.x, s.v),
+                };
+                let (u_h, g) = law.torque(x, v, sample.tau, sample.tau_h);
+                if g != Guard::Passed {
+                    summary.partner_guarded += 1;
+                }
+                let est = match mirror.as_mut() {
+                    Some(m) => mirror_tick(m, &sample, (x_meas, v_meas), u_h),
+                    None => PartnerEstimate::NONE,
+                };
+                (u_h, est, RobotTick::NONE)
+            }
+            Partner::Mirrored(p) => {
+                let own = p.tick_with(k, Some((x_meas, v_meas)));
+                (own.u, partner_estimate(&own).mirrored(), own)
+            }
         };
 
         let eps = self.noise.normal(self.world.motor_noise_std);
@@ -247,6 +370,18 @@ impl<'a> Scenario<'a> {
             e: s.x - sample.tau,
             robot,
             mirror,
+            partner,
         }
+    }
+}
+
+/// What a mirrored partner's log line says about the robot (its own `xi`
+/// order; [`PartnerEstimate::mirrored`] turns it into the robot's).
+fn partner_estimate(t: &RobotTick) -> PartnerEstimate {
+    PartnerEstimate {
+        gains: t.gains,
+        gains_var: t.gains_var,
+        target: t.tau_h_hat,
+        target_var: t.tau_h_var,
     }
 }

@@ -195,6 +195,9 @@ schema! {
     Lh_var: Float, "(trq/pos)^2", "posterior variance of Lh_hat";
     tau_hat: Float, "pos", "partner's mirrored estimate of the robot target";
     tau_hat_var: Float, "pos^2", "posterior variance of the partner's (x - tau)^";
+    e_h_meas: Float, "pos", "goal-integrating partner (simulation section): its (noisy in integration phases) view of x - tau_h; NaN for a virtual human";
+    e_h_hat_own: Float, "pos", "goal-integrating partner, stage 3: (x - tau_h)^ from own sensing only";
+    e_h_hat_fused: Float, "pos", "goal-integrating partner, stage 3: (x - tau_h)^ with the robot channel";
     wake_latency_us: Float, "us", "rig: wake-up after the tick's deadline (NaN in simulations)";
     compute_us: Float, "us", "rig: wake-up to command sent (NaN in simulations)";
     feedback_age_ticks: Int, "1", "ticks since the last feedback (0 in simulations: a measurement every tick)";
@@ -263,6 +266,9 @@ impl Row {
             Lh_var: m.gains_var[2],
             tau_hat: m.target,
             tau_hat_var: m.target_var,
+            e_h_meas: rec.partner.e_meas,
+            e_h_hat_own: rec.partner.e_hat_own,
+            e_h_hat_fused: rec.partner.e_hat_fused,
             feedback_age_ticks: 0,
             ..Row::from_robot(tick, rec.t, &rec.robot)
         }
@@ -587,6 +593,7 @@ mod tests {
                 ..RobotTick::NONE
             },
             mirror: PartnerEstimate::NONE,
+            partner: RobotTick::NONE,
         };
         let row = Row::from_tick_record(123, &rec);
         assert_eq!((row.tick, row.phase, row.fresh), (123, 2, true));

@@ -8,7 +8,7 @@ use sensaug_core::plant::{PlantParams, PlantState};
 use sensaug_core::protocol::{Phase, PhaseKind};
 use sensaug_core::target::{Shape, Target};
 use sensaug_core::ukf::MerweParams;
-use sensaug_core::world::{PartnerConfig, WorldConfig};
+use sensaug_core::world::{PartnerConfig, StateSource, WorldConfig};
 
 pub const M: f64 = PlantParams::HI5.mass;
 pub const DT: f64 = PlantParams::HI5.dt_s;
@@ -95,6 +95,8 @@ pub fn partner(lhh: f64) -> PartnerConfig {
         gains: [0.0, 0.0, lhh],
         torque_limit: 1e3,
         estimates_robot: true,
+        acts_on: StateSource::Measured,
+        integration: None,
     }
 }
 
