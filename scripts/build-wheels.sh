@@ -6,9 +6,11 @@
 #   sensaug-bridge firmware_bridge/python/sensaug_bridge + hi5.dbc, *.eds as package data
 #   sensaug-rt     the real-time binary, installed on PATH (maturin bin, crates/sensaug-rt)
 # Install: pip install DIR/*.whl (docs: README, "Install").
-# Needs the .venv of scripts/setup.sh (maturin, pip).
+# Runs scripts/setup.sh first (maturin, the warm target dir) unless
+# SENSAUG_SKIP_SETUP=1 (tests/test_install.py, inside an already set-up run).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+[ "${SENSAUG_SKIP_SETUP:-0}" = 1 ] || bash scripts/setup.sh
 OUT=$(realpath -m "${1:-dist}")
 mkdir -p "$OUT"
 .venv/bin/maturin build --release -q -o "$OUT"
