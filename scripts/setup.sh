@@ -9,10 +9,11 @@ if [ ! -x .venv/bin/python ]; then
 fi
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q -r requirements-dev.txt
+# The CAN bridge package: virtual Hi5 driver, python-can plugin (entry point).
+# First: sensaug depends on it, and it is not on PyPI.
+.venv/bin/python -m pip install -q -e firmware_bridge
 # maturin develop installs the package in editable mode with the compiled
 # module built in release mode (the estimators are too slow unoptimised).
 VIRTUAL_ENV="$PWD/.venv" .venv/bin/maturin develop --release -q
-# The CAN bridge package: virtual Hi5 driver, python-can plugin (entry point).
-.venv/bin/python -m pip install -q -e firmware_bridge
 # The real-time binary used by the rig experiment and its tests.
 cargo build --release -q -p sensaug-rt

@@ -4,6 +4,7 @@ The numerics run in the compiled core (`sensaug._core`, Rust); this package is
 the Python API for scripting experiments around it.
 """
 from sensaug import _core
+from sensaug._resources import package_version
 from sensaug._core import GainEstimator, GoalIntegrator, Plant, TrajectoryEstimator, UkfStepError
 from sensaug.config import ConfigError, PhaseConfig, ScenarioConfig
 from sensaug.experiment import Trial, run
@@ -20,7 +21,11 @@ from sensaug.lqr import (
 from sensaug.replay import replay
 from sensaug.sweep import sweep
 
+#: The installed version (package metadata; the Cargo workspace version).
+__version__ = package_version()
+
 __all__ = [
+    "__version__",
     "_core",
     "ConfigError",
     "GainEstimator",

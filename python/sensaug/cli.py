@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from sensaug import _core, experiment, presets
+from sensaug._resources import package_version
 from sensaug.config import ScenarioConfig
 from sensaug.lqr import agent_gains
 
@@ -242,6 +243,7 @@ def check(path: str) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="sensaug", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"sensaug {package_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
     d = sub.add_parser("demo", help="the Hi5 experiment end to end on the virtual rig")
     d.add_argument("--config", type=Path, default=None, help="TOML (default: the embedded hi5-rig preset)")

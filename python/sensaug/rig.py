@@ -3,14 +3,14 @@ python-can) and the real-time binary (`sensaug-rt`, Rust) as two processes
 on the loopback CAN bus, then the log read back (``sensaug.load_log``: the
 same schema as a simulated trial, ``docs/logs.md``).
 
-The real-time binary is found at ``$SENSAUG_RT`` or in the repository's
-``target/release`` (``scripts/setup.sh`` builds it).
+The real-time binary is found by :func:`find_binary`: ``$SENSAUG_RT``, the
+environment's scripts folder or PATH (the ``sensaug-rt`` wheel), else the
+checkout's ``target/release`` (``scripts/setup.sh`` builds it).
 """
 
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -20,25 +20,17 @@ from pathlib import Path
 
 import numpy as np
 
-from sensaug import metrics
+from sensaug import _resources, metrics
 from sensaug.config import ScenarioConfig
 from sensaug.logs import Log, load_log
 
 __all__ = ["RigRun", "find_binary", "run_virtual_rig"]
 
-REPO = Path(__file__).resolve().parents[2]
-
 
 def find_binary() -> Path:
-    """The `sensaug-rt` executable: ``$SENSAUG_RT`` or ``target/release``."""
-    env = os.environ.get("SENSAUG_RT")
-    path = Path(env) if env else REPO / "target" / "release" / "sensaug-rt"
-    if not path.is_file():
-        raise FileNotFoundError(
-            f"sensaug-rt not found at {path}; build it with `cargo build --release -p sensaug-rt` "
-            "(scripts/setup.sh does) or set SENSAUG_RT"
-        )
-    return path
+    """The `sensaug-rt` executable (:func:`sensaug._resources.rt_binary`:
+    ``$SENSAUG_RT``, the environment, PATH, the checkout's ``target/release``)."""
+    return _resources.rt_binary()
 
 
 @dataclass

@@ -1,5 +1,5 @@
-"""Hi5 CAN bridge, Python side: the protocol (from ``firmware_bridge/hi5.dbc``),
-the loopback ``sensaug_udp`` python-can interface, and a virtual Hi5 drive.
+"""Hi5 CAN bridge, Python side: the protocol (from ``hi5.dbc``, package data:
+``sensaug_bridge.resources``), the loopback ``sensaug_udp`` python-can interface, and a virtual Hi5 drive.
 
 See ``docs/virtual_hi5.md``. Importing the package (which python-can does to
 open ``sensaug_udp``) needs neither the DBC nor the Rust extension: the

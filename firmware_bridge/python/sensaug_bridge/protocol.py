@@ -11,10 +11,9 @@ The DBC is the one definition; this module adds what a DBC cannot say:
   as u16 little-endian (not sent), so a command for another node fails it;
 * names for the states and fault bits.
 
-The DBC is loaded from the source tree (``Path(__file__).resolve().parents[2] /
-"hi5.dbc"``, i.e. ``firmware_bridge/hi5.dbc``), which works for the editable
-install (``pip install -e firmware_bridge``) the project uses; it is never
-copied. ``SENSAUG_HI5_DBC`` overrides the path.
+The DBC is found by :mod:`sensaug_bridge.resources`: package data in an
+installed wheel, ``firmware_bridge/hi5.dbc`` itself in the checkout's editable
+install. ``SENSAUG_HI5_DBC`` overrides the path.
 
 Encoding rounds each physical value to the nearest raw step (cantools uses
 Python's ``round``, ties to even) and raises :class:`ProtocolError` (a
@@ -35,6 +34,8 @@ from typing import Any, Final, Optional
 import can
 import cantools
 import crc
+
+from sensaug_bridge import resources
 
 __all__ = [
     "BASE_IDS",
@@ -105,11 +106,12 @@ class ProtocolError(ValueError):
 
 
 def dbc_path() -> Path:
-    """Where the DBC is read from: ``$SENSAUG_HI5_DBC`` or ``firmware_bridge/hi5.dbc``."""
+    """Where the DBC is read from: ``$SENSAUG_HI5_DBC``, else the package's
+    ``hi5.dbc`` (:func:`sensaug_bridge.resources.data_file`)."""
     env = os.environ.get("SENSAUG_HI5_DBC")
     if env:
         return Path(env)
-    return Path(__file__).resolve().parents[2] / "hi5.dbc"
+    return resources.data_file("hi5.dbc")
 
 
 @functools.cache
@@ -117,14 +119,14 @@ def load_database() -> cantools.database.can.Database:
     """The parsed DBC (loaded once per process).
 
     Raises:
-        FileNotFoundError: if the DBC is not at :func:`dbc_path` (a non-editable
-            install; set ``SENSAUG_HI5_DBC``).
+        FileNotFoundError: if the DBC is not at :func:`dbc_path` (a broken
+            install, or ``SENSAUG_HI5_DBC`` naming a missing file).
     """
     path = dbc_path()
     if not path.is_file():
         raise FileNotFoundError(
-            f"hi5.dbc not found at {path}: install firmware_bridge editable "
-            "(pip install -e firmware_bridge) or set SENSAUG_HI5_DBC"
+            f"hi5.dbc not found at {path} (SENSAUG_HI5_DBC): point SENSAUG_HI5_DBC at the DBC "
+            "or unset it to use the one installed with sensaug_bridge"
         )
     return cantools.database.load_file(str(path), strict=True)
 
