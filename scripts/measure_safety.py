@@ -87,9 +87,9 @@ def summarize(name: str, runs: list[dict]) -> list[str]:
     rows = []
     for key in runs[0]:
         vals = [r[key] for r in runs if isinstance(r.get(key), (int, float)) and r[key] == r[key]]
-        if not vals or key == "exit":
+        if not vals or key in ("exit", "ticks"):
             continue
-        rows.append(f"| {name} | {key} | {len(vals)} | {statistics.median(vals):.1f} | {max(vals):.1f} |")
+        rows.append(f"| {name} | {key} | {len(vals)} | {statistics.median(vals):.4g} | {max(vals):.4g} |")
     return rows
 
 
@@ -101,6 +101,7 @@ def main() -> int:
         "foreign command": f.scenario_foreign_command,
         "forged 0.5 rad feedback": f.scenario_forged_jump,
         "stale-feedback flood": f.scenario_stale_flood,
+        "log write failure (1 MB file-size limit)": f.scenario_log_failure,
         "SIGTERM": sigterm,
         "dead drive": dead_drive,
         "SIGKILL of the controller": killed_controller,

@@ -246,9 +246,6 @@ def scenario_stale_flood(tmp: Path, flood_s: float = 5.0) -> dict:
         pr.close()
 
 
-# --- 4. outputs ----------------------------------------------------------------
-
-
 def test_a_second_controller_refuses_to_start_and_the_first_runs_on(tmp_path):
     figures = scenario_second_controller(tmp_path)
     print(f"\nsecond controller refused after {figures['refused_after_ms']:.0f} ms")
@@ -268,6 +265,9 @@ def test_a_forged_feedback_jump_ramps_down_and_never_raises_the_torque(tmp_path)
 def test_a_flood_of_stale_feedback_ends_the_run_as_degraded(tmp_path):
     figures = scenario_stale_flood(tmp_path)
     print(f"\nstale flood: {figures}")
+
+
+# --- 4. outputs ----------------------------------------------------------------
 
 
 @pytest.mark.parametrize("which", ["log", "stats"])
@@ -322,13 +322,13 @@ def _file_size_limit(limit: int):
     return pre
 
 
-def test_a_log_write_failure_ramps_down_and_keeps_what_was_written(tmp_path):
-    """A full disk, as a 1 MB file-size limit on the controller
-    (RLIMIT_FSIZE): the write fails (EFBIG), the loop ramps down and stops
-    (exit 7); the log holds a readable prefix from tick 0."""
-    pr = rig_processes(tmp_path, stall_tolerant(short_config(gain_s=10.0)))
+def scenario_log_failure(tmp: Path, limit_bytes: int = 1_000_000) -> dict:
+    """A full disk, as a file-size limit on the controller (RLIMIT_FSIZE):
+    the write fails (EFBIG), the loop ramps down and stops (exit 7); the log
+    holds a readable prefix from tick 0."""
+    pr = rig_processes(tmp, stall_tolerant(short_config(gain_s=10.0)))
     try:
-        pr.controller = controller(pr, pr.log, pr.stats, preexec_fn=_file_size_limit(1_000_000))
+        pr.controller = controller(pr, pr.log, pr.stats, preexec_fn=_file_size_limit(limit_bytes))
         code, stats, err = end_of_run(pr)
         assert code == EXIT_LOG, (stats["stop_reason"], err)
         assert stats["stop_reason"].startswith("log write failed"), stats["stop_reason"]
@@ -339,11 +339,16 @@ def test_a_log_write_failure_ramps_down_and_keeps_what_was_written(tmp_path):
         assert not log.complete and 0 < stats["records_written"] <= len(log)
         assert len(log) <= stats["records_written"] + stats["log_records_lost"]
         np.testing.assert_array_equal(log["tick"], np.arange(len(log)))
-        assert pr.log.stat().st_size <= 1_000_000
+        assert pr.log.stat().st_size <= limit_bytes
         assert drive_state(pr).state == State.DISABLED
-        print(f"\nlog failed at {len(log)} records; stopped after {stats['ticks']} ticks")
+        return {"records_kept": len(log), "ticks_after_last_record": stats["ticks"] - len(log)}
     finally:
         pr.close()
+
+
+def test_a_log_write_failure_ramps_down_and_keeps_what_was_written(tmp_path):
+    figures = scenario_log_failure(tmp_path)
+    print(f"\nlog failed: {figures}")
 
 
 # --- 5. the first tick after the enable ------------------------------------------

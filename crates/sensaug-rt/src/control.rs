@@ -243,9 +243,11 @@ pub struct Rig<'a> {
 }
 
 impl<'a> Rig<'a> {
-    /// Set-up: checks the virtual human, then brings the drive from BOOT or
+    /// Set-up: checks the virtual human, waits for the drive's heartbeat,
+    /// listens for another controller ([`LoopSettings::quiet_period`]; any
+    /// command for this node refuses the start), then brings the drive from
     /// DISABLED (clearing faults if needed) to ENABLED, and reads the first
-    /// feedback with a zero-torque command.
+    /// feedback with a zero-torque command sent as soon as it is ENABLED.
     pub fn start(
         settings: LoopSettings,
         transport: Box<dyn Transport + Send>,
@@ -284,17 +286,17 @@ impl<'a> Rig<'a> {
         rig.wait_for(timeout, "a heartbeat from the drive", |d| {
             d.state != DriveState::Boot
         })?;
+        // Listen before sending anything: a running controller on this node
+        // sends a command at least every watchdog period.
+        rig.listen(settings.quiet_period());
+        if rig.can.foreign_commands > 0 {
+            return Err(StartError::ForeignController(rig.can.foreign_commands));
+        }
         if rig.drive.state == DriveState::Fault {
             rig.send(&Message::ClearFaults);
             rig.wait_for(timeout, "DISABLED after clearing faults", |d| {
                 d.state == DriveState::Disabled
             })?;
-        }
-        // Listen before enabling: a running controller on this node sends a
-        // command at least every watchdog period.
-        rig.listen(settings.quiet_period());
-        if rig.can.foreign_commands > 0 {
-            return Err(StartError::ForeignController(rig.can.foreign_commands));
         }
         // Resync: the drive accepts exactly this sequence next, then +1 each.
         rig.times.enable_ns = os::now_ns();
