@@ -95,6 +95,10 @@ def end_of_run(pr: Processes) -> tuple[int, dict, str]:
 
 
 def drive_state(pr: Processes) -> p.Heartbeat:
+    """The drive's latest heartbeat: what the monitor buffered during the
+    run is dropped first (it may hold seconds of frames)."""
+    while pr.monitor.recv(timeout=0) is not None:
+        pass
     beats = pr.heartbeats(0.5)
     assert beats, "the drive stopped sending heartbeats"
     return beats[-1]
@@ -123,7 +127,6 @@ def scenario_second_controller(tmp: Path) -> dict:
         assert not list(tmp.glob("second_*.partial")), list(tmp.iterdir())
         # The first one was not disturbed.
         assert pr.controller.poll() is None, pr.controller.stderr.read()
-        assert drive_state(pr).state == State.ENABLED
         pr.controller.send_signal(signal.SIGTERM)
         code, stats, _ = end_of_run(pr)
         assert code == 1 and stats["stop_reason"].startswith("signal"), stats["stop_reason"]
@@ -212,23 +215,25 @@ def scenario_forged_jump(tmp: Path) -> dict:
 def scenario_stale_flood(tmp: Path, flood_s: float = 5.0) -> dict:
     """A bounded flood of stale feedback frames (plausible values, a
     sequence 100 behind): ticks lose their fresh feedback; past
-    rig.max_stale_feedback_ticks or rig.max_missing_feedback_fraction (the
-    defaults) the run ramps down and ends as "degraded", exit 6, and says
+    rig.max_stale_feedback_ticks or rig.max_missing_feedback_fraction (at
+    their defaults, 100 and 0.5) the run ramps down and ends as "degraded", exit 6, and says
     why."""
-    pr = rig_processes(tmp, stall_tolerant(short_config(gain_s=10.0)))
+    cfg = stall_tolerant(short_config(gain_s=10.0))
+    # The thresholds under test: the defaults.
+    cfg.rig.max_stale_feedback_ticks, cfg.rig.max_missing_feedback_fraction = 100, 0.5
+    pr = rig_processes(tmp, cfg)
     try:
         pr.start_controller()
         wait_running(pr)
-        time.sleep(1.0)
-        assert pr.controller.poll() is None, pr.controller.stderr.read()
         sent = 0
         start = time.monotonic()
         fb = latest_feedback(pr)
         while time.monotonic() - start < flood_s and pr.controller.poll() is None:
             fb = latest_feedback(pr, fb)
             stale = p.Feedback(fb.position_rad, fb.velocity_rad_s, (fb.sequence - 100) % 256, fb.state, False, False)
-            pr.monitor.send(stale.encode(NODE))
-            sent += 1
+            for _ in range(2):
+                pr.monitor.send(stale.encode(NODE))
+            sent += 2
             time.sleep(0.0003)
         code, stats, err = end_of_run(pr)
         flood_to_stop_s = time.monotonic() - start

@@ -247,7 +247,7 @@ impl<'a> Rig<'a> {
     /// listens for another controller ([`LoopSettings::quiet_period`]; any
     /// command for this node refuses the start), then brings the drive from
     /// DISABLED (clearing faults if needed) to ENABLED, and reads the first
-    /// feedback with a zero-torque command sent as soon as it is ENABLED.
+    /// feedback with a zero-torque command sent right after the enable.
     pub fn start(
         settings: LoopSettings,
         transport: Box<dyn Transport + Send>,
@@ -299,19 +299,29 @@ impl<'a> Rig<'a> {
             })?;
         }
         // Resync: the drive accepts exactly this sequence next, then +1 each.
+        // The first command follows the enable at once (the drive handles
+        // frames in order and enables on SetState): its watchdog, armed by
+        // the enable, never waits for our round trip.
         rig.times.enable_ns = os::now_ns();
         rig.send(&Message::SetState {
             enable: true,
             watchdog_ms: settings.watchdog_ms,
             sequence: 255,
         });
-        rig.wait_for(timeout, "ENABLED", |d| d.state == DriveState::Enabled)?;
         rig.times.first_command_ns = os::now_ns();
         rig.send(&Message::TorqueCommand {
             torque_nm: 0.0,
             sequence: 255,
         });
-        rig.wait_for(timeout, "the first feedback", |d| d.last_seq == Some(255))?;
+        rig.wait_for(timeout, "ENABLED and the first feedback", |d| {
+            d.last_seq == Some(255) || d.state == DriveState::Fault
+        })?;
+        if rig.drive.state == DriveState::Fault {
+            return Err(StartError::Drive(format!(
+                "faulted ({:?}) right after the enable; see the drive's fault flags",
+                rig.drive.faults
+            )));
+        }
         Ok(rig)
     }
 
