@@ -116,11 +116,13 @@ def stall_tolerant(cfg: ScenarioConfig) -> ScenarioConfig:
     the loop or the Python drive stalls for tens of ms now and then, which
     the preset's 20 ms / 50 ms turn into a stopped run (seen with the
     unchanged binary too). Likewise the degraded-run thresholds: 300 stale
-    ticks (as the timeout) and no limit on the missing fraction (a run at
-    load 9 lost 501 of its first 831 feedbacks). For the tests whose subject
-    is not those limits."""
+    ticks (as the timeout), no limit on the missing fraction (a run at load 9
+    lost 501 of its first 831 feedbacks) nor on estimator errors (2 of 5
+    runs at load 8 passed the default 10). For the tests whose subject is
+    not those limits."""
     cfg.rig.feedback_timeout_ms, cfg.rig.watchdog_ms = 300.0, 200
     cfg.rig.max_stale_feedback_ticks, cfg.rig.max_missing_feedback_fraction = 300, 1.0
+    cfg.rig.max_estimator_errors = 1_000_000
     return cfg
 
 

@@ -221,10 +221,15 @@ def scenario_stale_flood(tmp: Path, flood_s: float = 5.0) -> dict:
     cfg = stall_tolerant(short_config(gain_s=10.0))
     # The thresholds under test: the defaults.
     cfg.rig.max_stale_feedback_ticks, cfg.rig.max_missing_feedback_fraction = 100, 0.5
+    cfg.rig.max_estimator_errors = 10
     pr = rig_processes(tmp, cfg)
     try:
         pr.start_controller()
         wait_running(pr)
+        # Past the start of the gain phase: a flood right there once drove
+        # the motor into the drive's OVERSPEED first (docs/safety.md).
+        time.sleep(1.0)
+        assert pr.controller.poll() is None, pr.controller.stderr.read()
         sent = 0
         start = time.monotonic()
         fb = latest_feedback(pr)
