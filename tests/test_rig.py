@@ -115,8 +115,14 @@ def stall_tolerant(cfg: ScenarioConfig) -> ScenarioConfig:
     schema and the protocol): on this loaded 2-core VM
     the loop or the Python drive stalls for tens of ms now and then, which
     the preset's 20 ms / 50 ms turn into a stopped run (seen with the
-    unchanged binary too). For the tests whose subject is not those limits."""
+    unchanged binary too). Likewise the degraded-run thresholds: 300 stale
+    ticks (as the timeout), no limit on the missing fraction (a run at load 9
+    lost 501 of its first 831 feedbacks) nor on estimator errors (2 of 5
+    runs at load 8 passed the default 10). For the tests whose subject is
+    not those limits."""
     cfg.rig.feedback_timeout_ms, cfg.rig.watchdog_ms = 300.0, 200
+    cfg.rig.max_stale_feedback_ticks, cfg.rig.max_missing_feedback_fraction = 300, 1.0
+    cfg.rig.max_estimator_errors = 1_000_000
     return cfg
 
 
@@ -318,15 +324,18 @@ def test_malformed_frames_are_dropped_and_counted_on_both_sides(procs):
 
 def test_a_second_command_source_faults_the_drive(procs):
     """Valid torque commands from a second host (good CRC, sequence 64 behind the
-    controller's): the drive latches FAULT(SEQUENCE) and the controller stops on it."""
+    controller's): the drive latches FAULT(SEQUENCE), and the controller stops
+    on whichever it sees first: the drive's fault (exit 1) or the foreign
+    command itself (exit 4, tests/test_rig_faults.py)."""
     pr = procs(short_config(gain_s=10.0))
     pr.start_controller()
     time.sleep(1.0)
     _stale_commands(pr, count=1)
     code = pr.wait_controller(timeout=20)
-    assert code == 1
     stats = json.loads(pr.stats.read_text())
-    assert stats["stop_reason"].startswith("drive fault"), stats["stop_reason"]
+    reason = stats["stop_reason"]
+    assert (code == 1 and reason.startswith("drive fault")) or (code == 4 and reason.startswith("foreign command")), (
+        code, reason)
     beats = pr.heartbeats(0.5)
     assert beats and beats[-1].fault_flags & FaultFlag.SEQUENCE, beats[-1:]
     assert beats[-1].sequence_errors >= 1

@@ -78,6 +78,11 @@ case("valid_ramp_zero", setting("rig", "ramp_down_s", "0.0"), "valid")
 case("valid_ramp_max", setting("rig", "ramp_down_s", "2.0"), "valid")
 case("valid_torque_max", setting("rig", "torque_limit_nm", "10.0"), "valid")
 case("valid_ring_min", setting("rig", "ring_capacity", "1024"), "valid")
+case("valid_feedback_velocity_max", setting("rig", "max_feedback_velocity_rad_s", "8.388607"), "valid")
+case("valid_step_margin_zero", setting("rig", "feedback_step_margin_rad", "0.0"), "valid")
+case("valid_missing_fraction_one", setting("rig", "max_missing_feedback_fraction", "1.0"), "valid")
+case("valid_stale_ticks_min", setting("rig", "max_stale_feedback_ticks", "1"), "valid")
+case("valid_estimator_errors_zero", setting("rig", "max_estimator_errors", "0"), "valid")
 case("valid_socketcan", setting("rig", "can", '"socketcan:vcan0"'), "valid")
 case("valid_udp_max_port", setting("rig", "can", '"udp:65535"'), "valid")
 case("valid_dt_10ms", full({"plant": "dt_s = 0.01\n", "rig": "watchdog_ms = 200\nfeedback_timeout_ms = 100.0\n"}), "valid")
@@ -211,6 +216,17 @@ for table, key, value, name in [
     ("rig", "ring_capacity", "1000000000000", "ring_1e12"),
     ("rig", "ring_capacity", "1023", "ring_small"),
     ("rig", "node_id", "16", "node_16"),
+    ("rig", "max_feedback_velocity_rad_s", "0.0", "feedback_velocity_zero"),
+    ("rig", "max_feedback_velocity_rad_s", "8.4", "feedback_velocity_past_field"),
+    ("rig", "max_feedback_velocity_rad_s", "nan", "feedback_velocity_nan"),
+    ("rig", "feedback_step_margin_rad", "-0.01", "step_margin_negative"),
+    ("rig", "feedback_step_margin_rad", "1e300", "step_margin_1e300"),
+    ("rig", "max_missing_feedback_fraction", "1.5", "missing_fraction_over_one"),
+    ("rig", "max_missing_feedback_fraction", "inf", "missing_fraction_inf"),
+    ("rig", "max_stale_feedback_ticks", "0", "stale_ticks_zero"),
+    ("rig", "max_stale_feedback_ticks", "100001", "stale_ticks_huge"),
+    ("rig", "max_estimator_errors", "-1", "estimator_errors_negative"),
+    ("rig", "max_estimator_errors", "1000001", "estimator_errors_huge"),
     ("rig", "node_id", "-1", "node_negative"),
     ("rig.realtime", "fifo_priority", "0", "fifo_zero"),
     ("rig.realtime", "fifo_priority", "100", "fifo_100"),

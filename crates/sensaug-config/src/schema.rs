@@ -31,6 +31,9 @@ pub const WATCHDOG_MS_MAX: f64 = sensaug_bridge::dbc::set_state::WATCHDOG_MS.max
 /// Largest torque the drive protocol carries (N m), from `hi5.dbc`
 /// (`TorqueCommand.torque`).
 pub const TORQUE_NM_MAX: f64 = sensaug_bridge::dbc::torque_command::TORQUE.max;
+/// Largest velocity the drive's feedback carries (rad/s), from `hi5.dbc`
+/// (`Feedback.velocity`).
+pub const FEEDBACK_VELOCITY_MAX: f64 = sensaug_bridge::dbc::feedback::VELOCITY.max;
 /// Largest configuration file read (bytes); larger ones are refused before
 /// parsing.
 pub const MAX_FILE_BYTES: u64 = 1 << 20;
@@ -583,6 +586,30 @@ pub struct RigSpec {
     /// Log ring capacity (records).
     #[schemars(range(min = 1024, max = 4194304))]
     pub ring_capacity: u64,
+    /// Feedback plausibility: a feedback velocity beyond this (rad/s, the
+    /// drive's velocity limit; the virtual Hi5 faults OVERSPEED above 8)
+    /// stops the loop ("implausible feedback", docs/safety.md).
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = FEEDBACK_VELOCITY_MAX))]
+    pub max_feedback_velocity_rad_s: f64,
+    /// Feedback plausibility: a position step between two feedbacks larger
+    /// than `max_feedback_velocity_rad_s` times their time apart plus this
+    /// margin (rad) stops the loop ("implausible feedback").
+    #[schemars(range(min = 0.0, max = 1.0))]
+    pub feedback_step_margin_rad: f64,
+    /// Degraded run: more than this fraction of ticks without fresh
+    /// feedback (over the run so far, the first second counted as a whole
+    /// second) ramps down and stops ("degraded").
+    #[schemars(range(min = 0.0, max = 1.0))]
+    pub max_missing_feedback_fraction: f64,
+    /// Degraded run: more than this many consecutive ticks without fresh
+    /// feedback ramps down and stops ("degraded").
+    #[schemars(range(min = 1, max = 100000))]
+    pub max_stale_feedback_ticks: u64,
+    /// Degraded run: more than this many estimator errors (filter
+    /// recoveries) or non-finite controller outputs ramps down and stops
+    /// ("degraded").
+    #[schemars(range(max = 1000000))]
+    pub max_estimator_errors: u64,
     /// Thread settings.
     pub realtime: RealtimeSpec,
 }
@@ -601,6 +628,11 @@ impl Default for RigSpec {
             log: "out/rig_log.csv".into(),
             stats: "out/rig_stats.json".into(),
             ring_capacity: 1 << 16,
+            max_feedback_velocity_rad_s: 8.0,
+            feedback_step_margin_rad: 0.01,
+            max_missing_feedback_fraction: 0.5,
+            max_stale_feedback_ticks: 100,
+            max_estimator_errors: 10,
             realtime: RealtimeSpec::default(),
         }
     }

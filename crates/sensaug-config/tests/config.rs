@@ -78,6 +78,11 @@ fn published_bounds_are_enforced() {
         "feedback_timeout_ms",
         "ring_capacity",
         "torque_limit_nm",
+        "max_feedback_velocity_rad_s",
+        "feedback_step_margin_rad",
+        "max_missing_feedback_fraction",
+        "max_stale_feedback_ticks",
+        "max_estimator_errors",
     ] {
         let max = rig[key]["maximum"].as_f64().unwrap();
         let int = rig[key]["type"] == "integer";

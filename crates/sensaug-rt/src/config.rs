@@ -25,5 +25,10 @@ pub fn loop_settings(resolved: &Resolved<'_>) -> Result<LoopSettings, ConfigErro
             [0.0; 3]
         },
         partner_torque_limit: resolved.partner.torque_limit,
+        max_feedback_velocity_rad_s: rig.max_feedback_velocity_rad_s,
+        feedback_step_margin_rad: rig.feedback_step_margin_rad,
+        max_missing_feedback_fraction: rig.max_missing_feedback_fraction,
+        max_stale_feedback_ticks: rig.max_stale_feedback_ticks,
+        max_estimator_errors: rig.max_estimator_errors,
     })
 }

@@ -13,7 +13,7 @@
 
 use crate::log::{LogRecord, LogSink};
 use crate::os;
-use crate::stats::{CanCounters, Histogram, LoopReport};
+use crate::stats::{CanCounters, Histogram, LoopReport, StartGap};
 use sensaug_bridge::protocol::{decode, encode, DriveState, FaultFlags, Message, NodeId};
 use sensaug_bridge::{Frame, Transport};
 use sensaug_core::agent::{guard_torque, Guard, VirtualHuman};
@@ -22,100 +22,10 @@ use sensaug_core::protocol::{Protocol, Sample};
 use sensaug_core::ScenarioError;
 use std::fmt;
 use std::sync::atomic::{AtomicBool, Ordering};
+
+use crate::safety::{degradation, plausible_feedback, DegradedLimits, Health, Implausible};
+pub use crate::safety::{Checks, Safety, StopReason};
 use std::time::{Duration, Instant};
-
-/// Why the loop stopped.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum StopReason {
-    /// Every tick of the protocol ran.
-    Completed,
-    /// SIGINT or SIGTERM: torque ramped to zero, drive disabled.
-    Signal,
-    /// No feedback for longer than `rig.feedback_timeout_ms`: emergency stop sent.
-    FeedbackTimeout,
-    /// The drive reported FAULT (flags).
-    DriveFault(u16),
-}
-
-impl fmt::Display for StopReason {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            StopReason::Completed => write!(f, "completed"),
-            StopReason::Signal => write!(f, "signal (ramped down, drive disabled)"),
-            StopReason::FeedbackTimeout => write!(f, "feedback timeout (emergency stop sent)"),
-            StopReason::DriveFault(flags) => {
-                write!(f, "drive fault {:?}", FaultFlags::from_bits_retain(*flags))
-            }
-        }
-    }
-}
-
-/// The loop's safety state: who sets the next torque command.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Safety {
-    /// The protocol runs: the controller commands.
-    Running,
-    /// A stop was requested at `from_tick`: the command ramps linearly from
-    /// `from_torque_nm` (the last command sent) to 0.
-    RampingDown {
-        /// First tick of the ramp.
-        from_tick: u64,
-        /// The last command before the ramp (N m).
-        from_torque_nm: f64,
-    },
-    /// The loop ends for this reason.
-    Stopped(StopReason),
-}
-
-/// What the safety state machine looks at in one tick.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Checks {
-    /// The tick.
-    pub tick: u64,
-    /// No feedback for longer than the timeout.
-    pub feedback_timed_out: bool,
-    /// The drive reported FAULT (its flags).
-    pub drive_fault: Option<u16>,
-    /// SIGINT/SIGTERM (the stop flag).
-    pub stop_requested: bool,
-    /// Every tick of the protocol ran.
-    pub protocol_done: bool,
-    /// The last command sent (N m).
-    pub last_torque_nm: f64,
-    /// Length of the ramp-down (ticks).
-    pub ramp_ticks: u64,
-}
-
-impl Safety {
-    /// The state for this tick. A feedback timeout, then a drive fault, stop
-    /// at once; a stop request starts the ramp (it wins over completion);
-    /// the ramp stops after `ramp_ticks`; the protocol's end completes.
-    pub fn next(self, c: &Checks) -> Safety {
-        if let Safety::Stopped(_) = self {
-            return self;
-        }
-        if c.feedback_timed_out {
-            return Safety::Stopped(StopReason::FeedbackTimeout);
-        }
-        if let Some(flags) = c.drive_fault {
-            return Safety::Stopped(StopReason::DriveFault(flags));
-        }
-        let state = match self {
-            Safety::Running if c.stop_requested => Safety::RampingDown {
-                from_tick: c.tick,
-                from_torque_nm: c.last_torque_nm,
-            },
-            Safety::Running if c.protocol_done => Safety::Stopped(StopReason::Completed),
-            other => other,
-        };
-        match state {
-            Safety::RampingDown { from_tick, .. } if c.tick - from_tick >= c.ramp_ticks => {
-                Safety::Stopped(StopReason::Signal)
-            }
-            other => other,
-        }
-    }
-}
 
 /// Tick timing, derived once from the settings before the first tick.
 #[derive(Clone, Copy, Debug)]
@@ -129,10 +39,13 @@ struct Timing {
 }
 
 impl Timing {
-    fn new(s: &LoopSettings) -> Self {
+    /// Tick 0 is due one period after the set-up's first command
+    /// (`first_command_ns`), or now if that has passed: the drive's watchdog
+    /// sees no longer gap at the start than between two ticks.
+    fn new(s: &LoopSettings, first_command_ns: u64) -> Self {
         let period_ns = (s.dt_s * 1e9).round() as u64;
         Timing {
-            start_ns: os::now_ns() + period_ns,
+            start_ns: (first_command_ns + period_ns).max(os::now_ns()),
             period_ns,
             timeout_ticks: (s.feedback_timeout_ms * 1e-3 / s.dt_s).ceil() as u64,
             ramp_ticks: (s.ramp_down_s / s.dt_s).round() as u64,
@@ -199,6 +112,20 @@ pub enum StartError {
     Scenario(ScenarioError),
     /// The drive did not reach the wanted state in time.
     Drive(String),
+    /// Command frames for this node that this process did not send were
+    /// seen before enabling (their count): another controller is on the bus.
+    ForeignController(u64),
+}
+
+impl StartError {
+    /// The process exit code: 3 for another controller, 2 for the others
+    /// (a set-up error).
+    pub fn exit_code(&self) -> u8 {
+        match self {
+            StartError::ForeignController(_) => 3,
+            _ => 2,
+        }
+    }
 }
 
 impl fmt::Display for StartError {
@@ -206,6 +133,12 @@ impl fmt::Display for StartError {
         match self {
             StartError::Scenario(e) => write!(f, "virtual human: {e}"),
             StartError::Drive(s) => write!(f, "drive: {s}"),
+            StartError::ForeignController(n) => write!(
+                f,
+                "another controller is on the bus: {n} command frame(s) for this node that \
+                 this process did not send, seen before enabling; is another sensaug-rt \
+                 running on the same bus and rig.node_id? Refusing to start (drive not enabled)"
+            ),
         }
     }
 }
@@ -233,6 +166,46 @@ pub struct LoopSettings {
     pub partner_gains: [f64; 3],
     /// Virtual human torque limit (model units).
     pub partner_torque_limit: f64,
+    /// Feedback plausibility: velocity limit (rad/s).
+    pub max_feedback_velocity_rad_s: f64,
+    /// Feedback plausibility: position step margin (rad).
+    pub feedback_step_margin_rad: f64,
+    /// Degraded run: largest fraction of ticks without fresh feedback.
+    pub max_missing_feedback_fraction: f64,
+    /// Degraded run: longest run of ticks without fresh feedback.
+    pub max_stale_feedback_ticks: u64,
+    /// Degraded run: most estimator errors plus non-finite outputs.
+    pub max_estimator_errors: u64,
+}
+
+impl LoopSettings {
+    /// How long set-up listens for another controller before enabling:
+    /// [`QUIET_WATCHDOG_PERIODS`] drive watchdog periods (a running
+    /// controller sends at least one command per period or its drive trips).
+    pub fn quiet_period(&self) -> Duration {
+        Duration::from_millis(u64::from(self.watchdog_ms) * QUIET_WATCHDOG_PERIODS)
+    }
+
+    fn degraded_limits(&self) -> DegradedLimits {
+        DegradedLimits {
+            missing_fraction: self.max_missing_feedback_fraction,
+            stale_run_ticks: self.max_stale_feedback_ticks,
+            estimator_errors: self.max_estimator_errors,
+            ticks_per_s: (1.0 / self.dt_s).round() as u64,
+        }
+    }
+}
+
+/// Drive watchdog periods of listening for another controller before enabling.
+pub const QUIET_WATCHDOG_PERIODS: u64 = 3;
+
+/// When set-up talked to the drive (ns, `CLOCK_MONOTONIC`), for the start
+/// gap in the statistics.
+#[derive(Clone, Copy, Debug, Default)]
+struct StartTimes {
+    enable_ns: u64,
+    first_command_ns: u64,
+    first_tick_ns: u64,
 }
 
 /// What the drive last told us.
@@ -261,12 +234,20 @@ pub struct Rig<'a> {
     torque_clamped: u64,
     non_finite: u64,
     ticks_run: u64,
+    /// The first implausible feedback.
+    implausible: Option<Implausible>,
+    /// Consecutive ticks without fresh feedback, and the longest such run.
+    stale_run: u64,
+    longest_stale_run: u64,
+    times: StartTimes,
 }
 
 impl<'a> Rig<'a> {
-    /// Set-up: checks the virtual human, then brings the drive from BOOT or
+    /// Set-up: checks the virtual human, waits for the drive's heartbeat,
+    /// listens for another controller ([`LoopSettings::quiet_period`]; any
+    /// command for this node refuses the start), then brings the drive from
     /// DISABLED (clearing faults if needed) to ENABLED, and reads the first
-    /// feedback with a zero-torque command.
+    /// feedback with a zero-torque command sent right after the enable.
     pub fn start(
         settings: LoopSettings,
         transport: Box<dyn Transport + Send>,
@@ -297,10 +278,20 @@ impl<'a> Rig<'a> {
             torque_clamped: 0,
             non_finite: 0,
             ticks_run: 0,
+            implausible: None,
+            stale_run: 0,
+            longest_stale_run: 0,
+            times: StartTimes::default(),
         };
         rig.wait_for(timeout, "a heartbeat from the drive", |d| {
             d.state != DriveState::Boot
         })?;
+        // Listen before sending anything: a running controller on this node
+        // sends a command at least every watchdog period.
+        rig.listen(settings.quiet_period());
+        if rig.can.foreign_commands > 0 {
+            return Err(StartError::ForeignController(rig.can.foreign_commands));
+        }
         if rig.drive.state == DriveState::Fault {
             rig.send(&Message::ClearFaults);
             rig.wait_for(timeout, "DISABLED after clearing faults", |d| {
@@ -308,18 +299,40 @@ impl<'a> Rig<'a> {
             })?;
         }
         // Resync: the drive accepts exactly this sequence next, then +1 each.
+        // The first command follows the enable at once (the drive handles
+        // frames in order and enables on SetState): its watchdog, armed by
+        // the enable, never waits for our round trip.
+        rig.times.enable_ns = os::now_ns();
         rig.send(&Message::SetState {
             enable: true,
             watchdog_ms: settings.watchdog_ms,
             sequence: 255,
         });
-        rig.wait_for(timeout, "ENABLED", |d| d.state == DriveState::Enabled)?;
+        rig.times.first_command_ns = os::now_ns();
         rig.send(&Message::TorqueCommand {
             torque_nm: 0.0,
             sequence: 255,
         });
-        rig.wait_for(timeout, "the first feedback", |d| d.last_seq == Some(255))?;
+        rig.wait_for(timeout, "ENABLED and the first feedback", |d| {
+            d.last_seq == Some(255) || d.state == DriveState::Fault
+        })?;
+        if rig.drive.state == DriveState::Fault {
+            return Err(StartError::Drive(format!(
+                "faulted ({:?}) right after the enable; see the drive's fault flags",
+                rig.drive.faults
+            )));
+        }
         Ok(rig)
+    }
+
+    /// Receives (and absorbs) every frame for `period`.
+    fn listen(&mut self, period: Duration) {
+        let start = Instant::now();
+        while let Some(left) = period.checked_sub(start.elapsed()) {
+            if let Ok(Some(f)) = self.transport.recv(left.min(Duration::from_millis(10))) {
+                self.absorb(&f, 0);
+            }
+        }
     }
 
     fn wait_for(
@@ -364,6 +377,7 @@ impl<'a> Rig<'a> {
                 state,
                 ..
             }) => {
+                self.check_plausible(position_rad, velocity_rad_s, tick);
                 self.drive.x_rad = position_rad;
                 self.drive.v_rad_s = velocity_rad_s;
                 self.drive.state = state;
@@ -379,9 +393,37 @@ impl<'a> Rig<'a> {
                 self.drive.state = state;
                 self.drive.faults = fault_flags;
             }
-            // Our own commands on a shared bus are not for us.
-            Ok(_) => {}
+            // Neither transport hands a socket its own frames (udp.rs,
+            // socketcan.rs): every command for this node here is another
+            // sender's.
+            Ok(Message::TorqueCommand { .. })
+            | Ok(Message::SetState { .. })
+            | Ok(Message::EmergencyStop)
+            | Ok(Message::ClearFaults) => self.can.foreign_commands += 1,
             Err(_) => self.can.decode_errors += 1,
+        }
+    }
+
+    /// Checks a feedback against physics (after the first one); keeps the
+    /// first violation.
+    fn check_plausible(&mut self, x_rad: f64, v_rad_s: f64, tick: u64) {
+        let s = &self.settings;
+        let prev = self.drive.last_seq.map(|_| {
+            (
+                self.drive.x_rad,
+                tick.saturating_sub(self.drive.last_feedback_tick),
+            )
+        });
+        if let Err(why) = plausible_feedback(
+            x_rad,
+            v_rad_s,
+            prev,
+            s.max_feedback_velocity_rad_s,
+            s.dt_s,
+            s.feedback_step_margin_rad,
+        ) {
+            self.can.implausible_feedback += 1;
+            self.implausible.get_or_insert(why);
         }
     }
 
@@ -407,14 +449,15 @@ impl<'a> Rig<'a> {
     /// or the ramp), **actuate** (one torque command), **record** (one log
     /// record).
     pub fn run(&mut self, log: &mut LogSink, stop: &AtomicBool) -> StopReason {
-        let timing = Timing::new(&self.settings);
+        let timing = Timing::new(&self.settings, self.times.first_command_ns);
         let mut safety = Safety::Running;
         let mut last_torque_nm = 0.0;
         let mut k = 0u64;
         let reason = loop {
             let wake = self.wait_for_tick(&timing, k);
             let sensed = self.sense(k, wake);
-            safety = safety.next(&self.checks(&timing, k, &sensed, stop, last_torque_nm));
+            let checks = self.checks(&timing, k, &sensed, stop, log.failed(), last_torque_nm);
+            safety = safety.next(&checks);
             let command = match safety {
                 Safety::Stopped(reason) => break reason,
                 Safety::Running => match self.protocol.sample(k) {
@@ -425,9 +468,13 @@ impl<'a> Rig<'a> {
                 Safety::RampingDown {
                     from_tick,
                     from_torque_nm,
+                    ..
                 } => Command::ramp(from_torque_nm, k - from_tick, timing.ramp_ticks),
             };
             self.actuate(k, command.torque_nm);
+            if k == 0 {
+                self.times.first_tick_ns = os::now_ns();
+            }
             last_torque_nm = command.torque_nm;
             self.record(log, k, &sensed, &command, safety);
             k += 1;
@@ -459,8 +506,12 @@ impl<'a> Rig<'a> {
         self.drain(k);
         let expected = (k.wrapping_sub(1) & 0xff) as u8;
         let fresh = k == 0 || self.drive.last_seq == Some(expected);
-        if !fresh {
+        if fresh {
+            self.stale_run = 0;
+        } else {
             self.can.missing_feedback += 1;
+            self.stale_run += 1;
+            self.longest_stale_run = self.longest_stale_run.max(self.stale_run);
         }
         // Controller units: positions in `unit`s, torques in model units.
         let unit = self.settings.rad_per_unit;
@@ -480,12 +531,24 @@ impl<'a> Rig<'a> {
         k: u64,
         sensed: &Sensed,
         stop: &AtomicBool,
+        log_failed: bool,
         last_torque_nm: f64,
     ) -> Checks {
+        let robot = self.robot.counters();
+        let health = Health {
+            ticks: k + 1,
+            missing: self.can.missing_feedback,
+            stale_run: self.stale_run,
+            estimator_errors: robot.estimator_errors + robot.non_finite + self.non_finite,
+        };
         Checks {
             tick: k,
             feedback_timed_out: k > 0 && sensed.age_ticks > timing.timeout_ticks,
             drive_fault: (self.drive.state == DriveState::Fault).then(|| self.drive.faults.bits()),
+            foreign_command: self.can.foreign_commands > 0,
+            implausible: self.implausible,
+            log_failed,
+            degraded: degradation(&health, &self.settings.degraded_limits()),
             stop_requested: stop.load(Ordering::Relaxed),
             protocol_done: k >= self.protocol.total_ticks(),
             last_torque_nm,
@@ -561,10 +624,14 @@ impl<'a> Rig<'a> {
         });
     }
 
-    /// After the loop: an emergency stop on a feedback timeout, else zero
-    /// torque; then disable.
+    /// After the loop: an emergency stop on a feedback timeout or a foreign
+    /// command (it latches the drive's FAULT: no controller can drive the
+    /// motor until faults are cleared), else zero torque; then disable.
     fn shut_down(&mut self, reason: StopReason) {
-        if reason == StopReason::FeedbackTimeout {
+        if matches!(
+            reason,
+            StopReason::FeedbackTimeout | StopReason::ForeignCommand
+        ) {
             self.send(&Message::EmergencyStop);
         } else {
             // The sequence after the loop's last command (tick k sent k & 0xff).
@@ -608,108 +675,14 @@ impl<'a> Rig<'a> {
             missing_measurements: self.robot.counters().missing_measurements,
             partner_gains_estimate: self.robot.pseudo_gains(),
             partner_gains_true: self.settings.partner_gains,
+            longest_stale_run: self.longest_stale_run,
+            exit_code: reason.exit_code(),
+            start: StartGap::new(
+                self.times.enable_ns,
+                self.times.first_command_ns,
+                self.times.first_tick_ns,
+            ),
             realtime: Vec::new(),
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::{Checks, Safety, StopReason};
-
-    /// Tick 10 of a running protocol, nothing wrong, a 5-tick ramp.
-    fn calm() -> Checks {
-        Checks {
-            tick: 10,
-            feedback_timed_out: false,
-            drive_fault: None,
-            stop_requested: false,
-            protocol_done: false,
-            last_torque_nm: 0.7,
-            ramp_ticks: 5,
-        }
-    }
-
-    const RAMP: Safety = Safety::RampingDown {
-        from_tick: 8,
-        from_torque_nm: 0.5,
-    };
-
-    #[test]
-    fn running_stays_running_when_nothing_happens() {
-        assert_eq!(Safety::Running.next(&calm()), Safety::Running);
-        assert_eq!(RAMP.next(&calm()), RAMP);
-    }
-
-    #[test]
-    fn a_timeout_then_a_fault_stop_at_once_even_while_ramping() {
-        let both = Checks {
-            feedback_timed_out: true,
-            drive_fault: Some(3),
-            stop_requested: true,
-            ..calm()
-        };
-        for s in [Safety::Running, RAMP] {
-            let timeout = Safety::Stopped(StopReason::FeedbackTimeout);
-            assert_eq!(s.next(&both), timeout);
-            let fault = Checks {
-                feedback_timed_out: false,
-                ..both
-            };
-            assert_eq!(s.next(&fault), Safety::Stopped(StopReason::DriveFault(3)));
-        }
-    }
-
-    #[test]
-    fn a_stop_request_ramps_from_the_last_command_and_wins_over_completion() {
-        let stop = Checks {
-            stop_requested: true,
-            protocol_done: true,
-            ..calm()
-        };
-        let ramp = Safety::Running.next(&stop);
-        assert_eq!(
-            ramp,
-            Safety::RampingDown {
-                from_tick: 10,
-                from_torque_nm: 0.7
-            }
-        );
-        // A second request does not restart the ramp.
-        let later = Checks { tick: 12, ..stop };
-        assert_eq!(ramp.next(&later), ramp);
-    }
-
-    #[test]
-    fn the_ramp_ends_after_ramp_ticks_and_a_zero_ramp_at_once() {
-        let at = |tick| Checks { tick, ..calm() };
-        assert_eq!(RAMP.next(&at(12)), RAMP);
-        assert_eq!(RAMP.next(&at(13)), Safety::Stopped(StopReason::Signal));
-        let zero = Checks {
-            stop_requested: true,
-            ramp_ticks: 0,
-            ..calm()
-        };
-        assert_eq!(
-            Safety::Running.next(&zero),
-            Safety::Stopped(StopReason::Signal)
-        );
-    }
-
-    #[test]
-    fn the_protocols_end_completes() {
-        let done = Checks {
-            protocol_done: true,
-            ..calm()
-        };
-        assert_eq!(
-            Safety::Running.next(&done),
-            Safety::Stopped(StopReason::Completed)
-        );
-        // While ramping, the protocol's end does not cut the ramp short.
-        assert_eq!(RAMP.next(&done), RAMP);
-        // A stopped loop stays stopped.
-        let stopped = Safety::Stopped(StopReason::Completed);
-        assert_eq!(stopped.next(&calm()), stopped);
     }
 }

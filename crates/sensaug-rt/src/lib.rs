@@ -7,4 +7,5 @@ pub mod config;
 pub mod control;
 pub mod log;
 pub mod os;
+pub mod safety;
 pub mod stats;

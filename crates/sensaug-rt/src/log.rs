@@ -11,7 +11,14 @@
 //! no user-space buffer kept across passes) every [`WRITE_PERIOD`], so a
 //! SIGKILL loses at most the records of the last pass; the loader ignores a
 //! partial last line. A failed write is counted and its message kept; from
-//! then on the file stays a valid prefix and later records are counted lost.
+//! then on the file stays a valid prefix and later records are counted lost,
+//! and the loop sees the failure ([`LogSink::failed`]) and ramps down.
+//!
+//! An old log is not replaced by a run that never starts: set-up writes
+//! `<log>.partial` (which also proves the path writable before the drive is
+//! enabled); the writer renames it to `<log>` when the first record arrives
+//! (the loop's tick 0), or at the end of a run without records. A run that
+//! never starts removes `<log>.partial` ([`LogWriter::abandon`]).
 
 use rtrb::{Consumer, Producer, RingBuffer};
 use sensaug_core::agent::Guard;
@@ -19,7 +26,7 @@ use sensaug_core::controller::RobotTick;
 use sensaug_log::{format_row, write_footer, write_header, Row, UNKNOWN};
 use std::fs::File;
 use std::io::{self, Write};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
@@ -106,6 +113,7 @@ impl LogRecord {
 pub struct LogSink {
     producer: Producer<LogRecord>,
     overflows: u64,
+    failed: Arc<AtomicBool>,
 }
 
 impl LogSink {
@@ -119,6 +127,37 @@ impl LogSink {
     /// Records dropped because the ring was full.
     pub fn overflows(&self) -> u64 {
         self.overflows
+    }
+
+    /// Per tick: the writer failed (records are being lost).
+    pub fn failed(&self) -> bool {
+        self.failed.load(Ordering::Relaxed)
+    }
+}
+
+/// `<path>.partial`: where an output is written until it is complete
+/// enough to replace an older one.
+pub fn partial_path(path: &Path) -> PathBuf {
+    let mut name = path.as_os_str().to_owned();
+    name.push(".partial");
+    PathBuf::from(name)
+}
+
+/// The log's place: `<path>.partial` until [`Place::publish`] renames it.
+#[derive(Debug)]
+struct Place {
+    path: PathBuf,
+    published: bool,
+}
+
+impl Place {
+    /// Renames `<path>.partial` to `path` (once).
+    fn publish(&mut self) -> io::Result<()> {
+        if !self.published {
+            std::fs::rename(partial_path(&self.path), &self.path)?;
+            self.published = true;
+        }
+        Ok(())
     }
 }
 
@@ -138,17 +177,18 @@ pub struct WriterStats {
 /// The writer thread and its stop flag.
 pub struct LogWriter {
     done: Arc<AtomicBool>,
-    handle: JoinHandle<(File, WriterStats)>,
+    handle: JoinHandle<(File, WriterStats, Place)>,
 }
 
 impl LogWriter {
     /// Signals the end of the run, waits for every queued record to be
     /// written, then appends the end-status line (`end` plus the writer's
     /// counts; skipped after a failed write, which may have left a partial
-    /// line) and syncs the file.
+    /// line) and syncs the file; the file is renamed to its path if no
+    /// record did it.
     pub fn finish(self, mut end: serde_json::Map<String, serde_json::Value>) -> WriterStats {
         self.done.store(true, Ordering::Release);
-        let (mut file, mut stats) = match self.handle.join() {
+        let (mut file, mut stats, mut place) = match self.handle.join() {
             Ok(r) => r,
             Err(_) => {
                 return WriterStats {
@@ -158,6 +198,12 @@ impl LogWriter {
                 }
             }
         };
+        if let Err(e) = place.publish() {
+            stats.write_errors += 1;
+            stats
+                .error
+                .get_or_insert(format!("rename to {}: {e}", place.path.display()));
+        }
         if stats.error.is_none() {
             end.insert("records_written".into(), stats.records_written.into());
             end.insert(
@@ -174,9 +220,20 @@ impl LogWriter {
         }
         stats
     }
+
+    /// The run never started: stops the writer and removes
+    /// `<path>.partial`, leaving any older log at the path untouched.
+    pub fn abandon(self) {
+        self.done.store(true, Ordering::Release);
+        if let Ok((_, _, place)) = self.handle.join() {
+            if !place.published {
+                let _ = std::fs::remove_file(partial_path(&place.path));
+            }
+        }
+    }
 }
 
-/// Set-up: creates the file with the metadata and header lines
+/// Set-up: creates `<path>.partial` with the metadata and header lines
 /// (`sensaug_log::metadata`), the ring of `capacity` records and the writer
 /// thread.
 pub fn start(
@@ -189,32 +246,41 @@ pub fn start(
             std::fs::create_dir_all(dir)?;
         }
     }
-    let mut file = File::create(path)?;
+    let mut file = File::create(partial_path(path))?;
     let mut head = Vec::new();
     write_header(&mut head, meta)?;
     file.write_all(&head)?;
     let (producer, consumer) = RingBuffer::new(capacity);
     let done = Arc::new(AtomicBool::new(false));
-    let flag = Arc::clone(&done);
+    let failed = Arc::new(AtomicBool::new(false));
+    let (flag, failed_flag) = (Arc::clone(&done), Arc::clone(&failed));
+    let place = Place {
+        path: path.to_path_buf(),
+        published: false,
+    };
     let handle = std::thread::Builder::new()
         .name("sensaug-log".into())
-        .spawn(move || write_loop(file, consumer, &flag))?;
+        .spawn(move || write_loop(file, consumer, &flag, &failed_flag, place))?;
     Ok((
         LogSink {
             producer,
             overflows: 0,
+            failed,
         },
         LogWriter { done, handle },
     ))
 }
 
 /// The writer thread: every [`WRITE_PERIOD`], drain the ring into complete
-/// lines and write them to the file in one call.
+/// lines and write them to the file in one call (publishing the file at its
+/// path before the first); the first failure raises `failed`.
 fn write_loop(
     mut file: File,
     mut consumer: Consumer<LogRecord>,
     done: &AtomicBool,
-) -> (File, WriterStats) {
+    failed: &AtomicBool,
+    mut place: Place,
+) -> (File, WriterStats, Place) {
     let mut stats = WriterStats::default();
     let mut lines = Vec::with_capacity(1 << 20);
     loop {
@@ -229,10 +295,11 @@ fn write_loop(
         if n > 0 {
             if stats.error.is_some() {
                 stats.records_lost += n;
-            } else if let Err(e) = file.write_all(&lines) {
+            } else if let Err(e) = place.publish().and_then(|()| file.write_all(&lines)) {
                 stats.write_errors += 1;
                 stats.records_lost += n;
                 stats.error = Some(e.to_string());
+                failed.store(true, Ordering::Relaxed);
             } else {
                 stats.records_written += n;
             }
@@ -243,7 +310,7 @@ fn write_loop(
         }
         std::thread::sleep(WRITE_PERIOD);
     }
-    (file, stats)
+    (file, stats, place)
 }
 
 #[cfg(test)]
@@ -330,6 +397,34 @@ mod tests {
     }
 
     #[test]
+    fn an_old_log_is_kept_until_the_first_record_and_by_a_run_that_never_starts() {
+        let dir = std::env::temp_dir().join(format!("sensaug-log-keep-{}", std::process::id()));
+        let path = dir.join("log.csv");
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(&path, b"old log\n").unwrap();
+        let meta = serde_json::json!({"source": "rig"});
+        let (_sink, writer) = start(&path, 16, &meta).unwrap();
+        assert!(super::partial_path(&path).exists());
+        writer.abandon();
+        assert_eq!(std::fs::read(&path).unwrap(), b"old log\n");
+        assert!(!super::partial_path(&path).exists());
+        let (mut sink, writer) = start(&path, 16, &meta).unwrap();
+        sink.push(record(0));
+        // The writer publishes the file with the first record.
+        let t0 = std::time::Instant::now();
+        while std::fs::read(&path).unwrap() == b"old log\n" {
+            assert!(t0.elapsed() < std::time::Duration::from_secs(10));
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+        assert!(!super::partial_path(&path).exists());
+        let stats = writer.finish(serde_json::Map::new());
+        let text = std::fs::read_to_string(&path).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        assert_eq!((stats.records_written, stats.error), (1, None));
+        assert!(text.starts_with(sensaug_log::FORMAT_LINE));
+    }
+
+    #[test]
     fn a_failed_write_is_counted_and_later_records_are_lost_not_hidden() {
         let dir = std::env::temp_dir().join(format!("sensaug-log-fail-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
@@ -341,9 +436,16 @@ mod tests {
         for k in 0..5 {
             producer.push(record(k)).unwrap();
         }
+        std::fs::write(super::partial_path(&path), b"").unwrap();
         let done = std::sync::atomic::AtomicBool::new(true);
-        let (_, stats) = write_loop(file, consumer, &done);
+        let failed = std::sync::atomic::AtomicBool::new(false);
+        let place = super::Place {
+            path: path.clone(),
+            published: false,
+        };
+        let (_, stats, _) = write_loop(file, consumer, &done, &failed, place);
         let _ = std::fs::remove_dir_all(&dir);
+        assert!(failed.load(std::sync::atomic::Ordering::Relaxed));
         assert_eq!(stats.write_errors, 1);
         assert_eq!((stats.records_written, stats.records_lost), (0, 5));
         assert!(stats.error.is_some());

@@ -2,7 +2,10 @@
 //! Validates the whole configuration (the one schema, `sensaug-config`)
 //! before anything moves; prints and saves the loop statistics at the end.
 //! Exit code 0 only when the protocol completed; 2 for a configuration or
-//! set-up error.
+//! set-up error (the outputs are checked before the drive is enabled); 3
+//! when another controller was seen on the bus before enabling; the other
+//! stop reasons have their own codes (`StopReason::exit_code`,
+//! docs/realtime.md).
 
 use clap::Parser;
 use sensaug_bridge::protocol::MessageKind;
@@ -10,7 +13,7 @@ use sensaug_config::Resolved;
 use sensaug_config::{load_file, validate, ConfigError, ScenarioSpec};
 use sensaug_core::controller::Robot;
 use sensaug_rt::config::loop_settings;
-use sensaug_rt::control::{LoopSettings, Rig, StopReason};
+use sensaug_rt::control::{LoopSettings, Rig, StartError, StopReason};
 use sensaug_rt::{log, os};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -65,12 +68,68 @@ fn main() -> ExitCode {
     }
     match run(&spec) {
         Ok(StopReason::Completed) => ExitCode::SUCCESS,
-        Ok(_) => ExitCode::from(1),
-        Err(msg) => {
-            eprintln!("error: {msg}");
-            ExitCode::from(2)
+        Ok(reason) => {
+            eprintln!("stopped: {reason}");
+            ExitCode::from(reason.exit_code())
+        }
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::from(e.exit_code())
         }
     }
+}
+
+/// Why a run did not reach its loop, or failed to report it.
+#[derive(Debug)]
+enum RunError {
+    /// A set-up or output error (exit 2).
+    Setup(String),
+    /// The drive set-up failed (exit by [`StartError::exit_code`]).
+    Start(StartError),
+}
+
+impl RunError {
+    fn exit_code(&self) -> u8 {
+        match self {
+            RunError::Setup(_) => 2,
+            RunError::Start(e) => e.exit_code(),
+        }
+    }
+}
+
+impl std::fmt::Display for RunError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            RunError::Setup(s) => write!(f, "{s}"),
+            RunError::Start(e) => write!(f, "{e}"),
+        }
+    }
+}
+
+impl From<String> for RunError {
+    fn from(s: String) -> Self {
+        RunError::Setup(s)
+    }
+}
+
+/// Creates `<stats>.partial` (and its directory) before the drive is
+/// enabled: proves the path writable; renamed to the path once written.
+fn open_stats(path: &Path) -> std::io::Result<std::fs::File> {
+    if let Some(dir) = path.parent() {
+        if !dir.as_os_str().is_empty() {
+            std::fs::create_dir_all(dir)?;
+        }
+    }
+    std::fs::File::create(log::partial_path(path))
+}
+
+/// Writes the statistics to the file [`open_stats`] made, then renames it
+/// to `path` (an older file is replaced only by a complete one).
+fn write_stats(mut file: std::fs::File, path: &Path, json: &str) -> std::io::Result<()> {
+    use std::io::Write;
+    file.write_all(json.as_bytes())?;
+    file.sync_all()?;
+    std::fs::rename(log::partial_path(path), path)
 }
 
 /// The file, with the command line's overrides applied, validated as a whole.
@@ -89,7 +148,7 @@ fn load(args: &Args) -> Result<ScenarioSpec, ConfigError> {
     Ok(spec)
 }
 
-fn run(spec: &ScenarioSpec) -> Result<StopReason, String> {
+fn run(spec: &ScenarioSpec) -> Result<StopReason, RunError> {
     let resolved = sensaug_config::resolve(spec).map_err(|e| e.to_string())?;
     let settings = loop_settings(&resolved).map_err(|e| e.to_string())?;
     let robot = Robot::new(resolved.robot, resolved.protocol()).map_err(|_| {
@@ -107,11 +166,18 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, String> {
         MessageKind::Heartbeat,
         MessageKind::TorqueCommand,
         MessageKind::SetState,
+        MessageKind::EmergencyStop,
+        MessageKind::ClearFaults,
     ];
     transport
         .accept_only(&node_ids.map(|k| k.id(settings.node)))
         .map_err(|e| format!("rig.can: {e}"))?;
 
+    // A file-size limit (RLIMIT_FSIZE) makes a write fail (EFBIG) instead of
+    // killing the process, so the loop can ramp down.
+    if let Err(e) = os::ignore_file_size_signal() {
+        eprintln!("warning: SIGXFSZ not ignored ({e})");
+    }
     let stop = Arc::new(AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(sig, Arc::clone(&stop))
@@ -120,8 +186,24 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, String> {
     let log_path = PathBuf::from(&rig.log);
     let stats_path = PathBuf::from(&rig.stats);
     let meta = log_metadata(&resolved, &settings);
-    let (mut sink, writer) = log::start(&log_path, rig.ring_capacity as usize, &meta)
-        .map_err(|e| format!("rig.log: {}: {e}", log_path.display()))?;
+    // Both outputs exist (as `.partial`) before the drive is enabled.
+    let (mut sink, writer) =
+        log::start(&log_path, rig.ring_capacity as usize, &meta).map_err(|e| {
+            format!(
+                "rig.log: cannot write {}: {e}; choose a writable path (--log)",
+                log::partial_path(&log_path).display()
+            )
+        })?;
+    let stats_file = match open_stats(&stats_path) {
+        Ok(f) => f,
+        Err(e) => {
+            writer.abandon();
+            return Err(RunError::Setup(format!(
+                "rig.stats: cannot write {}: {e}; choose a writable path (--stats)",
+                log::partial_path(&stats_path).display()
+            )));
+        }
+    };
 
     // Real-time settings before the drive is enabled: from the enable on,
     // nothing slow may stand between the drive and the first tick (mlockall
@@ -153,8 +235,16 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, String> {
         );
     }
 
-    let mut rig_loop = Rig::start(settings, transport, robot, Duration::from_secs(5))
-        .map_err(|e| e.to_string())?;
+    let mut rig_loop = match Rig::start(settings, transport, robot, Duration::from_secs(5)) {
+        Ok(r) => r,
+        Err(e) => {
+            // The run never started: any older log and statistics stay.
+            writer.abandon();
+            drop(stats_file);
+            let _ = std::fs::remove_file(log::partial_path(&stats_path));
+            return Err(RunError::Start(e));
+        }
+    };
 
     let reason = rig_loop.run(&mut sink, &stop);
 
@@ -168,6 +258,7 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, String> {
     end.insert("ticks".into(), report.ticks.into());
     end.insert("ring_overflows".into(), overflows.into());
     end.insert("realtime".into(), report.realtime.clone().into());
+    end.insert("exit_code".into(), reason.exit_code().into());
     let written = writer.finish(end);
     if let Some(e) = &written.error {
         eprintln!(
@@ -180,10 +271,8 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, String> {
     report.log_records_lost = written.records_lost;
     report.log_error = written.error;
     let json = serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?;
-    if let Some(dir) = stats_path.parent() {
-        let _ = std::fs::create_dir_all(dir);
-    }
-    std::fs::write(&stats_path, &json).map_err(|e| format!("rig.stats: {e}"))?;
+    write_stats(stats_file, &stats_path, &json)
+        .map_err(|e| format!("rig.stats: {}: {e}", stats_path.display()))?;
     println!("{json}");
     Ok(reason)
 }
@@ -218,6 +307,12 @@ fn log_metadata(resolved: &Resolved<'_>, s: &LoopSettings) -> serde_json::Value 
             "partner_gains": s.partner_gains,
             "partner_torque_limit": s.partner_torque_limit,
             "ring_capacity": spec.rig.ring_capacity,
+            "max_feedback_velocity_rad_s": s.max_feedback_velocity_rad_s,
+            "feedback_step_margin_rad": s.feedback_step_margin_rad,
+            "max_missing_feedback_fraction": s.max_missing_feedback_fraction,
+            "max_stale_feedback_ticks": s.max_stale_feedback_ticks,
+            "max_estimator_errors": s.max_estimator_errors,
+            "quiet_period_ms": s.quiet_period().as_secs_f64() * 1e3,
             "log_write_period_ms": log::WRITE_PERIOD.as_secs_f64() * 1e3,
         }),
     })

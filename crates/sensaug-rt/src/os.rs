@@ -96,3 +96,13 @@ pub fn minimal_timer_slack() -> io::Result<()> {
         Err(io::Error::last_os_error())
     }
 }
+
+/// Ignores SIGXFSZ: a write past RLIMIT_FSIZE then fails with EFBIG (and
+/// the loop ramps down) instead of killing the process.
+pub fn ignore_file_size_signal() -> io::Result<()> {
+    // SAFETY: SIG_IGN for SIGXFSZ installs no handler code.
+    if unsafe { libc::signal(libc::SIGXFSZ, libc::SIG_IGN) } == libc::SIG_ERR {
+        return Err(io::Error::last_os_error());
+    }
+    Ok(())
+}

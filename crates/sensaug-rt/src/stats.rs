@@ -103,6 +103,39 @@ pub struct CanCounters {
     pub bus_error_frames: u64,
     /// Sends refused at once because the transmit queue was full (SocketCAN).
     pub bus_tx_queue_full: u64,
+    /// Command frames for this node that this process did not send (another
+    /// controller on the bus).
+    pub foreign_commands: u64,
+    /// Feedbacks that failed the plausibility check.
+    pub implausible_feedback: u64,
+}
+
+/// The gaps the drive's watchdog sees at the start (us): from the enable
+/// request to the set-up's zero-torque command, and from that command to
+/// tick 0's command. NaN when the loop never sent tick 0.
+#[derive(Clone, Copy, Debug, Serialize, PartialEq)]
+pub struct StartGap {
+    /// Enable request to the first (set-up) command.
+    pub enable_to_first_command_us: f64,
+    /// First command to tick 0's command.
+    pub first_command_to_tick0_us: f64,
+}
+
+impl StartGap {
+    /// From the three instants (ns, one clock; 0: did not happen).
+    pub fn new(enable_ns: u64, first_command_ns: u64, tick0_ns: u64) -> Self {
+        let gap = |a: u64, b: u64| {
+            if a == 0 || b == 0 {
+                f64::NAN
+            } else {
+                b.saturating_sub(a) as f64 / 1e3
+            }
+        };
+        StartGap {
+            enable_to_first_command_us: gap(enable_ns, first_command_ns),
+            first_command_to_tick0_us: gap(first_command_ns, tick0_ns),
+        }
+    }
 }
 
 /// Everything the loop reports at the end.
@@ -142,6 +175,12 @@ pub struct LoopReport {
     pub partner_gains_estimate: [f64; 3],
     /// The virtual human's true gains.
     pub partner_gains_true: [f64; 3],
+    /// The longest run of consecutive ticks without fresh feedback.
+    pub longest_stale_run: u64,
+    /// The gaps between commands from the enable to tick 0.
+    pub start: StartGap,
+    /// The exit code (docs/realtime.md).
+    pub exit_code: u8,
     /// Which real-time settings took effect, and warnings for those that did not.
     pub realtime: Vec<String>,
 }

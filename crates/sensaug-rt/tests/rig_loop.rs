@@ -138,6 +138,11 @@ fn run_loop(answer_for: u64, stop_after: Option<Duration>) -> Outcome {
         ramp_down_s: 0.05,
         partner_gains: resolved.partner.gains,
         partner_torque_limit: 1e3,
+        max_feedback_velocity_rad_s: 8.0,
+        feedback_step_margin_rad: 0.01,
+        max_missing_feedback_fraction: 0.5,
+        max_stale_feedback_ticks: 100,
+        max_estimator_errors: 10,
     };
     let transport = Box::new(UdpBus::open(port).unwrap());
     let mut rig = Rig::start(settings, transport, robot, Duration::from_secs(5)).unwrap();
