@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import re
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
@@ -62,6 +63,8 @@ class CaptureStats:
     dropped_kernel: int
     dropped_malformed: int
     error: Optional[str]
+    #: CPU time the capture thread used, s (``time.thread_time``).
+    cpu_s: float = 0.0
 
 
 class BusCapture:
@@ -95,6 +98,7 @@ class BusCapture:
         self._stop = threading.Event()
         self._frames = 0
         self._error: Optional[str] = None
+        self._cpu_s = 0.0
         self._thread = threading.Thread(target=self._run, name=f"sensaug-capture-{port}", daemon=True)
 
     def start(self) -> "BusCapture":
@@ -115,6 +119,8 @@ class BusCapture:
                     return
         except Exception as err:  # noqa: BLE001 - reported by stop(), the run goes on
             self._error = f"{type(err).__name__}: {err}"
+        finally:
+            self._cpu_s = time.thread_time()
 
     def stop(self) -> CaptureStats:
         """Drain, close, and report. Call after both processes have exited."""
@@ -131,6 +137,7 @@ class BusCapture:
             dropped_kernel=int(getattr(self._bus, "dropped_kernel", 0)),
             dropped_malformed=int(getattr(self._bus, "dropped_malformed", 0)),
             error=self._error,
+            cpu_s=self._cpu_s,
         )
         self._bus.shutdown()
         return stats

@@ -9,16 +9,16 @@
 * ``run CONFIG.toml`` runs one simulated trial and saves its log (``.csv``,
   ``sensaug.load_log``; docs/logs.md).
 * ``rig CONFIG.toml`` runs one trial on the virtual rig.
+* ``preset {hi5,hi5-rig,simulation}`` prints a preset as TOML.
+* ``sweep FILE --grid PATH=V1,V2 --seeds N --out DIR`` runs a grid over seeds.
+* ``check FILE`` validates a configuration exactly as ``sensaug-rt --check``.
+* ``schema`` prints the configuration's JSON Schema.
 
 ``demo`` and ``rig`` print the loopback bus port (``--port N`` to choose it)
 and record the bus into the output folder (``bus.log``, candump's log
 format; ``--no-capture`` to skip), which gets a ``README.txt`` of what each
 file is. ``paper``, ``sweep`` and ``demo`` show progress bars on a terminal
 (stderr), none with ``--quiet``.
-* ``preset {hi5,hi5-rig,simulation}`` prints a preset as TOML.
-* ``sweep FILE --grid PATH=V1,V2 --seeds N --out DIR`` runs a grid over seeds.
-* ``check FILE`` validates a configuration exactly as ``sensaug-rt --check``.
-* ``schema`` prints the configuration's JSON Schema.
 """
 
 from __future__ import annotations
@@ -159,26 +159,37 @@ def rig_demo(
     print(f"sensaug demo: the Hi5 experiment on the virtual rig ({phases})")
     print("virtual Hi5 drive (Python, python-can) <-> sensaug-rt (Rust, 1 kHz) over the loopback CAN bus")
     print(f"bus: sensaug_udp port {port} (watch it: python -m can.viewer -i sensaug_udp -c {port})")
-    print(f"capture: {out / capture} (candump log format)\n" if capture else "capture: off\n", flush=True)
+    print(f"capture: {out / capture} ({rig.capture_format(out / capture)})\n" if capture else "capture: off\n", flush=True)
     run = rig.run_virtual_rig(config, out=out, port=port, capture=capture, progress=progress)
     s = run.stats
     print(f"sensaug-rt: {s['ticks']} ticks, stop: {s['stop_reason']}, exit {run.returncode}; "
           f"virtual drive exit {run.drive_returncode}\n")
+    reached = {k for k in ("gains", "trajectory", "integration") if (run.log["phase"] == run.log.phase_code(k)).any()}
+    missing = f"not reached (the run stopped: {s['stop_reason']})"
     true = np.array(s["partner_gains_true"])
-    est = run.gain_estimate()
-    print(f"Stage 1: partner gains (mean over the last {config.robot.gain_window_s:g} s of the gain phase)")
-    print(_table(["gain", "true", "estimated", "error"], [
-        [name, f"{t:.4f}", f"{e:.4f}", f"{e - t:+.4f}"] for name, t, e in zip(("Lhx", "Lhv", "Lhh"), true, est)
-    ]))
-    amp = max(abs(sh.amplitude) for sh in config.phases[1].partner_target if hasattr(sh, "amplitude")) if len(config.phases) > 1 else 1.0
-    rmse = run.partner_target_rmse()
-    print(f"\nStage 2: partner-target RMSE {rmse:.4f} ({100 * rmse / amp:.2f}% of the {amp:g} amplitude)")
-    r = run.integration_rmse()
-    noise = config.phases[-1].target_noise_std
-    print(f"\nStage 3: RMSE of the robot's (x - tau) estimate, target-view noise std {noise:g}")
-    print(_table(["measured", "without integration", "with integration", "improvement"], [
-        [f"{r['measured']:.4f}", f"{r['own']:.4f}", f"{r['integrated']:.4f}", f"{r['own'] / r['integrated']:.2f}x"]
-    ]))
+    if "gains" in reached:
+        est = run.gain_estimate()
+        print(f"Stage 1: partner gains (mean over the last {config.robot.gain_window_s:g} s of the gain phase)")
+        print(_table(["gain", "true", "estimated", "error"], [
+            [name, f"{t:.4f}", f"{e:.4f}", f"{e - t:+.4f}"] for name, t, e in zip(("Lhx", "Lhv", "Lhh"), true, est)
+        ]))
+    else:
+        print(f"Stage 1: {missing}")
+    if "trajectory" in reached:
+        amp = max(abs(sh.amplitude) for sh in config.phases[1].partner_target if hasattr(sh, "amplitude")) if len(config.phases) > 1 else 1.0
+        rmse = run.partner_target_rmse()
+        print(f"\nStage 2: partner-target RMSE {rmse:.4f} ({100 * rmse / amp:.2f}% of the {amp:g} amplitude)")
+    else:
+        print(f"\nStage 2: {missing}")
+    if "integration" in reached:
+        r = run.integration_rmse()
+        noise = config.phases[-1].target_noise_std
+        print(f"\nStage 3: RMSE of the robot's (x - tau) estimate, target-view noise std {noise:g}")
+        print(_table(["measured", "without integration", "with integration", "improvement"], [
+            [f"{r['measured']:.4f}", f"{r['own']:.4f}", f"{r['integrated']:.4f}", f"{r['own'] / r['integrated']:.2f}x"]
+        ]))
+    else:
+        print(f"\nStage 3: {missing}")
     print("\nLoop statistics (this machine, this run; no deadline is asserted)")
     rows = [[name, f"{h['p50_us']:.0f}", f"{h['p99_us']:.0f}", f"{h['p999_us']:.0f}", f"{h['max_us']:.0f}"]
             for name, h in (("wake-up latency (us)", s["wake_latency"]), ("tick compute (us)", s["compute"]))]
@@ -190,10 +201,12 @@ def rig_demo(
     print(f"real-time settings: {'; '.join(s['realtime'])}")
     if run.capture is not None:
         c = run.capture
-        print(f"bus capture: {c.frames} frames, {c.dropped_kernel} dropped by the kernel"
-              + (f", ERROR {c.error}" if c.error else ""))
+        print(f"bus capture: {c.frames} frames, {c.dropped_kernel} dropped by the kernel, "
+              f"{c.cpu_s:.2f} s CPU in the launcher's capture thread" + (f", ERROR {c.error}" if c.error else ""))
     print(f"\nlog: {out / 'rig_log.csv'} (sensaug.load_log), stats: {out / 'rig_stats.json'}")
-    if plots:
+    if plots and len(reached) < 3:
+        print(f"plots: skipped, the run did not reach every phase ({s['stop_reason']})")
+    elif plots:
         from sensaug import plots as pl
 
         written = pl.write_rig_plots(run, out)

@@ -34,7 +34,7 @@ from sensaug.capture import BusCapture, CaptureStats
 from sensaug.config import ScenarioConfig
 from sensaug.logs import Log, load_log
 
-__all__ = ["RigRun", "bus_port", "find_binary", "run_virtual_rig", "stop_process", "write_readme"]
+__all__ = ["RigRun", "bus_port", "capture_format", "find_binary", "run_virtual_rig", "stop_process", "write_readme"]
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -231,7 +231,7 @@ def run_virtual_rig(
         note = "" if captured.error is None and lost == 0 else f"; INCOMPLETE: {captured.error or f'{lost} frames lost'}"
         files[captured.path.name] = (
             f"every frame on the bus (port {port}), {captured.frames} frames, "
-            f"{_capture_format(captured.path)}{note}"
+            f"{capture_format(captured.path)}{note}"
         )
     run = RigRun(
         config=cfg,
@@ -281,7 +281,8 @@ class _ElapsedBar:
         self._bar.close()
 
 
-def _capture_format(path: Path) -> str:
+def capture_format(path: Path) -> str:
+    """One line naming the capture file's format and what reads it."""
     suffix = path.suffix.lower()
     if suffix == ".log":
         return "candump -l log format (can.LogReader, canplayer, log2asc)"
