@@ -15,6 +15,12 @@
   paper (PNG and PDF, named after its label) and REPORT.md.
 * ``check FILE`` validates a configuration exactly as ``sensaug-rt --check``.
 * ``schema`` prints the configuration's JSON Schema.
+
+``demo`` and ``rig`` print the loopback bus port (``--port N`` to choose it)
+and record the bus into the output folder (``bus.log``, candump's log
+format; ``--no-capture`` to skip), which gets a ``README.txt`` of what each
+file is. ``paper``, ``sweep`` and ``demo`` show progress bars on a terminal
+(stderr), none with ``--quiet``.
 """
 
 from __future__ import annotations
@@ -42,7 +48,14 @@ def _table(headers: list[str], rows: list[list[str]]) -> str:
     return "\n".join([line, sep, *body])
 
 
-def paper(seeds: int, out: Path | None) -> int:
+def _bar(total: float, desc: str, unit: str, progress: bool | None):
+    """A tqdm progress bar on stderr; ``progress`` None: only on a terminal."""
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit=unit, leave=False, disable=None if progress is None else not progress)
+
+
+def paper(seeds: int, out: Path | None, progress: bool | None = None) -> int:
     t_start = time.perf_counter()
     print("sensaug paper: the paper's Hi5 experiment and simulation, simulated, on the embedded defaults\n")
 
@@ -62,12 +75,14 @@ def paper(seeds: int, out: Path | None) -> int:
     print(f"\nStage 1, Hi5: mean estimated virtual-human gains over the last 8 s ({seeds} seeds each)")
     rows = []
     trials = {}
+    bar = _bar(len(presets.HI5_LHH_VALUES) * seeds, "stage 1", "trial", progress)
     for lhh in presets.HI5_LHH_VALUES:
         est = []
         for seed in range(seeds):
             tr = experiment.run(presets.hi5_experiment(lhh, seed=seed))
             trials[(lhh, seed)] = tr
             est.append(tr.gain_estimate())
+            bar.update(1)
         est = np.array(est)
         worst = np.abs(est[:, 2] - lhh).max()
         rows.append(
@@ -79,6 +94,7 @@ def paper(seeds: int, out: Path | None) -> int:
                 f"{worst:.4f}",
             ]
         )
+    bar.close()
     print(_table(["true Lhh", "Lhx^", "Lhv^", "Lhh^", "max |Lhh^-Lhh|"], rows))
 
     print("\nStage 2, Hi5: partner-trajectory RMSE (after 2 s), % of the 8 deg amplitude")
@@ -90,15 +106,22 @@ def paper(seeds: int, out: Path | None) -> int:
 
     print("\nStage 3, Hi5 (Lhh = 2): RMSE of the robot's (x - tau) estimate, deg, mean over seeds")
     rows = []
-    for noise in (0.01, 0.1, 0.5, 1.0):
-        res = [experiment.run(presets.hi5_experiment(2.0, seed=s, target_noise_std=noise)).integration_rmse() for s in range(seeds)]
+    noises = (0.01, 0.1, 0.5, 1.0)
+    bar = _bar(len(noises) * seeds + 1, "stage 3, simulation section", "trial", progress)
+    for noise in noises:
+        res = []
+        for s in range(seeds):
+            res.append(experiment.run(presets.hi5_experiment(2.0, seed=s, target_noise_std=noise)).integration_rmse())
+            bar.update(1)
         own = np.mean([r["own"] for r in res])
         fused = np.mean([r["integrated"] for r in res])
         meas = np.mean([r["measured"] for r in res])
         rows.append([f"{noise:g}", f"{meas:.4f}", f"{own:.4f}", f"{fused:.4f}", f"{own / fused:.2f}x"])
+    sim_trial = experiment.run(presets.simulation_section())
+    bar.update(1)
+    bar.close()
     print(_table(["target noise std", "measured", "own only", "integrated", "gain"], rows))
 
-    sim_trial = experiment.run(presets.simulation_section())
     m = sim_trial.phase_mask(0, last_s=8)
     robot_by_partner = [sim_trial[f][m].mean() for f in ("Lx_hat", "Lv_hat", "Lh_hat")]
     print("\nSimulation section (M = 6 kg, both agents LQR, each identifying the other)")
@@ -122,32 +145,54 @@ def paper(seeds: int, out: Path | None) -> int:
     return 0
 
 
-def rig_demo(config: ScenarioConfig, out: Path, plots: bool) -> int:
+def rig_demo(
+    config: ScenarioConfig,
+    out: Path,
+    plots: bool,
+    *,
+    port: int | None = None,
+    capture: str | None = "bus.log",
+    progress: bool | None = None,
+) -> int:
     from sensaug import rig
 
     t_start = time.perf_counter()
     phases = ", ".join(f"{p.kind} {p.duration_s:g} s" for p in config.phases)
+    port = rig.bus_port(port)
     print(f"sensaug demo: the Hi5 experiment on the virtual rig ({phases})")
-    print("virtual Hi5 drive (Python, python-can) <-> sensaug-rt (Rust, 1 kHz) over the loopback CAN bus\n")
-    run = rig.run_virtual_rig(config, out=out)
+    print("virtual Hi5 drive (Python, python-can) <-> sensaug-rt (Rust, 1 kHz) over the loopback CAN bus")
+    print(f"bus: sensaug_udp port {port} (watch it: python -m can.viewer -i sensaug_udp -c {port})")
+    print(f"capture: {out / capture} ({rig.capture_format(out / capture)})\n" if capture else "capture: off\n", flush=True)
+    run = rig.run_virtual_rig(config, out=out, port=port, capture=capture, progress=progress)
     s = run.stats
     print(f"sensaug-rt: {s['ticks']} ticks, stop: {s['stop_reason']}, exit {run.returncode}; "
           f"virtual drive exit {run.drive_returncode}\n")
+    reached = {k for k in ("gains", "trajectory", "integration") if (run.log["phase"] == run.log.phase_code(k)).any()}
+    missing = f"not reached (the run stopped: {s['stop_reason']})"
     true = np.array(s["partner_gains_true"])
-    est = run.gain_estimate()
-    print(f"Stage 1: partner gains (mean over the last {config.robot.gain_window_s:g} s of the gain phase)")
-    print(_table(["gain", "true", "estimated", "error"], [
-        [name, f"{t:.4f}", f"{e:.4f}", f"{e - t:+.4f}"] for name, t, e in zip(("Lhx", "Lhv", "Lhh"), true, est)
-    ]))
-    amp = max(abs(sh.amplitude) for sh in config.phases[1].partner_target if hasattr(sh, "amplitude")) if len(config.phases) > 1 else 1.0
-    rmse = run.partner_target_rmse()
-    print(f"\nStage 2: partner-target RMSE {rmse:.4f} ({100 * rmse / amp:.2f}% of the {amp:g} amplitude)")
-    r = run.integration_rmse()
-    noise = config.phases[-1].target_noise_std
-    print(f"\nStage 3: RMSE of the robot's (x - tau) estimate, target-view noise std {noise:g}")
-    print(_table(["measured", "without integration", "with integration", "improvement"], [
-        [f"{r['measured']:.4f}", f"{r['own']:.4f}", f"{r['integrated']:.4f}", f"{r['own'] / r['integrated']:.2f}x"]
-    ]))
+    if "gains" in reached:
+        est = run.gain_estimate()
+        print(f"Stage 1: partner gains (mean over the last {config.robot.gain_window_s:g} s of the gain phase)")
+        print(_table(["gain", "true", "estimated", "error"], [
+            [name, f"{t:.4f}", f"{e:.4f}", f"{e - t:+.4f}"] for name, t, e in zip(("Lhx", "Lhv", "Lhh"), true, est)
+        ]))
+    else:
+        print(f"Stage 1: {missing}")
+    if "trajectory" in reached:
+        amp = max(abs(sh.amplitude) for sh in config.phases[1].partner_target if hasattr(sh, "amplitude")) if len(config.phases) > 1 else 1.0
+        rmse = run.partner_target_rmse()
+        print(f"\nStage 2: partner-target RMSE {rmse:.4f} ({100 * rmse / amp:.2f}% of the {amp:g} amplitude)")
+    else:
+        print(f"\nStage 2: {missing}")
+    if "integration" in reached:
+        r = run.integration_rmse()
+        noise = config.phases[-1].target_noise_std
+        print(f"\nStage 3: RMSE of the robot's (x - tau) estimate, target-view noise std {noise:g}")
+        print(_table(["measured", "without integration", "with integration", "improvement"], [
+            [f"{r['measured']:.4f}", f"{r['own']:.4f}", f"{r['integrated']:.4f}", f"{r['own'] / r['integrated']:.2f}x"]
+        ]))
+    else:
+        print(f"\nStage 3: {missing}")
     print("\nLoop statistics (this machine, this run; no deadline is asserted)")
     rows = [[name, f"{h['p50_us']:.0f}", f"{h['p99_us']:.0f}", f"{h['p999_us']:.0f}", f"{h['max_us']:.0f}"]
             for name, h in (("wake-up latency (us)", s["wake_latency"]), ("tick compute (us)", s["compute"]))]
@@ -157,12 +202,20 @@ def rig_demo(config: ScenarioConfig, out: Path, plots: bool) -> int:
           f"{can['send_errors']}/{can['recv_errors']}/{can['decode_errors']}, missing feedback {can['missing_feedback']}, "
           f"ring overflows {s['ring_overflows']}, records {s['records_written']}, clamped {s['torque_clamped']}")
     print(f"real-time settings: {'; '.join(s['realtime'])}")
+    if run.capture is not None:
+        c = run.capture
+        print(f"bus capture: {c.frames} frames, {c.dropped_kernel} dropped by the kernel, "
+              f"{c.cpu_s:.2f} s CPU in the launcher's capture thread" + (f", ERROR {c.error}" if c.error else ""))
     print(f"\nlog: {out / 'rig_log.csv'} (sensaug.load_log), stats: {out / 'rig_stats.json'}")
-    if plots:
+    if plots and len(reached) < 3:
+        print(f"plots: skipped, the run did not reach every phase ({s['stop_reason']})")
+    elif plots:
         from sensaug import plots as pl
 
         written = pl.write_rig_plots(run, out)
         print(f"plots: {', '.join(str(p) for p in written)}")
+        run.write_readme(out, {Path(p).name: f"plot of the run: {Path(p).stem.replace('_', ' ')} (PNG)" for p in written})
+    print(f"what is in {out}: {out / 'README.txt'}")
     print(f"\ndone in {time.perf_counter() - t_start:.1f} s")
     return 0 if run.returncode == 0 else 1
 
@@ -193,7 +246,9 @@ def _grid_values(text: str) -> list[object]:
     return out
 
 
-def sweep_command(config: Path, grid_args: list[str], seeds: int, workers: int | None, out: Path) -> int:
+def sweep_command(
+    config: Path, grid_args: list[str], seeds: int, workers: int | None, out: Path, progress: bool | None = None
+) -> int:
     """``sensaug sweep``: results.csv, the base configuration and the grid in ``out``."""
     import json
     from concurrent.futures import ThreadPoolExecutor
@@ -211,7 +266,7 @@ def sweep_command(config: Path, grid_args: list[str], seeds: int, workers: int |
     base = ScenarioConfig.from_toml(config)
     executor = ThreadPoolExecutor(workers) if workers else None
     t0 = time.perf_counter()
-    df = sweep(base, grid, seeds=range(seeds), executor=executor)
+    df = sweep(base, grid, seeds=range(seeds), executor=executor, progress=progress)
     elapsed = time.perf_counter() - t0
     out.mkdir(parents=True, exist_ok=True)
     df.to_csv(out / "results.csv", index=False)
@@ -241,6 +296,24 @@ def check(path: str) -> int:
     return 0
 
 
+def _rig_options(p: argparse.ArgumentParser) -> None:
+    """``demo``'s and ``rig``'s bus, capture and progress options."""
+    p.add_argument("--port", type=int, default=None, help="loopback CAN bus UDP port 1..65535 (default: a free one)")
+    p.add_argument("--capture", default="bus.log", metavar="NAME",
+                   help="bus capture file in --out; the suffix picks the format: .log candump -l (default bus.log), .blf")
+    p.add_argument("--no-capture", action="store_true", help="do not record the bus")
+    p.add_argument("--quiet", action="store_true", help="no progress bar (it shows only on a terminal anyway)")
+
+
+def _progress(args: argparse.Namespace) -> bool | None:
+    """Progress bars: off with --quiet, else tqdm's default (only on a terminal)."""
+    return False if args.quiet else None
+
+
+def _rig_kwargs(args: argparse.Namespace) -> dict:
+    return {"port": args.port, "capture": None if args.no_capture else args.capture, "progress": _progress(args)}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="sensaug", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"sensaug {package_version()}")
@@ -249,13 +322,16 @@ def main(argv: list[str] | None = None) -> int:
     d.add_argument("--config", type=Path, default=None, help="TOML (default: the embedded hi5-rig preset)")
     d.add_argument("--out", type=Path, default=Path("out"), help="folder for log, stats, plots (default ./out)")
     d.add_argument("--no-plots", action="store_true", help="do not write plots")
+    _rig_options(d)
     pp = sub.add_parser("paper", help="reproduce the paper's headline numbers in simulation")
     pp.add_argument("--seeds", type=int, default=3, help="trials per setting (default 3)")
     pp.add_argument("--plots", type=Path, default=Path("out"), help="folder for plots (default ./out)")
     pp.add_argument("--no-plots", action="store_true", help="do not write plots")
+    pp.add_argument("--quiet", action="store_true", help="no progress bars (they show only on a terminal anyway)")
     rg = sub.add_parser("rig", help="run one trial on the virtual rig")
     rg.add_argument("config", type=Path)
     rg.add_argument("--out", type=Path, default=Path("out"))
+    _rig_options(rg)
     r = sub.add_parser("run", help="run one trial from a TOML configuration")
     r.add_argument("config", type=Path)
     r.add_argument("--out", type=Path, default=None, help="log file (.csv); default next to the config")
@@ -273,6 +349,7 @@ def main(argv: list[str] | None = None) -> int:
     sw.add_argument("--seeds", type=int, default=12, help="seeds 0..N-1 per grid point (default 12)")
     sw.add_argument("--workers", type=int, default=None, help="threads (default: one per core)")
     sw.add_argument("--out", type=Path, default=Path("out/sweep"), help="output folder (default out/sweep)")
+    sw.add_argument("--quiet", action="store_true", help="no progress bar (it shows only on a terminal anyway)")
     fg = sub.add_parser("figures", help="every computational figure of the paper (PNG, PDF) and REPORT.md")
     fg.add_argument("--out", type=Path, default=Path("out/figures"), help="output folder (default out/figures)")
     fg.add_argument("--quick", action="store_true", help="reduced budget of trials and seeds (the tests' report)")
@@ -288,15 +365,15 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "demo":
             cfg = ScenarioConfig.from_toml(args.config) if args.config else presets.hi5_rig()
-            return rig_demo(cfg, args.out, not args.no_plots)
+            return rig_demo(cfg, args.out, not args.no_plots, **_rig_kwargs(args))
         if args.command == "paper":
             if args.seeds < 1:
                 parser.error("--seeds: must be >= 1")
-            return paper(args.seeds, None if args.no_plots else args.plots)
+            return paper(args.seeds, None if args.no_plots else args.plots, _progress(args))
         if args.command == "run":
             return run_config(args.config, args.out)
         if args.command == "sweep":
-            return sweep_command(args.config, args.grid, args.seeds, args.workers, args.out)
+            return sweep_command(args.config, args.grid, args.seeds, args.workers, args.out, _progress(args))
         if args.command == "figures":
             import matplotlib
 
@@ -308,7 +385,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{len(written)} files in {args.out} ({time.perf_counter() - t0:.1f} s); see {args.out / 'REPORT.md'}")
             return 0
         if args.command == "rig":
-            return rig_demo(ScenarioConfig.from_toml(args.config), args.out, True)
+            return rig_demo(ScenarioConfig.from_toml(args.config), args.out, True, **_rig_kwargs(args))
         cfg = {"hi5": presets.hi5_experiment, "hi5-rig": presets.hi5_rig, "simulation": presets.simulation_section}[args.name]()
         sys.stdout.write(cfg.to_toml())
         return 0

@@ -6,25 +6,35 @@ same schema as a simulated trial, ``docs/logs.md``).
 The real-time binary is found by :func:`find_binary`: ``$SENSAUG_RT``, the
 environment's scripts folder or PATH (the ``sensaug-rt`` wheel), else the
 checkout's ``target/release`` (``scripts/setup.sh`` builds it).
+
+Each run's output folder gets the resolved configuration, the log, the
+statistics, a capture of the bus traffic (``bus.log``, candump's log format,
+recorded by ``sensaug.capture`` off the real-time thread) and a
+``README.txt`` saying what each file is.
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import signal
+import socket
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 
 from sensaug import _resources, metrics
+from sensaug.capture import BusCapture, CaptureStats
 from sensaug.config import ScenarioConfig
 from sensaug.logs import Log, load_log
 
-__all__ = ["RigRun", "find_binary", "run_virtual_rig"]
+__all__ = ["RigRun", "bus_port", "capture_format", "find_binary", "run_virtual_rig", "stop_process", "write_readme"]
 
 
 def find_binary() -> Path:
@@ -43,6 +53,19 @@ class RigRun:
     returncode: int
     drive_returncode: int
     stderr: str
+    #: The loopback bus's UDP port.
+    port: int = 0
+    #: The bus capture (None with ``capture=None``).
+    capture: Optional[CaptureStats] = None
+    #: File name in the output folder -> one line of what it is (``README.txt``).
+    files: dict[str, str] = field(default_factory=dict)
+
+    def write_readme(self, out: str | Path, extra: dict[str, str] | None = None) -> Path:
+        """``out/README.txt``: this run's files (and ``extra`` ones, e.g. plots)."""
+        return write_readme(
+            Path(out), {**self.files, **(extra or {})},
+            title=f"sensaug virtual-rig run on the loopback CAN bus, port {self.port}",
+        )
 
     def phase_mask(self, kind: str, *, skip_s: float = 0.0, last_s: float | None = None) -> np.ndarray:
         m = self.log["phase"] == self.log.phase_code(kind)
@@ -68,10 +91,46 @@ class RigRun:
         return metrics.integration_rmse(self.log, self.phase_mask("integration", skip_s=skip_s))
 
 
-def _free_port() -> int:
-    from sensaug_bridge.udp_bus import free_port
+def bus_port(port: int | None = None) -> int:
+    """The loopback bus port for a run: ``port`` checked, or a free one.
 
-    return free_port()
+    Raises:
+        ValueError: ``port`` is not an integer in 1..=65535, or something on
+            this machine already holds it (another rig, drive or logger).
+    """
+    from sensaug_bridge.udp_bus import BROADCAST_ADDR, free_port
+
+    if port is None:
+        return free_port()
+    if isinstance(port, bool) or not isinstance(port, int) or not 1 <= port <= 65535:
+        raise ValueError(f"port: must be a UDP port 1..=65535, got {port!r}; or omit it for a free one")
+    # Binding without SO_REUSEPORT fails while any bus peer holds the port.
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        try:
+            sock.bind((BROADCAST_ADDR, port))
+        except OSError as err:
+            why = (
+                "is in use (another rig, drive or python-can logger is on it)"
+                if err.errno == errno.EADDRINUSE
+                else f"cannot be bound ({err.strerror})"
+            )
+            raise ValueError(f"port: {port} {why}; pick another port or omit it for a free one") from None
+    return port
+
+
+def write_readme(out: Path, files: dict[str, str], *, title: str) -> Path:
+    """``out/README.txt``: what the run was and one line per file it wrote."""
+    width = max(len(name) for name in files) if files else 0
+    lines = [
+        title,
+        f"written {datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M:%S')} UTC by sensaug; "
+        "other files in this folder are not from this run.",
+        "",
+        *(f"{name.ljust(width)}  {what}" for name, what in files.items()),
+    ]
+    path = Path(out) / "README.txt"
+    path.write_text("\n".join(lines) + "\n")
+    return path
 
 
 def start_drive(port: int, *, duration_s: float, extra: list[str] | None = None) -> subprocess.Popen:
@@ -90,51 +149,135 @@ def start_drive(port: int, *, duration_s: float, extra: list[str] | None = None)
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
+def stop_process(proc: subprocess.Popen, timeout_s: float = 10.0) -> int:
+    """SIGTERM, then SIGKILL after ``timeout_s``; the exit code."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    return proc.returncode
+
+
 def run_virtual_rig(
     config: ScenarioConfig | str | Path,
     *,
     out: str | Path = "out",
     port: int | None = None,
     timeout_s: float | None = None,
+    capture: str | None = "bus.log",
+    progress: bool | None = False,
 ) -> RigRun:
     """Runs one trial on the virtual rig and returns its log and statistics.
 
     ``config`` is a configuration or a TOML path; its ``[rig]`` table is used
-    except for the CAN URL (a free loopback port) and the output paths
-    (under ``out``).
+    except for the CAN URL (``port``, checked by :func:`bus_port`; default: a
+    free loopback port) and the output paths (under ``out``). ``capture`` is
+    the bus capture's file name in ``out`` (the suffix picks python-can's
+    writer: ``.log`` candump's log format, ``.blf``...); None records none.
+    ``out/README.txt`` lists what the run wrote. ``progress``: a tqdm bar of
+    the protocol's seconds on stderr (None: only on a terminal), drawn by
+    this launcher while it waits, never by the real-time process.
     """
     cfg = config if isinstance(config, ScenarioConfig) else ScenarioConfig.from_toml(config)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    port = port or _free_port()
+    port = bus_port(port)
     toml_path = out / "rig_config.toml"
     cfg.to_toml(toml_path)
     log_path, stats_path = out / "rig_log.csv", out / "rig_stats.json"
     binary = find_binary()
     budget = timeout_s or cfg.duration_s + 30.0
-    drive = start_drive(port, duration_s=budget + 5.0)
+    # The capture's socket is bound before the drive boots: every frame of
+    # the run is queued for it from here on.
+    recorder = BusCapture(port, out / capture).start() if capture else None
+    captured: Optional[CaptureStats] = None
+    drive: Optional[subprocess.Popen] = None
     try:
+        drive = start_drive(port, duration_s=budget + 5.0)
         time.sleep(0.5)
-        proc = subprocess.run(
-            [str(binary), str(toml_path), "--can", f"udp:{port}", "--log", str(log_path), "--stats", str(stats_path)],
-            capture_output=True,
-            text=True,
-            timeout=budget,
-        )
+        with _ElapsedBar(cfg.duration_s, progress):
+            proc = subprocess.run(
+                [str(binary), str(toml_path), "--can", f"udp:{port}", "--log", str(log_path), "--stats", str(stats_path)],
+                capture_output=True,
+                text=True,
+                timeout=budget,
+            )
     finally:
-        drive.send_signal(signal.SIGTERM)
-        try:
-            drive.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            drive.kill()
-            drive.wait()
+        if drive is not None:
+            stop_process(drive)
+        # Both processes have exited: drain what they sent, then close.
+        if recorder is not None:
+            captured = recorder.stop()
     if not stats_path.exists():
         raise RuntimeError(f"sensaug-rt failed (exit {proc.returncode}): {proc.stderr.strip()}")
-    return RigRun(
+    files = {
+        toml_path.name: "the configuration the run used, resolved (TOML; sensaug.ScenarioConfig.from_toml)",
+        log_path.name: "the controller's log, one row per tick (CSV; sensaug.load_log, docs/logs.md)",
+        stats_path.name: "sensaug-rt's statistics: stop reason, loop timing, CAN counters (JSON)",
+    }
+    if captured is not None:
+        lost = captured.dropped_kernel + captured.dropped_malformed
+        note = "" if captured.error is None and lost == 0 else f"; INCOMPLETE: {captured.error or f'{lost} frames lost'}"
+        files[captured.path.name] = (
+            f"every frame on the bus (port {port}), {captured.frames} frames, "
+            f"{capture_format(captured.path)}{note}"
+        )
+    run = RigRun(
         config=cfg,
         log=load_log(log_path),
         stats=json.loads(stats_path.read_text()),
         returncode=proc.returncode,
         drive_returncode=drive.returncode,
         stderr=proc.stderr,
+        port=port,
+        capture=captured,
+        files=files,
     )
+    run.write_readme(out)
+    return run
+
+
+class _ElapsedBar:
+    """A tqdm bar of wall-clock seconds against ``total_s``, ticked by a
+    thread of this (launcher) process while the run's subprocess works."""
+
+    def __init__(self, total_s: float, progress: bool | None) -> None:
+        import threading
+
+        from tqdm.auto import tqdm
+
+        self._bar = tqdm(total=round(total_s, 1), desc="rig", unit="s", leave=False,
+                         disable=None if progress is None else not progress,
+                         bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total:.1f} s")
+        self._done = threading.Event()
+        self._thread = threading.Thread(target=self._tick, daemon=True)
+
+    def _tick(self) -> None:
+        t0 = time.monotonic()
+        while not self._done.wait(0.25):
+            self._bar.n = min(round(time.monotonic() - t0, 1), self._bar.total)
+            self._bar.refresh()
+
+    def __enter__(self) -> "_ElapsedBar":
+        if not self._bar.disable:
+            self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._done.set()
+        if self._thread.is_alive():
+            self._thread.join()
+        self._bar.close()
+
+
+def capture_format(path: Path) -> str:
+    """One line naming the capture file's format and what reads it."""
+    suffix = path.suffix.lower()
+    if suffix == ".log":
+        return "candump -l log format (can.LogReader, canplayer, log2asc)"
+    if suffix == ".blf":
+        return "Vector BLF (can.LogReader)"
+    return f"python-can's {suffix} format (can.LogReader)"

@@ -13,6 +13,8 @@ summary, the candump capture) and checks
 * the fuzz run: neither process crashed, no torque beyond the limit, no
   record lost, every logged command on the bus.
 
+Reading the capture and matching it against the logs is ``sensaug.capture``
+(shared with the loopback rig's capture test, tests/test_capture.py).
 Writes OUT/summary.json and prints the numbers; exit 1 on any failed check.
 ``check.py --write-fuzz-config PATH`` writes the fuzz run's short
 configuration (configs/hi5_vcan.toml with 3 + 1 + 1 s phases).
@@ -25,7 +27,6 @@ import json
 import math
 import re
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
@@ -33,6 +34,7 @@ import cantools
 import numpy as np
 
 from sensaug import rig
+from sensaug.capture import Decoded, decode_all, match_commands, read_candump, subsequence
 from sensaug.config import ScenarioConfig
 
 REPO = Path(__file__).resolve().parents[2]
@@ -46,8 +48,6 @@ INJECTED_ERROR_FRAMES = 5
 #: of 600 lost gave [0.061, 0.024, 1.953] and [-0.081, 0.005, 2.045] against
 #: [0, 0, 2]. docs/socketcan.md.
 GAIN_TOL = 0.15
-
-CAN_EFF_FLAG, CAN_RTR_FLAG, CAN_ERR_FLAG = 0x80000000, 0x40000000, 0x20000000
 
 
 def write_fuzz_config(path: Path) -> None:
@@ -68,90 +68,6 @@ def drive_args(cfg: ScenarioConfig) -> str:
     p = cfg.plant
     return (f"--node {cfg.rig.node_id} --torque-limit {cfg.rig.torque_limit_nm!r} --mass {p.mass!r} "
             f"--damping {p.damping!r} --coulomb {p.coulomb!r} --dt {p.dt_s!r}")
-
-
-# -- the capture ------------------------------------------------------------------------
-
-
-@dataclass
-class Captured:
-    """One line of a candump -l log."""
-
-    t: float
-    can_id: int  # without flag bits
-    eff: bool
-    rtr: bool
-    err: bool
-    fd: bool
-    data: bytes
-
-
-_LINE = re.compile(r"^\((?P<t>[0-9.]+)\)\s+\S+\s+(?P<id>[0-9A-Fa-f]+)#(?P<rest>.*)$")
-
-
-def read_candump(path: Path) -> list[Captured]:
-    """Parse candump's log format: ``(t) if ID#DATA``, ``ID#R[len]``, ``ID##F DATA`` (FD)."""
-    frames = []
-    for line in path.read_text().splitlines():
-        m = _LINE.match(line.strip())
-        if m is None:
-            raise ValueError(f"{path}: not a candump log line: {line!r}")
-        raw_id = int(m["id"], 16)
-        rest = m["rest"]
-        eight = len(m["id"]) == 8
-        err = eight and bool(raw_id & CAN_ERR_FLAG)
-        eff = eight and not err
-        fd = rest.startswith("#")
-        rtr = rest.startswith("R")
-        if fd:
-            data = bytes.fromhex(rest[2:])  # one flags nibble, then the data
-        elif rtr:
-            data = b""
-        else:
-            data = bytes.fromhex(rest)
-        frames.append(Captured(float(m["t"]), raw_id & 0x1FFFFFFF, eff, rtr, err, fd, data))
-    return frames
-
-
-@dataclass
-class Decoded:
-    frame: Captured
-    name: str
-    sender: str
-    signals: dict[str, Any]
-
-
-def decode_all(frames: list[Captured], db: Any, node: int) -> tuple[list[Decoded], dict[str, int]]:
-    """Every classic data frame with a DBC id decoded by cantools; counts of the rest.
-
-    The DBC's ids are node 1's; node ``n`` uses ``id + n - 1``.
-    """
-    out: list[Decoded] = []
-    counts = {"error": 0, "eff": 0, "fd": 0, "rtr": 0, "unknown_id": 0, "undecodable": 0}
-    for f in frames:
-        if f.err:
-            counts["error"] += 1
-        elif f.fd:
-            counts["fd"] += 1
-        elif f.eff:
-            counts["eff"] += 1
-        elif f.rtr:
-            counts["rtr"] += 1
-        else:
-            try:
-                msg = db.get_message_by_frame_id(f.can_id - node + 1)
-            except KeyError:
-                counts["unknown_id"] += 1
-                continue
-            try:
-                signals = msg.decode(f.data, decode_choices=False) if msg.length else {}
-                if len(f.data) != msg.length:
-                    raise ValueError("length")
-            except Exception:  # noqa: BLE001 - cantools raises several types; all mean "not this message"
-                counts["undecodable"] += 1
-                continue
-            out.append(Decoded(f, msg.name, msg.senders[0], signals))
-    return out, counts
 
 
 # -- checks ---------------------------------------------------------------------------------
@@ -189,40 +105,6 @@ def drive_summary(stderr: Path) -> Optional[dict[str, Any]]:
         if line.startswith("sensaug-virtual-hi5: {"):
             return ast.literal_eval(line.split(": ", 1)[1])
     return None
-
-
-def match_commands(torque: list[Decoded], log: Any, scale: float) -> list[int]:
-    """In bus order, the index of the frame carrying each tick's command
-    (sequence ``k mod 256``, torque equal to the log's within half a raw step);
-    stops at the first tick with no such frame. Other frames (set-up,
-    shut-down, fuzz) are skipped."""
-    found: list[int] = []
-    j = 0
-    for k, t_nm in zip(log["tick"].astype(int), log["torque_nm"]):
-        while j < len(torque):
-            s = torque[j].signals
-            if s["sequence"] == k % 256 and abs(s["torque"] - t_nm) <= 0.5 * scale + 1e-12:
-                break
-            j += 1
-        if j == len(torque):
-            break
-        found.append(j)
-        j += 1
-    return found
-
-
-def subsequence(commands: list[Decoded], seq: list[int], torque: np.ndarray, tol: float) -> Optional[list[int]]:
-    """Indices of ``commands`` (in order) carrying these sequences and torques; None if they are not there."""
-    out: list[int] = []
-    j = 0
-    for sq, t in zip(seq, torque):
-        while j < len(commands) and not (commands[j].signals["sequence"] == sq and abs(commands[j].signals["torque"] - t) <= tol):
-            j += 1
-        if j == len(commands):
-            return None
-        out.append(j)
-        j += 1
-    return out
 
 
 def rad_per_unit(cfg: ScenarioConfig) -> float:

@@ -51,7 +51,10 @@ run() {
     note "${name}_drive_up_rc" $?
     note "${name}_drive_up" "$(stamp)"
     # Error frames during the run: the controller must count them, not stall.
-    (for i in 1 2 3 4 5; do sleep 1; cansend vcan0 20000004#0000000000000000; done) &
+    # Sent once its SetState (node 1: 0x301) shows its socket is open: under
+    # emulation on a loaded host it starts seconds after the drive is up.
+    (timeout 180 candump -n 1 vcan0,301:7FF > /dev/null
+     for i in 1 2 3 4 5; do sleep 0.2; cansend vcan0 20000004#0000000000000000; done) &
     local errs=$!
     local fz=
     if [ "$fuzz" = 1 ]; then
