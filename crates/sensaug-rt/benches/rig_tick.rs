@@ -14,12 +14,11 @@
 #[path = "../tests/common/drive.rs"]
 mod drive;
 
-use sensaug_bridge::protocol::NodeId;
 use sensaug_bridge::transport::UdpBus;
 use sensaug_config::{load_file, resolve};
 use sensaug_core::controller::Robot;
 use sensaug_core::protocol::Protocol;
-use sensaug_rt::control::{LoopSettings, Rig};
+use sensaug_rt::control::Rig;
 use sensaug_rt::log;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -40,17 +39,7 @@ fn main() {
     }
     let protocol = Protocol::new(&phases, resolved.dt_s).expect("valid protocol");
     let robot = Robot::new(resolved.robot, protocol).expect("valid robot");
-    let settings = LoopSettings {
-        node: NodeId::new(1).unwrap(),
-        dt_s: resolved.dt_s,
-        rad_per_unit: resolved.rad_per_unit,
-        torque_limit_nm: 3.0,
-        watchdog_ms: 50,
-        feedback_timeout_ms: 50.0,
-        ramp_down_s: 0.05,
-        partner_gains: resolved.partner.gains,
-        partner_torque_limit: 1e3,
-    };
+    let settings = drive::loop_settings(&resolved);
     if let Err(e) = sensaug_rt::os::minimal_timer_slack() {
         eprintln!("timer slack 1 ns not applied: {e}");
     }

@@ -3,12 +3,11 @@
 //! the feedback timeout, and its ticks allocate nothing (counting allocator,
 //! counted only on the loop's thread).
 
-use sensaug_bridge::protocol::NodeId;
 use sensaug_bridge::transport::UdpBus;
 use sensaug_config::{load_str, resolve, Format};
 use sensaug_core::controller::Robot;
 use sensaug_core::protocol::Protocol;
-use sensaug_rt::control::{LoopSettings, Rig, StopReason};
+use sensaug_rt::control::{Rig, StopReason};
 use sensaug_rt::log;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -62,17 +61,7 @@ fn run_loop(answer_for: u64, stop_after: Option<Duration>) -> Outcome {
     let handle = drive(port, Arc::clone(&drive_stop), answer_for);
     let protocol = Protocol::new(&resolved.phases, resolved.dt_s).unwrap();
     let robot = Robot::new(resolved.robot, protocol).unwrap();
-    let settings = LoopSettings {
-        node: NodeId::new(1).unwrap(),
-        dt_s: resolved.dt_s,
-        rad_per_unit: resolved.rad_per_unit,
-        torque_limit_nm: 3.0,
-        watchdog_ms: 50,
-        feedback_timeout_ms: 50.0,
-        ramp_down_s: 0.05,
-        partner_gains: resolved.partner.gains,
-        partner_torque_limit: 1e3,
-    };
+    let settings = drive::loop_settings(&resolved);
     let transport = Box::new(UdpBus::open(port).unwrap());
     let mut rig = Rig::start(settings, transport, robot, Duration::from_secs(5)).unwrap();
     let dir = std::env::temp_dir().join(format!("sensaug-rt-test-{port}"));

@@ -5,7 +5,9 @@
 use sensaug_bridge::protocol::{decode, encode, DriveState, FaultFlags, Message, NodeId};
 use sensaug_bridge::transport::UdpBus;
 use sensaug_bridge::Transport;
+use sensaug_config::Resolved;
 use sensaug_core::plant::{Plant, PlantParams};
+use sensaug_rt::control::LoopSettings;
 use std::net::UdpSocket;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -78,4 +80,20 @@ pub fn free_port() -> u16 {
         .local_addr()
         .unwrap()
         .port()
+}
+
+/// The loop's settings against this drive (node 1, 3 N m, 50 ms watchdog
+/// and feedback timeout, 50 ms ramp) for a resolved configuration.
+pub fn loop_settings(resolved: &Resolved<'_>) -> LoopSettings {
+    LoopSettings {
+        node: NodeId::new(1).unwrap(),
+        dt_s: resolved.dt_s,
+        rad_per_unit: resolved.rad_per_unit,
+        torque_limit_nm: 3.0,
+        watchdog_ms: 50,
+        feedback_timeout_ms: 50.0,
+        ramp_down_s: 0.05,
+        partner_gains: resolved.partner.gains,
+        partner_torque_limit: 1e3,
+    }
 }
