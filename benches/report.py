@@ -135,6 +135,8 @@ def main() -> None:
             if wname == name:
                 rows.append((name, impl, compare_oracles.per_call_ns(fn, args.peer_calls), None))
     tails = tick_tail()
+    trial = compare_oracles.sensaug_trial_per_tick_ns()
+    trial_peer = compare_oracles.numpy_filterpy_trial_per_tick_ns()
     rig = rig_tick()
     jitter = loop_jitter.compare(JITTER_S)
     load_after = load_average()
@@ -211,6 +213,22 @@ def main() -> None:
         )
     c = rig["compute"]
     lines += [
+        "",
+        "## Whole simulated trial from Python",
+        "",
+        f"`sensaug.run(presets.hi5_experiment(phase_s=20.0))`: a {trial['ticks']}-tick Hi5 trial (robot "
+        "with its estimators, virtual human estimating the robot, plant, noise, the log as numpy "
+        f"arrays), wall time per tick, median of {trial['repeats']} trials after a warm-up "
+        "(`benches/compare_oracles.py`, `sensaug_trial_per_tick_ns`). Peer: an independent numpy + "
+        "filterpy loop of the gain phase (plant, LQR robot, virtual human, noise, filterpy's stage-1 "
+        f"update and predict), median of {trial_peer['ticks']} individually timed ticks "
+        "(`numpy_filterpy_trial_per_tick_ns`).",
+        "",
+        "| implementation | per tick (us) | peer / sensaug |",
+        "|---|---:|---:|",
+        f"| sensaug.run | {us(trial['median_ns'])} | 1.0 |",
+        f"| numpy + filterpy loop (stage 1 only) | {us(trial_peer['median_ns'])} | "
+        f"{trial_peer['median_ns'] / trial['median_ns']:.0f} |",
         "",
         "## Rig tick on the loopback UDP bus",
         "",
