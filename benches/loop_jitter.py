@@ -9,8 +9,9 @@ absolute deadlines (clock_nanosleep, TIMER_ABSTIME), which is what the loop's
 estimators) after waking, reported separately as `compute`. Both run with
 the same settings, one after the other: 1 ms period, memory locked, pinned
 to the same CPU, and either the default scheduler (SCHED_OTHER) or
-SCHED_FIFO at the same priority. The loop's log writer is kept off that CPU
-and its stack pre-touched; the settings the OS granted are the loop's own
+SCHED_FIFO at the same priority. The virtual drive (and this script) are
+kept off that CPU, as is the loop's log writer, and the loop's stack is
+pre-touched; the settings the OS granted are the loop's own
 `realtime` notes, quoted in the table.
 """
 from __future__ import annotations
@@ -72,7 +73,17 @@ def sensaug_rt(seconds: float, policy: str, out: Path) -> dict:
     cfg.rig.realtime.cpu = CPU
     cfg.rig.realtime.mlockall = True
     cfg.rig.realtime.fifo_priority = FIFO_PRIORITY if policy == "SCHED_FIFO" else None
-    run = rig.run_virtual_rig(cfg, out=out)
+    # Everything this process starts (the virtual drive, sensaug-rt before
+    # it pins itself) inherits an affinity without the loop's CPU, so only
+    # the loop runs there, as only cyclictest's thread did.
+    before = os.sched_getaffinity(0)
+    others = before - {CPU}
+    if others:
+        os.sched_setaffinity(0, others)
+    try:
+        run = rig.run_virtual_rig(cfg, out=out)
+    finally:
+        os.sched_setaffinity(0, before)
     return run.stats
 
 
@@ -93,6 +104,7 @@ def compare(seconds: float, out: Path = Path("out/jitter")) -> list[dict]:
             "compute": {"p50": c["p50_us"], "p99": c["p99_us"], "p99.9": c["p999_us"], "max": c["max_us"]},
             "deadline_misses": stats["deadline_misses"],
             "ticks": stats["ticks"],
+            "stop_reason": stats["stop_reason"],
             "granted": stats["realtime"],
         })
     return rows
@@ -108,7 +120,8 @@ def main() -> None:
                          ("sensaug-rt wake-up latency", r["wake"]),
                          ("sensaug-rt tick compute", r["compute"])):
             print(f"{r['policy'] + ' ' + label:44s} {d['p50']:7.0f} {d['p99']:7.0f} {d['p99.9']:7.0f} {d['max']:7.0f}")
-        print(f"  deadline misses {r['deadline_misses']} of {r['ticks']}; settings: {'; '.join(r['granted'])}")
+        print(f"  stopped: {r['stop_reason']} after {r['ticks']} ticks; deadline misses {r['deadline_misses']}; "
+              f"settings: {'; '.join(r['granted'])}")
 
 
 if __name__ == "__main__":

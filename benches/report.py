@@ -251,7 +251,8 @@ def main() -> None:
         "",
         f"1 ms period, {JITTER_S:g} s each, one after the other in this run, per policy: cyclictest, "
         "then `sensaug-rt` on the virtual rig (`benches/loop_jitter.py`, `compare`), both "
-        f"pinned to cpu {loop_jitter.CPU} with memory locked; SCHED_FIFO at priority "
+        f"pinned to cpu {loop_jitter.CPU} with memory locked (the virtual drive and the loop's log "
+        "writer kept off that cpu); SCHED_FIFO at priority "
         f"{loop_jitter.FIFO_PRIORITY} for both, or the default scheduler for both. The loop's "
         "settings as the OS granted them (its `realtime` notes) are quoted. Latency in us "
         "(cyclictest's histogram has 1 us bins, the loop's too).",
@@ -270,8 +271,9 @@ def main() -> None:
                      f"{cpt['p99.9']:.0f} | {cpt['max']:.0f} | |")
     lines.append("")
     for r in jitter:
-        lines.append(f"* {r['policy']}: `{r['cyclictest_command']}`; sensaug-rt deadline misses "
-                     f"{r['deadline_misses']} of {r['ticks']}; settings granted: {'; '.join(r['granted'])}")
+        lines.append(f"* {r['policy']}: `{r['cyclictest_command']}`; sensaug-rt stopped: "
+                     f"{r['stop_reason']} after {r['ticks']} ticks, deadline misses {r['deadline_misses']}; "
+                     f"settings granted: {'; '.join(r['granted'])}")
     lines.append("")
     Path(args.out).write_text("\n".join(lines))
     print(f"wrote {args.out}")
