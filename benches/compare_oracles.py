@@ -99,6 +99,55 @@ def sensaug_step_python(dim_z: int) -> Callable[[], None]:
     return step
 
 
+def sensaug_trial_per_tick_ns(phase_s: float = 20.0, repeats: int = 5) -> dict[str, float]:
+    """A whole simulated Hi5 trial from Python (``sensaug.run`` on
+    ``presets.hi5_experiment``: three phases, robot with its estimators,
+    virtual human estimating the robot, plant, noise), per tick: the median
+    over ``repeats`` trials of wall time / ticks (after one warm-up trial)."""
+    from sensaug import presets
+
+    cfg = presets.hi5_experiment(phase_s=phase_s)
+    ticks = round(3 * phase_s / DT)
+    sensaug.run(cfg)
+    per_tick = []
+    for _ in range(repeats):
+        t0 = time.perf_counter_ns()
+        sensaug.run(cfg)
+        per_tick.append((time.perf_counter_ns() - t0) / ticks)
+    return {"ticks": ticks, "repeats": repeats, "median_ns": float(np.median(per_tick)),
+            "max_ns": float(max(per_tick))}
+
+
+def numpy_filterpy_trial_per_tick_ns(ticks: int = 2000) -> dict[str, float]:
+    """The peer of a trial: an independent numpy + filterpy loop of the gain
+    phase only (plant, LQR robot, virtual human, noise, filterpy's stage-1
+    update and predict per tick), median wall time per tick."""
+    rng = np.random.default_rng(0)
+    pts = MerweScaledSigmaPoints(6, alpha=1.0, beta=2.0, kappa=0.0)
+    f = UnscentedKalmanFilter(dim_x=6, dim_z=3, dt=DT, fx=fx, hx=lambda z: z[:3], points=pts)
+    f.x, f.P = np.zeros(6), P0.copy()
+    f.Q, f.R = 1e-2 * np.eye(6), 1e-7 * np.eye(3)
+    f.sigmas_f = pts.sigma_points(f.x, f.P)
+    k_pos, k_vel, lhh = 1.0, np.sqrt(2.0 * M), 2.0
+    x = v = 0.0
+    samples = np.empty(ticks)
+    clock = time.perf_counter_ns
+    for k in range(ticks):
+        t0 = clock()
+        t = k * DT
+        tau, tau_h = 8.0 * np.sin(2 * np.pi * t / 4.0), 8.0 * np.sin(2 * np.pi * t / 4.0)
+        dtau = 8.0 * np.sin(2 * np.pi * (t + DT) / 4.0) - tau
+        xm, vm = x + 3e-4 * rng.standard_normal(), v + 3e-4 * rng.standard_normal()
+        f.update(np.array([xm - tau, vm, xm - tau_h]))
+        u = -(k_pos * (xm - tau) + k_vel * vm)
+        u_h = -lhh * (xm - tau_h)
+        f.predict(u=u, dtau=dtau, dtau_h=dtau)
+        a = (u + u_h + 1e-3 * rng.standard_normal()) / M
+        x, v = x + DT * v + 0.5 * DT * DT * a, v + DT * a
+        samples[k] = clock() - t0
+    return {"ticks": ticks, "median_ns": float(np.median(samples)), "max_ns": float(samples.max())}
+
+
 def problems() -> dict[str, tuple]:
     """(A, B, Q, R) of the Riccati workloads, by workload name."""
     A2 = np.array([[0.0, 1.0], [0.0, -0.5]])

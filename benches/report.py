@@ -30,16 +30,25 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benches"))
 
 import compare_oracles  # noqa: E402
+import loop_jitter  # noqa: E402
 
 HARNESS = ROOT / "target" / "release" / "examples" / "perf_harness"
 BUILD = ["cargo", "build", "-q", "--profile", "bench", "--example", "perf_harness", "-p", "sensaug-core"]
 RUST_CALLS = 20_000
 COUNT_CALLS = (200, 1200)
 
-# The whole robot tick (sense -> three estimators -> control -> record) goes
-# here once the scenario code has moved: add its workload to workloads/mod.rs
-# and its name to this list; it is then timed and counted like the others.
-TICK_WORKLOADS: list[str] = []
+# The robot's tick in each phase (`TICK_WORKLOADS` in workloads/mod.rs) is
+# timed and counted like the other workloads; its tail over 1e6 individually
+# timed ticks per phase, and the allocations of those ticks, come from this
+# bench binary.
+TAIL = ["cargo", "bench", "-q", "-p", "sensaug-core", "--bench", "tick_tail", "--"]
+TAIL_TICKS = 1_000_000
+# The rig tick (drain the feedback, tick, send, log) on the loopback UDP bus:
+# the real loop against an in-process drive, 3 s per phase.
+RIG = ["cargo", "bench", "-q", "-p", "sensaug-rt", "--bench", "rig_tick", "--"]
+RIG_PHASE_S = 3.0
+# Seconds of cyclictest and of the loop, per scheduling policy.
+JITTER_S = 10.0
 
 
 def run(cmd: list[str], **kw) -> subprocess.CompletedProcess:
@@ -91,6 +100,16 @@ def instructions(name: str) -> float | None:
     return (totals[1] - totals[0]) / (COUNT_CALLS[1] - COUNT_CALLS[0])
 
 
+def tick_tail() -> list[dict]:
+    out = run(TAIL + [str(TAIL_TICKS), "--json"]).stdout
+    return [json.loads(line) for line in out.splitlines() if line.startswith("{")]
+
+
+def rig_tick() -> dict:
+    out = run(RIG + [str(RIG_PHASE_S)]).stdout
+    return json.loads(next(line for line in out.splitlines() if line.startswith("{")))
+
+
 def us(ns: float) -> str:
     return f"{ns / 1e3:.2f}"
 
@@ -115,6 +134,11 @@ def main() -> None:
         for wname, impl, fn in peers:
             if wname == name:
                 rows.append((name, impl, compare_oracles.per_call_ns(fn, args.peer_calls), None))
+    tails = tick_tail()
+    trial = compare_oracles.sensaug_trial_per_tick_ns()
+    trial_peer = compare_oracles.numpy_filterpy_trial_per_tick_ns()
+    rig = rig_tick()
+    jitter = loop_jitter.compare(JITTER_S)
     load_after = load_average()
     m = machine()
 
@@ -167,13 +191,90 @@ def main() -> None:
             lines.append(f"| {name} | {count:.0f} |" if count is not None else f"| {name} | n/a (no valgrind) |")
     lines += [
         "",
-        "## Robot tick",
+        "## Robot tick: the tail",
         "",
-        "Not measured here yet: the whole-tick workload waits for the scenario code to move "
-        "(`TICK_WORKLOADS` in `benches/report.py`). `cargo bench -p sensaug-core --bench numerics` "
-        "still has the criterion robot-tick benches.",
+        "The robot's whole tick (the phase's estimators, the command, the prediction) in each phase "
+        "of the Hi5 protocol (10 s phases, target-view noise 1.0 in the integration phase), in "
+        "steady state: measurements from a simulated trial of the same robot, the robot brought "
+        "to the phase's first tick before timing, ticks wrapping round within the phase. Each "
+        "tick timed on its own; allocations counted by a counting global allocator over the "
+        "timed ticks. Medians and instruction counts of the same workloads are in the tables "
+        "above (`robot_tick/*`).",
         "",
+        f"Command: `{' '.join(TAIL)} {TAIL_TICKS} --json` (without `--json`: a histogram).",
+        "",
+        "| phase | ticks | p50 (us) | p99 (us) | p99.9 (us) | max (us) | allocations |",
+        "|---|---:|---:|---:|---:|---:|---:|",
     ]
+    for t in tails:
+        lines.append(
+            f"| {t['name']} | {t['ticks']} | {us(t['p50_ns'])} | {us(t['p99_ns'])} | "
+            f"{us(t['p999_ns'])} | {us(t['max_ns'])} | {t['allocations']} |"
+        )
+    c = rig["compute"]
+    lines += [
+        "",
+        "## Whole simulated trial from Python",
+        "",
+        f"`sensaug.run(presets.hi5_experiment(phase_s=20.0))`: a {trial['ticks']}-tick Hi5 trial (robot "
+        "with its estimators, virtual human estimating the robot, plant, noise, the log as numpy "
+        f"arrays), wall time per tick, median of {trial['repeats']} trials after a warm-up "
+        "(`benches/compare_oracles.py`, `sensaug_trial_per_tick_ns`). Peer: an independent numpy + "
+        "filterpy loop of the gain phase (plant, LQR robot, virtual human, noise, filterpy's stage-1 "
+        f"update and predict), median of {trial_peer['ticks']} individually timed ticks "
+        "(`numpy_filterpy_trial_per_tick_ns`).",
+        "",
+        "| implementation | per tick (us) | peer / sensaug |",
+        "|---|---:|---:|",
+        f"| sensaug.run | {us(trial['median_ns'])} | 1.0 |",
+        f"| numpy + filterpy loop (stage 1 only) | {us(trial_peer['median_ns'])} | "
+        f"{trial_peer['median_ns'] / trial['median_ns']:.0f} |",
+        "",
+        "## Rig tick on the loopback UDP bus",
+        "",
+        "The real loop (`Rig::run`: wake, drain the received frames, the robot's tick and the "
+        "virtual human, one torque command, the log record) against the minimal in-process drive "
+        f"of the tests, through the Hi5 rig protocol with {RIG_PHASE_S:g} s phases; ordinary "
+        "thread (SCHED_OTHER, not pinned). `compute` = wake-up to the log push, the loop's own "
+        "1 us-bin histogram (bin upper edges). The bus costs at least three system calls per "
+        "tick (a `recvmmsg` that takes the feedback and the own command's echo, one that finds "
+        "the socket empty, one `send`).",
+        "",
+        f"Command: `{' '.join(RIG)} {RIG_PHASE_S:g}`.",
+        "",
+        "| ticks | compute p50 (us) | p99 (us) | p99.9 (us) | max (us) | feedback missing | deadline misses |",
+        "|---:|---:|---:|---:|---:|---:|---:|",
+        f"| {rig['ticks']} | {c['p50_us']:.0f} | {c['p99_us']:.0f} | {c['p999_us']:.0f} | "
+        f"{c['max_us']:.0f} | {rig['can']['missing_feedback']} | {rig['deadline_misses']} |",
+        "",
+        "## Loop wake-up latency against cyclictest",
+        "",
+        f"1 ms period, {JITTER_S:g} s each, one after the other in this run, per policy: cyclictest, "
+        "then `sensaug-rt` on the virtual rig (`benches/loop_jitter.py`, `compare`), both "
+        f"pinned to cpu {loop_jitter.CPU} with memory locked (the virtual drive and the loop's log "
+        "writer kept off that cpu); SCHED_FIFO at priority "
+        f"{loop_jitter.FIFO_PRIORITY} for both, or the default scheduler for both. The loop's "
+        "settings as the OS granted them (its `realtime` notes) are quoted. Latency in us "
+        "(cyclictest's histogram has 1 us bins, the loop's too).",
+        "",
+        "| policy | what | p50 | p99 | p99.9 | max | loop / cyclictest at p99, p99.9 |",
+        "|---|---|---:|---:|---:|---:|---:|",
+    ]
+    for r in jitter:
+        b, w, cpt = r["cyclictest"], r["wake"], r["compute"]
+        lines.append(f"| {r['policy']} | cyclictest wake-up | {b['p50']:.0f} | {b['p99']:.0f} | "
+                     f"{b['p99.9']:.0f} | {b['max']:.0f} | |")
+        ratio = f"{w['p99'] / max(b['p99'], 1):.2f}, {w['p99.9'] / max(b['p99.9'], 1):.2f}"
+        lines.append(f"| {r['policy']} | sensaug-rt wake-up | {w['p50']:.0f} | {w['p99']:.0f} | "
+                     f"{w['p99.9']:.0f} | {w['max']:.0f} | {ratio} |")
+        lines.append(f"| {r['policy']} | sensaug-rt tick compute | {cpt['p50']:.0f} | {cpt['p99']:.0f} | "
+                     f"{cpt['p99.9']:.0f} | {cpt['max']:.0f} | |")
+    lines.append("")
+    for r in jitter:
+        lines.append(f"* {r['policy']}: `{r['cyclictest_command']}`; sensaug-rt stopped: "
+                     f"{r['stop_reason']} after {r['ticks']} ticks, deadline misses {r['deadline_misses']}; "
+                     f"settings granted: {'; '.join(r['granted'])}")
+    lines.append("")
     Path(args.out).write_text("\n".join(lines))
     print(f"wrote {args.out}")
 

@@ -252,6 +252,7 @@ pub fn merwe_weights<const S: usize>(
 /// `a_ij = c P_ji - sum_{k<j} L_jk L_ik`, `L_jj = sqrt(a_jj)`,
 /// `L_ij = a_ij / L_jj`. Written out so the tick needs no transpose, no
 /// copy of `c P` and no second pass for the finiteness of the factor.
+#[inline(always)]
 pub fn scaled_cholesky<const N: usize>(
     P: &SMatrix<f64, N, N>,
     c: f64,
@@ -483,6 +484,7 @@ enum Posterior {
 /// `chi_f,i = f(chi_i)` for the sigma points of `(x, L)` (`sigma_points`),
 /// formed one at a time: `chi_0 = x`, `chi_{1+k} = x + L e_k`,
 /// `chi_{1+N+k} = x - L e_k`. `None` if any output is not finite.
+#[inline(always)]
 fn propagate<const N: usize, const R: usize, const S: usize>(
     x: &SVector<f64, N>,
     L: &SMatrix<f64, N, N>,
@@ -663,6 +665,7 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
     /// repairing `P` in place if needed: plain factorisation; else
     /// re-symmetrise `P` and retry; else `P <- P_reset` (whose factor was
     /// computed at set-up, so this cannot fail).
+    #[inline(always)]
     fn factor(
         &self,
         P: &mut SMatrix<f64, N, N>,
@@ -803,6 +806,7 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
 
     /// The end of a predict: filterpy's re-draw of the sigma points from
     /// `(x-, P-)` (repairing `P-` if needed), then commit.
+    #[inline(always)]
     fn commit_prior(
         &mut self,
         x_prior: SVector<f64, N>,

@@ -186,6 +186,9 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, RunError> {
     let log_path = PathBuf::from(&rig.log);
     let stats_path = PathBuf::from(&rig.stats);
     let meta = log_metadata(&resolved, &settings);
+    // The log writer thread inherits this thread's affinity: keep it off
+    // the loop's CPU (the loop pins itself to it below).
+    let writer_off_cpu = rig.realtime.cpu.map(|cpu| os::avoid_cpu(cpu as usize));
     // Both outputs exist (as `.partial`) before the drive is enabled.
     let (mut sink, writer) =
         log::start(&log_path, rig.ring_capacity as usize, &meta).map_err(|e| {
@@ -217,8 +220,16 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, RunError> {
         }
     };
     note("timer slack 1 ns", os::minimal_timer_slack(), &mut realtime);
+    if let Some(r) = writer_off_cpu {
+        note("log writer off the loop's cpu", r, &mut realtime);
+    }
     if rig.realtime.mlockall {
         note("mlockall", os::lock_memory(), &mut realtime);
+        os::prefault_stack();
+        realtime.push(format!(
+            "stack pre-touched: {} KiB",
+            os::PREFAULT_STACK_BYTES / 1024
+        ));
     }
     if let Some(cpu) = rig.realtime.cpu {
         note(

@@ -106,3 +106,52 @@ pub fn ignore_file_size_signal() -> io::Result<()> {
     }
     Ok(())
 }
+
+/// Keeps the calling thread off `cpu`: its affinity becomes every CPU it may
+/// use except `cpu` (threads it spawns afterwards inherit this, so the log
+/// writer stays off the loop's CPU). An error if no other CPU is left.
+pub fn avoid_cpu(cpu: usize) -> io::Result<()> {
+    if cpu >= libc::CPU_SETSIZE as usize {
+        return Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            "cpu out of range",
+        ));
+    }
+    // SAFETY: a zeroed cpu_set_t is a valid empty set; the get call fills it
+    // (size passed is its own); CPU_CLR/CPU_COUNT stay in bounds (checked above).
+    let rc = unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        let size = std::mem::size_of::<libc::cpu_set_t>();
+        if libc::sched_getaffinity(0, size, &mut set) != 0 {
+            return Err(io::Error::last_os_error());
+        }
+        libc::CPU_CLR(cpu, &mut set);
+        if libc::CPU_COUNT(&set) == 0 {
+            return Err(io::Error::new(
+                io::ErrorKind::InvalidInput,
+                "no CPU left besides the loop's",
+            ));
+        }
+        libc::sched_setaffinity(0, size, &set)
+    };
+    if rc == 0 {
+        Ok(())
+    } else {
+        Err(io::Error::last_os_error())
+    }
+}
+
+/// Stack the loop may use, touched once before it starts.
+pub const PREFAULT_STACK_BYTES: usize = 256 * 1024;
+
+/// Touches [`PREFAULT_STACK_BYTES`] of the calling thread's stack, so that
+/// (with `mlockall(MCL_FUTURE)`) those pages are resident before the loop and
+/// its first deep calls take no page fault.
+pub fn prefault_stack() {
+    let mut block = [0u8; PREFAULT_STACK_BYTES];
+    // One write per 4 KiB page, kept by black_box.
+    for b in block.iter_mut().step_by(4096) {
+        *b = 1;
+    }
+    std::hint::black_box(&mut block);
+}

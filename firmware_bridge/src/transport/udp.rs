@@ -47,6 +47,43 @@ pub struct UdpBus {
     stats: BusStats,
     /// The last `SO_RXQ_OVFL` value (the kernel's wrapping u32 count).
     kernel_drops_seen: u32,
+    /// Datagrams received by the last `recvmmsg` and not yet looked at.
+    batch: Batch,
+}
+
+/// Datagrams taken from the receive socket per `recvmmsg(2)`: a tick's
+/// drain (the drive's feedback, this peer's own command coming back, the
+/// odd heartbeat) fits in one call.
+pub const RECV_BATCH: usize = 16;
+
+/// One datagram's slot: one byte more than a frame, so oversized datagrams
+/// show as such.
+type Slot = [u8; WIRE_SIZE + 1];
+
+/// The datagrams of one `recvmmsg`, consumed in order by `recv`. Fixed-size,
+/// filled in place: receiving allocates nothing.
+#[derive(Debug)]
+struct Batch {
+    data: [Slot; RECV_BATCH],
+    len: [usize; RECV_BATCH],
+    src: [SocketAddr; RECV_BATCH],
+    /// Datagrams in the batch.
+    filled: usize,
+    /// The next one to look at.
+    next: usize,
+}
+
+impl Batch {
+    fn new() -> Self {
+        let nowhere = SocketAddr::V4(SocketAddrV4::new(Ipv4Addr::UNSPECIFIED, 0));
+        Batch {
+            data: [[0; WIRE_SIZE + 1]; RECV_BATCH],
+            len: [0; RECV_BATCH],
+            src: [nowhere; RECV_BATCH],
+            filled: 0,
+            next: 0,
+        }
+    }
 }
 
 impl UdpBus {
@@ -87,6 +124,10 @@ impl UdpBus {
         let any_local = SocketAddr::V4(SocketAddrV4::new(Ipv4Addr::LOCALHOST, 0));
         tx.bind(&any_local.into())
             .map_err(open_err("bind 127.0.0.1:0"))?;
+        // Connected once here, so a send does no per-call address or route
+        // look-up.
+        tx.connect(&dest.into())
+            .map_err(open_err("connect 127.255.255.255"))?;
         let tx: UdpSocket = tx.into();
         let own = tx.local_addr().map_err(open_err("getsockname (send)"))?;
 
@@ -97,6 +138,7 @@ impl UdpBus {
             dest,
             stats: BusStats::default(),
             kernel_drops_seen: 0,
+            batch: Batch::new(),
         })
     }
 
@@ -116,16 +158,41 @@ impl UdpBus {
         socket2::SockRef::from(&self.rx).recv_buffer_size()
     }
 
-    /// One datagram from the receive socket without blocking: its length
-    /// and source; folds the `SO_RXQ_OVFL` count into the statistics.
-    fn recv_datagram(&mut self, buf: &mut [u8]) -> io::Result<(usize, SocketAddr)> {
-        let (n, src, drops) = recvmsg_with_drops(self.rx.as_raw_fd(), buf)?;
-        if let Some(drops) = drops {
-            let new = drops.wrapping_sub(self.kernel_drops_seen);
+    /// Refill the batch with the datagrams waiting on the receive socket
+    /// (up to [`RECV_BATCH`], one `recvmmsg` without blocking); folds the
+    /// `SO_RXQ_OVFL` counts into the statistics. `Ok(0)`: nothing waiting.
+    fn refill(&mut self) -> io::Result<usize> {
+        let mut drops = [None; RECV_BATCH];
+        let n = recvmmsg_with_drops(self.rx.as_raw_fd(), &mut self.batch, &mut drops)?;
+        for d in drops[..n].iter().flatten() {
+            let new = d.wrapping_sub(self.kernel_drops_seen);
             self.stats.kernel_dropped += u64::from(new);
-            self.kernel_drops_seen = drops;
+            self.kernel_drops_seen = *d;
         }
-        Ok((n, src))
+        Ok(n)
+    }
+
+    /// The next valid frame from another peer among the batched datagrams;
+    /// own frames and malformed datagrams on the way are counted and
+    /// skipped. `None` once the batch is used up.
+    fn next_batched(&mut self) -> Option<Frame> {
+        let b = &mut self.batch;
+        while b.next < b.filled {
+            let i = b.next;
+            b.next += 1;
+            if b.src[i] == self.own {
+                self.stats.own_dropped += 1;
+                continue;
+            }
+            match Frame::from_wire(&b.data[i][..b.len[i]]) {
+                Ok(frame) => {
+                    self.stats.received += 1;
+                    return Some(frame);
+                }
+                Err(_) => self.stats.malformed_dropped += 1,
+            }
+        }
+        None
     }
 }
 
@@ -162,63 +229,95 @@ fn set_int_option(fd: RawFd, name: libc::c_int, value: libc::c_int) -> io::Resul
 /// Control-message buffer for one `SO_RXQ_OVFL` (a u32), aligned for
 /// `cmsghdr`.
 #[repr(C, align(8))]
+#[derive(Clone, Copy)]
 struct CmsgBuf([u8; 64]);
 
-/// `recvmsg(2)` of one IPv4 datagram without blocking: length, source, and
-/// the socket's `SO_RXQ_OVFL` drop count if the kernel attached it.
-/// Allocation-free.
-fn recvmsg_with_drops(fd: RawFd, buf: &mut [u8]) -> io::Result<(usize, SocketAddr, Option<u32>)> {
-    // SAFETY: sockaddr_in and msghdr are plain C structs for which all-zero
-    // bytes are a valid value.
-    let mut addr: libc::sockaddr_in = unsafe { core::mem::zeroed() };
-    let mut iov = libc::iovec {
-        iov_base: buf.as_mut_ptr().cast(),
-        iov_len: buf.len(),
-    };
-    let mut control = CmsgBuf([0; 64]);
+/// `recvmmsg(2)` of up to [`RECV_BATCH`] IPv4 datagrams without blocking,
+/// into `batch` (from its start; `filled` set, `next` reset): the count, and
+/// each datagram's `SO_RXQ_OVFL` drop count if the kernel attached one.
+/// Allocation-free: every buffer is on the stack or in `batch`.
+fn recvmmsg_with_drops(
+    fd: RawFd,
+    batch: &mut Batch,
+    drops: &mut [Option<u32>; RECV_BATCH],
+) -> io::Result<usize> {
+    // SAFETY: sockaddr_in, iovec and mmsghdr are plain C structs for which
+    // all-zero bytes are a valid value.
+    let mut addr: [libc::sockaddr_in; RECV_BATCH] = unsafe { core::mem::zeroed() };
     // SAFETY: as above.
-    let mut msg: libc::msghdr = unsafe { core::mem::zeroed() };
-    msg.msg_name = (&mut addr as *mut libc::sockaddr_in).cast();
-    msg.msg_namelen = core::mem::size_of::<libc::sockaddr_in>() as libc::socklen_t;
-    msg.msg_iov = &mut iov;
-    msg.msg_iovlen = 1;
-    msg.msg_control = control.0.as_mut_ptr().cast();
-    msg.msg_controllen = control.0.len() as _;
-    // SAFETY: every pointer in `msg` (name, one iovec over `buf`, control)
-    // points to live, writable memory of the stated length for the call.
-    let n = unsafe { libc::recvmsg(fd, &mut msg, libc::MSG_DONTWAIT) };
+    let mut iov: [libc::iovec; RECV_BATCH] = unsafe { core::mem::zeroed() };
+    let mut control = [CmsgBuf([0; 64]); RECV_BATCH];
+    // SAFETY: as above.
+    let mut msgs: [libc::mmsghdr; RECV_BATCH] = unsafe { core::mem::zeroed() };
+    for i in 0..RECV_BATCH {
+        iov[i] = libc::iovec {
+            iov_base: batch.data[i].as_mut_ptr().cast(),
+            iov_len: batch.data[i].len(),
+        };
+        let h = &mut msgs[i].msg_hdr;
+        h.msg_name = (&mut addr[i] as *mut libc::sockaddr_in).cast();
+        h.msg_namelen = core::mem::size_of::<libc::sockaddr_in>() as libc::socklen_t;
+        h.msg_iov = &mut iov[i];
+        h.msg_iovlen = 1;
+        h.msg_control = control[i].0.as_mut_ptr().cast();
+        h.msg_controllen = control[i].0.len() as _;
+    }
+    batch.filled = 0;
+    batch.next = 0;
+    // SAFETY: every pointer in `msgs` (name, one iovec over a slot of
+    // `batch.data`, control) points to live, writable memory of the stated
+    // length for the call; `vlen` is the array's length; no timeout.
+    let n = unsafe {
+        libc::recvmmsg(
+            fd,
+            msgs.as_mut_ptr(),
+            RECV_BATCH as libc::c_uint,
+            libc::MSG_DONTWAIT,
+            core::ptr::null_mut(),
+        )
+    };
     if n < 0 {
         return Err(io::Error::last_os_error());
     }
-    let mut drops = None;
-    // SAFETY: `msg` was filled by recvmsg; CMSG_FIRSTHDR/CMSG_NXTHDR stay
-    // within `msg_control[..msg_controllen]` and return null at its end.
-    let mut cmsg = unsafe { libc::CMSG_FIRSTHDR(&msg) };
-    while !cmsg.is_null() {
-        // SAFETY: `cmsg` is non-null and points into `control` (above).
-        let hdr = unsafe { &*cmsg };
-        if hdr.cmsg_level == libc::SOL_SOCKET && hdr.cmsg_type == libc::SO_RXQ_OVFL {
-            // SAFETY: an SO_RXQ_OVFL message carries one u32 (possibly
-            // unaligned) right after its header, inside `control`.
-            drops = Some(unsafe { core::ptr::read_unaligned(libc::CMSG_DATA(cmsg).cast::<u32>()) });
+    // Fits: 0 <= n <= RECV_BATCH.
+    let n = n as usize;
+    for i in 0..n {
+        let msg = &msgs[i].msg_hdr;
+        drops[i] = None;
+        // SAFETY: `msg` was filled by recvmmsg; CMSG_FIRSTHDR/CMSG_NXTHDR
+        // stay within `msg_control[..msg_controllen]` and return null at
+        // its end.
+        let mut cmsg = unsafe { libc::CMSG_FIRSTHDR(msg) };
+        while !cmsg.is_null() {
+            // SAFETY: `cmsg` is non-null and points into `control[i]`.
+            let hdr = unsafe { &*cmsg };
+            if hdr.cmsg_level == libc::SOL_SOCKET && hdr.cmsg_type == libc::SO_RXQ_OVFL {
+                // SAFETY: an SO_RXQ_OVFL message carries one u32 (possibly
+                // unaligned) right after its header, inside `control[i]`.
+                drops[i] =
+                    Some(unsafe { core::ptr::read_unaligned(libc::CMSG_DATA(cmsg).cast::<u32>()) });
+            }
+            // SAFETY: as for CMSG_FIRSTHDR.
+            cmsg = unsafe { libc::CMSG_NXTHDR(msg, cmsg) };
         }
-        // SAFETY: as for CMSG_FIRSTHDR.
-        cmsg = unsafe { libc::CMSG_NXTHDR(&msg, cmsg) };
+        let ip = Ipv4Addr::from(u32::from_be(addr[i].sin_addr.s_addr));
+        batch.src[i] = SocketAddr::V4(SocketAddrV4::new(ip, u16::from_be(addr[i].sin_port)));
+        // At most the slot's length: the kernel truncates longer datagrams.
+        batch.len[i] = (msgs[i].msg_len as usize).min(batch.data[i].len());
     }
-    let ip = Ipv4Addr::from(u32::from_be(addr.sin_addr.s_addr));
-    let src = SocketAddr::V4(SocketAddrV4::new(ip, u16::from_be(addr.sin_port)));
-    // Fits: n >= 0 checked above.
-    Ok((n as usize, src, drops))
+    batch.filled = n;
+    Ok(n)
 }
 
 impl Transport for UdpBus {
-    /// One `send_to` of the 16-byte wire frame; no allocation.
+    /// One `send` of the 16-byte wire frame on the connected send socket;
+    /// no allocation.
     fn send(&mut self, frame: &Frame) -> Result<(), TransportError> {
         frame.validate().map_err(TransportError::InvalidFrame)?;
         let wire = frame.to_wire();
         let n = self
             .tx
-            .send_to(&wire, self.dest)
+            .send(&wire)
             .map_err(|source| TransportError::Io { op: "send", source })?;
         if n != WIRE_SIZE {
             return Err(TransportError::Io {
@@ -230,32 +329,25 @@ impl Transport for UdpBus {
         Ok(())
     }
 
-    /// Drain the receive socket until another peer's valid frame turns up;
-    /// sleep in `ppoll` while it is empty, until `timeout` has passed. Own
+    /// Drain the receive socket until another peer's valid frame turns up,
+    /// [`RECV_BATCH`] datagrams per system call (`recvmmsg`; the rest wait in
+    /// the batch for the next call); sleep in `ppoll` while it is empty,
+    /// until `timeout` has passed. Own
     /// frames and malformed datagrams are counted and skipped; so are the
     /// kernel's drops (`SO_RXQ_OVFL`). Every classic frame is returned:
     /// standard or extended, data, remote or error.
     fn recv(&mut self, timeout: Duration) -> Result<Option<Frame>, TransportError> {
         let deadline = deadline_after(timeout);
-        // One byte more than a frame, so oversized datagrams show as such.
-        let mut buf = [0u8; WIRE_SIZE + 1];
         loop {
-            match self.recv_datagram(&mut buf) {
-                Ok((n, src)) => {
-                    if src == self.own {
-                        self.stats.own_dropped += 1;
-                        continue;
-                    }
-                    match Frame::from_wire(&buf[..n]) {
-                        Ok(frame) => {
-                            self.stats.received += 1;
-                            return Ok(Some(frame));
-                        }
-                        Err(_) => self.stats.malformed_dropped += 1,
-                    }
-                }
+            if let Some(frame) = self.next_batched() {
+                return Ok(Some(frame));
+            }
+            match self.refill() {
+                Ok(0) => {}
+                Ok(_) => continue,
                 Err(e) if e.kind() == io::ErrorKind::WouldBlock => {
-                    if !wait_readable(self.rx.as_raw_fd(), deadline)? {
+                    // A zero timeout only looks: no poll after the look.
+                    if timeout.is_zero() || !wait_readable(self.rx.as_raw_fd(), deadline)? {
                         return Ok(None);
                     }
                 }

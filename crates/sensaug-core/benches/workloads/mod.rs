@@ -5,12 +5,18 @@
 //! scipy on the same problems (same matrices, same measurements).
 #![allow(dead_code)]
 
+#[path = "../../tests/common/mod.rs"]
+mod common;
+
 use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector3};
+use sensaug_core::controller::Robot;
 use sensaug_core::estimator::{
     ExtendedFilterConfig, GainEstimator, HandleModel, TrajectoryEstimator,
 };
+use sensaug_core::protocol::Protocol;
 use sensaug_core::riccati::{care, dare};
 use sensaug_core::ukf::MerweParams;
+use sensaug_core::world::{Scenario, TickRecord};
 use std::hint::black_box;
 
 /// One benchmarked call, repeated by the runners.
@@ -137,9 +143,81 @@ pub fn dare_3() -> Call {
     })
 }
 
+/// Length of each phase of the robot-tick workloads (s): longer than the
+/// 8 s gain window, so the gain phase's steady state includes it.
+pub const TICK_PHASE_S: f64 = 10.0;
+
+/// The robot's tick in one phase of the Hi5 protocol (0 gains, 1 trajectory,
+/// 2 integration, target-view noise 1.0), in steady state: the measurements
+/// are those of a simulated trial with the same robot (`Scenario`, recorded
+/// at set-up), the robot is brought to the phase's first tick outside the
+/// timed region, and each call is one tick of that phase, wrapping round to
+/// the phase's first tick at its end (the phase index does not change, so no
+/// hand-off or restart happens in the timed calls). Until the first wrap the
+/// robot reproduces the simulated trial's estimates exactly.
+fn robot_tick(phase: usize) -> Call {
+    let phases = common::phases(TICK_PHASE_S, 1.0);
+    let mut scenario = Scenario::new(
+        &phases,
+        common::robot(),
+        common::partner(2.0),
+        common::world(3),
+    )
+    .expect("valid scenario");
+    let mut records = vec![TickRecord::default(); scenario.ticks()];
+    scenario.run(&mut records).expect("simulated trial");
+    let protocol = Protocol::new(&phases, common::DT).expect("valid protocol");
+    let mut robot = Robot::new(common::robot(), protocol).expect("valid robot");
+    let phase_ticks = (TICK_PHASE_S / common::DT).round() as u64;
+    let (start, end) = (phase as u64 * phase_ticks, (phase as u64 + 1) * phase_ticks);
+    for (k, r) in records.iter().enumerate().take(start as usize) {
+        robot.tick(k as u64, r.x_meas, r.v_meas);
+    }
+    let measured: Vec<(f64, f64)> = records[start as usize..end as usize]
+        .iter()
+        .map(|r| (r.x_meas, r.v_meas))
+        .collect();
+    let samples: Vec<_> = (start..end)
+        .map(|k| protocol.sample(k).expect("tick inside the protocol"))
+        .collect();
+    assert!(samples.iter().all(|s| s.index == phase));
+    let mut i = 0usize;
+    Box::new(move || {
+        let out = robot.tick_at(black_box(&samples[i]), Some(measured[i]));
+        black_box(out);
+        i += 1;
+        if i == samples.len() {
+            i = 0;
+        }
+    })
+}
+
+/// The gain phase's tick (stage 1 and its window, LQR command).
+pub fn robot_tick_gains() -> Call {
+    robot_tick(0)
+}
+
+/// The trajectory phase's tick (stage 2).
+pub fn robot_tick_trajectory() -> Call {
+    robot_tick(1)
+}
+
+/// The integration phase's tick (stage 2, both stage-3 filters, noisy
+/// target view).
+pub fn robot_tick_integration() -> Call {
+    robot_tick(2)
+}
+
+/// The robot-tick workloads, one per phase.
+pub const TICK_WORKLOADS: [Workload; 3] = [
+    ("robot_tick/gains_phase", robot_tick_gains),
+    ("robot_tick/trajectory_phase", robot_tick_trajectory),
+    ("robot_tick/integration_phase", robot_tick_integration),
+];
+
 /// Every workload by name (the names of the criterion benches and of the
 /// rows of `BENCHMARKS.md`).
-pub fn all() -> [Workload; 6] {
+pub fn all() -> [Workload; 9] {
     [
         ("ukf_step/6_states_3_measurements", ukf_step_3),
         ("ukf_step/6_states_5_measurements", ukf_step_5),
@@ -147,5 +225,8 @@ pub fn all() -> [Workload; 6] {
         ("care/3_states", care_3),
         ("dare/2_states", dare_2),
         ("dare/3_states", dare_3),
+        TICK_WORKLOADS[0],
+        TICK_WORKLOADS[1],
+        TICK_WORKLOADS[2],
     ]
 }

@@ -1,0 +1,71 @@
+//! The rig's tick compute on the loopback UDP bus: the real loop
+//! (`Rig::run`: drain the feedback, decide, send the command, log) against
+//! the minimal in-process drive of the tests, through the Hi5 rig protocol
+//! (`configs/hi5_rig.toml`, each phase shortened to `<phase_s>`). Prints
+//! the loop's own histograms, as JSON: `compute` (wake-up to the log push:
+//! drain + tick + send) and `wake_latency`, 1 us bins (bin upper edges),
+//! and the bus counters. Nothing is asserted (a bench, not a test).
+//!
+//! `cargo bench -p sensaug-rt --bench rig_tick [-- <phase_s>]` (default 3 s
+//! per phase: 9000 ticks). The loop runs as an ordinary thread
+//! (SCHED_OTHER, not pinned, timer slack 1 ns): `sensaug-rt` with its
+//! default real-time settings off.
+
+#[path = "../tests/common/drive.rs"]
+mod drive;
+
+use sensaug_bridge::transport::UdpBus;
+use sensaug_config::{load_file, resolve};
+use sensaug_core::controller::Robot;
+use sensaug_core::protocol::Protocol;
+use sensaug_rt::control::Rig;
+use sensaug_rt::log;
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+fn main() {
+    let phase_s = std::env::args()
+        .skip(1)
+        .find_map(|a| a.parse::<f64>().ok())
+        .unwrap_or(3.0);
+    let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/hi5_rig.toml");
+    let spec = load_file(&config).expect("configs/hi5_rig.toml loads");
+    let resolved = resolve(&spec).expect("configs/hi5_rig.toml resolves");
+    let mut phases = resolved.phases.clone();
+    for p in &mut phases {
+        p.duration_s = phase_s;
+    }
+    let protocol = Protocol::new(&phases, resolved.dt_s).expect("valid protocol");
+    let robot = Robot::new(resolved.robot, protocol).expect("valid robot");
+    let settings = drive::loop_settings(&resolved);
+    if let Err(e) = sensaug_rt::os::minimal_timer_slack() {
+        eprintln!("timer slack 1 ns not applied: {e}");
+    }
+    let port = drive::free_port();
+    let drive_stop = Arc::new(AtomicBool::new(false));
+    let handle = drive::drive(port, Arc::clone(&drive_stop), u64::MAX);
+    let transport = Box::new(UdpBus::open(port).expect("loopback bus"));
+    let mut rig = Rig::start(settings, transport, robot, Duration::from_secs(5)).expect("drive");
+    let dir = std::env::temp_dir().join(format!("sensaug-rig-tick-{port}"));
+    let meta = serde_json::json!({"source": "rig"});
+    let (mut sink, writer) = log::start(&dir.join("log.csv"), 1 << 14, &meta).expect("log");
+    let reason = rig.run(&mut sink, &AtomicBool::new(false));
+    drop(sink);
+    let written = writer.finish(serde_json::Map::new());
+    drive_stop.store(true, Ordering::Relaxed);
+    handle.join().expect("drive thread");
+    let _ = std::fs::remove_dir_all(&dir);
+    let report = rig.report(reason);
+    let out = serde_json::json!({
+        "stop_reason": report.stop_reason,
+        "ticks": report.ticks,
+        "records_written": written.records_written,
+        "compute": report.compute,
+        "wake_latency": report.wake_latency,
+        "deadline_misses": report.deadline_misses,
+        "can": report.can,
+    });
+    println!("{out}");
+}

@@ -1,0 +1,104 @@
+//! A minimal in-process Hi5 drive on the loopback bus, for the loop's tests
+//! (`tests/rig_loop.rs`) and its bench (`benches/rig_tick.rs`).
+#![allow(dead_code)]
+
+use sensaug_bridge::protocol::{decode, encode, DriveState, FaultFlags, Message, NodeId};
+use sensaug_bridge::transport::UdpBus;
+use sensaug_bridge::Transport;
+use sensaug_config::Resolved;
+use sensaug_core::plant::{Plant, PlantParams};
+use sensaug_rt::control::LoopSettings;
+use std::net::UdpSocket;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+/// A drive that does just what the loop needs: heartbeats, enable, one
+/// feedback per torque command from the exact plant. It stops answering
+/// commands after `answer_for` of them (a dead drive).
+pub fn drive(port: u16, stop: Arc<AtomicBool>, answer_for: u64) -> JoinHandle<()> {
+    std::thread::spawn(move || {
+        let node = NodeId::new(1).unwrap();
+        let mut bus = UdpBus::open(port).unwrap();
+        let mut plant = Plant::new(PlantParams::HI5).unwrap();
+        let mut state = DriveState::Disabled;
+        let mut answered = 0u64;
+        let mut last_beat = Instant::now() - Duration::from_secs(1);
+        while !stop.load(Ordering::Relaxed) {
+            if last_beat.elapsed() > Duration::from_millis(20) {
+                let hb = Message::Heartbeat {
+                    state,
+                    fault_flags: FaultFlags::empty(),
+                    counter: 0,
+                    crc_errors: 0,
+                    length_errors: 0,
+                    sequence_errors: 0,
+                    unknown_ids: 0,
+                    range_errors: 0,
+                };
+                bus.send(&encode(node, &hb).unwrap()).unwrap();
+                last_beat = Instant::now();
+            }
+            let Ok(Some(f)) = bus.recv(Duration::from_millis(5)) else {
+                continue;
+            };
+            match decode(node, &f) {
+                Ok(Message::SetState { enable, .. }) => {
+                    state = if enable {
+                        DriveState::Enabled
+                    } else {
+                        DriveState::Disabled
+                    };
+                }
+                Ok(Message::TorqueCommand {
+                    torque_nm,
+                    sequence,
+                }) if state == DriveState::Enabled && answered < answer_for => {
+                    let s = plant.step(torque_nm).unwrap();
+                    let fb = Message::Feedback {
+                        position_rad: s.x,
+                        velocity_rad_s: s.v,
+                        sequence,
+                        state,
+                        torque_limited: false,
+                        fault_active: false,
+                    };
+                    bus.send(&encode(node, &fb).unwrap()).unwrap();
+                    answered += 1;
+                }
+                _ => {}
+            }
+        }
+    })
+}
+
+/// A loopback port no one is bound to right now (for a fresh bus).
+pub fn free_port() -> u16 {
+    UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// The loop's settings against this drive (node 1, 3 N m, 50 ms watchdog
+/// and feedback timeout, 50 ms ramp) for a resolved configuration.
+pub fn loop_settings(resolved: &Resolved<'_>) -> LoopSettings {
+    LoopSettings {
+        node: NodeId::new(1).unwrap(),
+        dt_s: resolved.dt_s,
+        rad_per_unit: resolved.rad_per_unit,
+        torque_limit_nm: 3.0,
+        watchdog_ms: 50,
+        feedback_timeout_ms: 50.0,
+        ramp_down_s: 0.05,
+        partner_gains: resolved.partner.gains,
+        partner_torque_limit: 1e3,
+        max_feedback_velocity_rad_s: 8.0,
+        feedback_step_margin_rad: 0.01,
+        max_missing_feedback_fraction: 0.5,
+        max_stale_feedback_ticks: 100,
+        max_estimator_errors: 10,
+    }
+}
