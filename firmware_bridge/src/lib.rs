@@ -5,6 +5,7 @@
 //! - [`protocol`]: the messages of `hi5.dbc`, encode and decode.
 //! - [`cia402`]: a CANopen master for a CiA 402 drive (the second drive
 //!   profile, `docs/cia402.md`).
+//! - [`drive_link`]: one interface to a drive of either profile.
 //! - [`transport`]: sending and receiving frames over SocketCAN or over a
 //!   loopback-only UDP "virtual CAN bus".
 //!
@@ -16,6 +17,7 @@
 
 pub mod cia402;
 pub mod dbc;
+pub mod drive_link;
 pub mod frame;
 pub mod protocol;
 pub mod transport;
