@@ -12,6 +12,9 @@
 //! (fresh feedback per tick) is printed, not asserted.
 //!
 //! Needs the project's `.venv` (bash scripts/setup.sh), or SENSAUG_PYTHON.
+//! For measurements (docs/cia402.md): SENSAUG_LINK_TICKS=5000 runs longer,
+//! SENSAUG_DRIVE_LOG_DIR=dir makes each drive write `--log dir/<module>.npz`
+//! and print its handling latency; run with `-- --nocapture --test-threads 1`.
 
 use std::io::Read;
 use std::net::UdpSocket;
@@ -25,7 +28,13 @@ use sensaug_bridge::protocol::NodeId;
 use sensaug_bridge::transport::UdpBus;
 use sensaug_core::plant::{Plant, PlantParams};
 
-const TICKS: u64 = 300;
+/// Ticks per run: 300, or SENSAUG_LINK_TICKS.
+fn ticks() -> u64 {
+    std::env::var("SENSAUG_LINK_TICKS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(300)
+}
 const COUNTS_PER_REV: f64 = 1_048_576.0;
 
 fn python() -> PathBuf {
@@ -88,15 +97,21 @@ struct Profile {
 fn run(profile: &Profile, link: &mut dyn DriveLink) {
     let port = free_port();
     let mut bus = UdpBus::open(port).unwrap();
+    let mut args = vec![
+        "-m".to_string(),
+        profile.module.to_string(),
+        "-c".to_string(),
+        port.to_string(),
+        "--duration".to_string(),
+        "600".to_string(),
+    ];
+    if let Some(dir) = std::env::var_os("SENSAUG_DRIVE_LOG_DIR") {
+        let log = PathBuf::from(dir).join(format!("{}.npz", profile.module));
+        args.extend(["--log".to_string(), log.display().to_string()]);
+    }
+    let ticks = ticks();
     let child = Command::new(python())
-        .args([
-            "-m",
-            profile.module,
-            "-c",
-            &port.to_string(),
-            "--duration",
-            "120",
-        ])
+        .args(&args)
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()
@@ -114,7 +129,7 @@ fn run(profile: &Profile, link: &mut dyn DriveLink) {
     plant.step(0.0).unwrap();
     let mut fresh = 0u64;
     let t0 = Instant::now();
-    for k in 0..TICKS {
+    for k in 0..ticks {
         let deadline = t0 + Duration::from_millis(k);
         if let Some(left) = deadline.checked_duration_since(Instant::now()) {
             std::thread::sleep(left);
@@ -122,7 +137,7 @@ fn run(profile: &Profile, link: &mut dyn DriveLink) {
         let s = link.drain(&mut bus, k).unwrap();
         assert!(!s.fault, "{}: drive fault at tick {k}", profile.module);
         fresh += u64::from(s.fresh);
-        let torque_nm = 0.05 * (std::f64::consts::TAU * k as f64 / TICKS as f64).sin();
+        let torque_nm = 0.05 * (std::f64::consts::TAU * k as f64 / 300.0).sin();
         link.send_torque(&mut bus, k, torque_nm).unwrap();
         let wire = (torque_nm / profile.torque_step_nm).round_ties_even() * profile.torque_step_nm;
         plant.step(wire).unwrap();
@@ -130,7 +145,7 @@ fn run(profile: &Profile, link: &mut dyn DriveLink) {
     // The answer to the last tick.
     let wait = Instant::now();
     let last = loop {
-        let s = link.drain(&mut bus, TICKS).unwrap();
+        let s = link.drain(&mut bus, ticks).unwrap();
         if s.fresh {
             break s;
         }
@@ -142,7 +157,7 @@ fn run(profile: &Profile, link: &mut dyn DriveLink) {
         std::thread::sleep(Duration::from_millis(1));
     };
     println!(
-        "{}: {TICKS} ticks at 1 kHz in {:?}, fresh feedback at {fresh}/{TICKS} ticks",
+        "{}: {ticks} ticks at 1 kHz in {:?}, fresh feedback at {fresh}/{ticks} ticks",
         profile.module,
         t0.elapsed()
     );
@@ -162,7 +177,7 @@ fn run(profile: &Profile, link: &mut dyn DriveLink) {
         state.v
     );
     assert!(last.enabled);
-    link.shut_down(&mut bus, TICKS).unwrap();
+    link.shut_down(&mut bus, ticks).unwrap();
     let err = stop(child);
     println!("{}: {err}", profile.module);
 }
