@@ -84,3 +84,15 @@ def test_golden_frames_cover_every_kind() -> None:
         "heartbeat", "rpdo1", "tpdo1", "tpdo2", "emcy",
     }
     assert {f.get("node") for f in doc["frames"] if "node" in f} == {0, 1, 42}
+
+
+def test_docs_object_table_is_the_eds() -> None:
+    """docs/cia402.md's object table equals what the tool renders from the EDS."""
+    tool = _tool()
+    doc = tool.DOC.read_text()
+    assert tool.BEGIN in doc and tool.END in doc
+    if tool.spliced_doc(doc) != doc:
+        raise AssertionError(
+            "docs/cia402.md's object table differs from cia402_drive.eds; "
+            "run python firmware_bridge/tools/make_cia402_golden.py --docs"
+        )
