@@ -207,12 +207,6 @@ class VirtualCia402:
         assert od is not None
         self.node.data_store.setdefault(index, {})[sub] = od.encode_raw(value)
 
-    def read(self, index: int, sub: int = 0) -> int:
-        """A value of the drive's object dictionary, as an SDO read would give it."""
-        od = self.node.object_dictionary.get_variable(index, sub)
-        assert od is not None
-        return od.decode_raw(self.node.get_data(index, sub))
-
     def _on_write(self, index: int, subindex: int, od: Any, data: bytes) -> None:
         """SDO writes (canopen calls this before storing; raising aborts the transfer)."""
         value = od.decode_raw(data)
