@@ -260,7 +260,6 @@ impl DriveLink for Hi5Link {
 pub struct Cia402Link {
     master: Master,
     step: Duration,
-    tpdo1_at_send: u64,
 }
 
 impl Cia402Link {
@@ -269,7 +268,6 @@ impl Cia402Link {
         Ok(Self {
             master: Master::new(settings)?,
             step,
-            tpdo1_at_send: 0,
         })
     }
 
@@ -284,7 +282,6 @@ impl DriveLink for Cia402Link {
     fn enable(&mut self, bus: &mut dyn Transport) -> Result<(), LinkError> {
         self.master.boot(bus)?;
         self.master.enable(bus, self.step)?;
-        self.tpdo1_at_send = self.master.feedback().tpdo1_received;
         Ok(())
     }
 
@@ -294,20 +291,19 @@ impl DriveLink for Cia402Link {
         _k: u64,
         torque_nm: f64,
     ) -> Result<(), LinkError> {
-        self.tpdo1_at_send = self.master.feedback().tpdo1_received;
         self.master.tick(bus, torque_nm)?;
         Ok(())
     }
 
-    /// Fresh: a TPDO1 has arrived since the last RPDO + SYNC (the drive
-    /// sends one per SYNC, after stepping).
+    /// Fresh: every SYNC sent so far has been answered
+    /// ([`Master::all_answered`]), so the TPDOs are the last tick's.
     fn drain(&mut self, bus: &mut dyn Transport, k: u64) -> Result<DriveSample, LinkError> {
         self.master.drain(bus)?;
         let fb = self.master.feedback();
         Ok(DriveSample {
             position_rad: fb.position_rad,
             velocity_rad_s: fb.velocity_rad_s,
-            fresh: k == 0 || fb.tpdo1_received > self.tpdo1_at_send,
+            fresh: k == 0 || self.master.all_answered(),
             enabled: fb.state == Some(Cia402State::OperationEnabled),
             fault: fb.state == Some(Cia402State::Fault) || fb.drive_heartbeat_lost,
         })

@@ -94,22 +94,23 @@ struct Profile {
     velocity_tol_rad_s: f64,
 }
 
-fn run(profile: &Profile, link: &mut dyn DriveLink) {
+/// Opens the bus on a fresh port, starts the drive on it, enables it
+/// through `link`.
+fn start(module: &str, link: &mut dyn DriveLink, log: bool) -> (UdpBus, Child) {
     let port = free_port();
     let mut bus = UdpBus::open(port).unwrap();
     let mut args = vec![
         "-m".to_string(),
-        profile.module.to_string(),
+        module.to_string(),
         "-c".to_string(),
         port.to_string(),
         "--duration".to_string(),
         "600".to_string(),
     ];
-    if let Some(dir) = std::env::var_os("SENSAUG_DRIVE_LOG_DIR") {
-        let log = PathBuf::from(dir).join(format!("{}.npz", profile.module));
+    if let (true, Some(dir)) = (log, std::env::var_os("SENSAUG_DRIVE_LOG_DIR")) {
+        let log = PathBuf::from(dir).join(format!("{module}.npz"));
         args.extend(["--log".to_string(), log.display().to_string()]);
     }
-    let ticks = ticks();
     let child = Command::new(python())
         .args(&args)
         .stdout(Stdio::null())
@@ -117,12 +118,66 @@ fn run(profile: &Profile, link: &mut dyn DriveLink) {
         .spawn()
         .unwrap();
     let started = Instant::now();
-    let enabled = link.enable(&mut bus);
-    if let Err(e) = enabled {
+    if let Err(e) = link.enable(&mut bus) {
         let err = stop(child);
-        panic!("{}: enable failed: {e}; drive: {err}", profile.module);
+        panic!("{module}: enable failed: {e}; drive: {err}");
     }
-    println!("{}: enabled in {:?}", profile.module, started.elapsed());
+    println!("{module}: enabled in {:?}", started.elapsed());
+    (bus, child)
+}
+
+/// Ticks `k0..k1` of zero torque on 1 ms deadlines; no fault allowed.
+fn idle_ticks(module: &str, link: &mut dyn DriveLink, bus: &mut UdpBus, k0: u64, k1: u64) {
+    let t0 = Instant::now();
+    for k in k0..k1 {
+        if let Some(left) =
+            (t0 + Duration::from_millis(k - k0)).checked_duration_since(Instant::now())
+        {
+            std::thread::sleep(left);
+        }
+        let s = link.drain(bus, k).unwrap();
+        assert!(!s.fault, "{module}: fault at tick {k} while ticking");
+        link.send_torque(bus, k, 0.0).unwrap();
+    }
+}
+
+/// The watchdog through the link: the host goes silent for three watchdog
+/// periods (a stalled loop), then ticks once; the link must report the
+/// fault (Hi5: FAULT(WATCHDOG); CiA 402: the heartbeat consumer's Fault).
+fn trip_watchdog(module: &str, link: &mut dyn DriveLink, watchdog: Duration) -> (UdpBus, Child) {
+    let (mut bus, child) = start(module, link, false);
+    idle_ticks(module, link, &mut bus, 0, 50);
+    std::thread::sleep(3 * watchdog);
+    link.send_torque(&mut bus, 50, 0.0).unwrap();
+    let wait = Instant::now();
+    loop {
+        let s = link.drain(&mut bus, 51).unwrap();
+        if s.fault {
+            assert!(!s.enabled);
+            return (bus, child);
+        }
+        assert!(
+            wait.elapsed() < Duration::from_secs(10),
+            "{module}: no fault reported after {:?} of silence",
+            3 * watchdog
+        );
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
+/// After a fault: enabling again brings the drive back; then shut down.
+fn reenable(module: &str, link: &mut dyn DriveLink, mut bus: UdpBus, child: Child) {
+    link.enable(&mut bus).unwrap();
+    idle_ticks(module, link, &mut bus, 0, 50);
+    let s = link.drain(&mut bus, 50).unwrap();
+    assert!(s.enabled && !s.fault, "{module}: not enabled again: {s:?}");
+    link.shut_down(&mut bus, 50).unwrap();
+    stop(child);
+}
+
+fn run(profile: &Profile, link: &mut dyn DriveLink) {
+    let (mut bus, child) = start(profile.module, link, true);
+    let ticks = ticks();
 
     // The set-up's zero-torque command (Hi5) / enabling SYNC (CiA 402) stepped once.
     let mut plant = Plant::new(PlantParams::HI5).unwrap();
@@ -135,7 +190,10 @@ fn run(profile: &Profile, link: &mut dyn DriveLink) {
             std::thread::sleep(left);
         }
         let s = link.drain(&mut bus, k).unwrap();
-        assert!(!s.fault, "{}: drive fault at tick {k}", profile.module);
+        if s.fault {
+            let err = stop(child);
+            panic!("{}: drive fault at tick {k}; drive: {err}", profile.module);
+        }
         fresh += u64::from(s.fresh);
         let torque_nm = 0.05 * (std::f64::consts::TAU * k as f64 / 300.0).sin();
         link.send_torque(&mut bus, k, torque_nm).unwrap();
@@ -148,6 +206,13 @@ fn run(profile: &Profile, link: &mut dyn DriveLink) {
         let s = link.drain(&mut bus, ticks).unwrap();
         if s.fresh {
             break s;
+        }
+        if s.fault {
+            let err = stop(child);
+            panic!(
+                "{}: drive fault after the last tick; drive: {err}",
+                profile.module
+            );
         }
         assert!(
             wait.elapsed() < Duration::from_secs(10),
@@ -212,4 +277,25 @@ fn hi5_link_runs_the_virtual_hi5_drive() {
         velocity_tol_rad_s: 0.5e-6 + 1e-12,
     };
     run(&profile, &mut link);
+}
+
+#[test]
+fn watchdog_fault_and_reenable_on_both_profiles() {
+    let wd = Duration::from_millis(200);
+    let mut settings = MasterSettings::new(CanopenNode::new(1).unwrap());
+    settings.drive_consumer_ms = 200;
+    settings.response_timeout = Duration::from_secs(15);
+    let module = "sensaug_bridge.virtual_cia402";
+    let mut cia402 = Cia402Link::new(settings, Duration::from_millis(1)).unwrap();
+    let (bus, child) = trip_watchdog(module, &mut cia402, wd);
+    let emcy = cia402.master().feedback().last_emcy.unwrap();
+    assert_eq!(emcy.code, 0x8130, "{}", emcy.name());
+    reenable(module, &mut cia402, bus, child);
+    // The fault reset's EMCY (error reset) came after.
+    assert_eq!(cia402.master().feedback().last_emcy.unwrap().code, 0x0000);
+
+    let module = "sensaug_bridge.virtual_hi5";
+    let mut hi5 = Hi5Link::new(NodeId::new(1).unwrap(), 200, Duration::from_secs(15));
+    let (bus, child) = trip_watchdog(module, &mut hi5, wd);
+    reenable(module, &mut hi5, bus, child);
 }

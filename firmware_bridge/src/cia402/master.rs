@@ -306,10 +306,30 @@ impl Master {
     /// Brings the drive to OperationEnabled at zero torque: one RPDO + SYNC
     /// per `step`, each controlword chosen from the last statusword (a
     /// Fault is reset once, on a rising edge of bit 7).
+    /// Returns once every SYNC sent has been answered, so the feedback is
+    /// the enabled drive's.
     pub fn enable(&mut self, bus: &mut dyn Transport, step: Duration) -> Result<(), Cia402Error> {
         self.drive_towards(bus, step, Goal::Enabled, "OperationEnabled", |s| {
             s == DriveState::OperationEnabled
-        })
+        })?;
+        let start = Instant::now();
+        while !self.all_answered() {
+            if start.elapsed() > self.settings.response_timeout {
+                return Err(Cia402Error::Timeout {
+                    what: "the TPDOs answering the enabling SYNCs",
+                    state: self.fb.state,
+                });
+            }
+            self.receive_one(bus, step)?;
+        }
+        Ok(())
+    }
+
+    /// Every SYNC sent has been answered by its TPDO1 and TPDO2 (the drive
+    /// sends one of each per SYNC while NMT OPERATIONAL; TPDOs carry no
+    /// counter, so a late answer is told from a fresh one by counting).
+    pub fn all_answered(&self) -> bool {
+        self.fb.tpdo1_received.min(self.fb.tpdo2_received) >= self.syncs_sent
     }
 
     fn drive_towards(
