@@ -331,9 +331,13 @@ def test_other_nodes_and_bad_frames_are_ignored(drive: Drive):
     host.bus.send(can.Message(arbitration_id=0x12345, data=b"\x01", is_extended_id=True))
     host.bus.send(can.Message(arbitration_id=0x201, is_remote_frame=True, is_extended_id=False))
     host.send(0x600 + NODE, b"\x40\x00")  # a short SDO request
+    host.send(0x000, b"\x02")  # an NMT command without its node byte
+    host.send(0x200 + NODE, struct.pack("<H", 0x06))  # a short RPDO1
+    host.send(0x080, b"\x01\x02")  # a SYNC longer than its counter
     host.frames_for(0.2)
     assert state_of(host.cycle(0x00)[0]) == Cia402State.SWITCH_ON_DISABLED
-    assert drive.drive.unknown_frames == 2
+    assert drive.drive.unknown_frames == 2 and drive.drive.length_errors == 4
+    assert drive.drive.node.nmt.state == "OPERATIONAL" and drive.drive.syncs == 1
     host.enable()
 
 

@@ -198,6 +198,15 @@ class VirtualCia402:
         self.heartbeat_events = 0
         self.emcy_sent = 0
         self.unknown_frames = 0
+        #: Frames for this drive with a length its handler cannot take.
+        self.length_errors = 0
+        n = cfg.node
+        self._lengths = {
+            0x000: (2,),  # NMT command
+            SYNC_COB_ID: (0, 1),  # with or without a counter
+            0x200 + n: (self._rpdo.length // 8,),  # RPDO1
+            0x600 + n: (8,),  # SDO request
+        }
         self.log: Optional[DriveLog] = DriveLog() if log else None
 
     # -- dictionary --------------------------------------------------------------------
@@ -288,7 +297,14 @@ class VirtualCia402:
             self.unknown_frames += 1
             return
         self._check_consumer(now)
-        self.network.notify(msg.arbitration_id, bytearray(msg.data[: msg.dlc]), now)
+        data = bytearray(msg.data[: msg.dlc])
+        allowed = self._lengths.get(msg.arbitration_id)
+        if allowed is not None and len(data) not in allowed:
+            # canopen's handlers assume these lengths (an NMT command of one
+            # byte would raise in its NMT slave): dropped and counted.
+            self.length_errors += 1
+            return
+        self.network.notify(msg.arbitration_id, data, now)
 
     # -- NMT, heartbeat consumer -------------------------------------------------------
 
@@ -457,6 +473,7 @@ class VirtualCia402:
             "heartbeat_events": self.heartbeat_events,
             "emcy_sent": self.emcy_sent,
             "unknown_frames": self.unknown_frames,
+            "length_errors": self.length_errors,
         }
         if self.log is not None:
             out.update(self.log.latency_summary())
