@@ -334,9 +334,10 @@ def test_other_nodes_and_bad_frames_are_ignored(drive: Drive):
     host.send(0x000, b"\x02")  # an NMT command without its node byte
     host.send(0x200 + NODE, struct.pack("<H", 0x06))  # a short RPDO1
     host.send(0x080, b"\x01\x02")  # a SYNC longer than its counter
+    host.send(0x180 + NODE, b"\x01")  # someone else on the drive's TPDO1 id
     host.frames_for(0.2)
     assert state_of(host.cycle(0x00)[0]) == Cia402State.SWITCH_ON_DISABLED
-    assert drive.drive.unknown_frames == 2 and drive.drive.length_errors == 4
+    assert drive.drive.unknown_frames == 3 and drive.drive.length_errors == 4
     assert drive.drive.node.nmt.state == "OPERATIONAL" and drive.drive.syncs == 1
     host.enable()
 

@@ -207,6 +207,8 @@ class VirtualCia402:
             0x200 + n: (self._rpdo.length // 8,),  # RPDO1
             0x600 + n: (8,),  # SDO request
         }
+        #: What only this drive sends: EMCY, TPDO1, TPDO2, SDO response, heartbeat.
+        self._own_ids = {0x080 + n, 0x180 + n, 0x280 + n, 0x580 + n, 0x700 + n}
         self.log: Optional[DriveLog] = DriveLog() if log else None
 
     # -- dictionary --------------------------------------------------------------------
@@ -292,12 +294,19 @@ class VirtualCia402:
                 task.next_s = max(task.next_s + task.period_s, now + 0.5 * task.period_s)
 
     def handle(self, msg: can.Message, now: float) -> None:
-        """Act on one received frame. Never raises on bad input."""
+        """Act on one received frame. Never raises on bad input (extended,
+        remote, error frames and frames on this drive's own COB-IDs count as
+        ``unknown_frames``; wrong lengths as ``length_errors``)."""
         if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id or msg.is_fd:
             self.unknown_frames += 1
             return
         self._check_consumer(now)
         data = bytearray(msg.data[: msg.dlc])
+        if msg.arbitration_id in self._own_ids:
+            # Another node sending on this drive's COB-IDs (canopen's TPDO maps
+            # would take the bytes in as their data): a bus conflict, dropped.
+            self.unknown_frames += 1
+            return
         allowed = self._lengths.get(msg.arbitration_id)
         if allowed is not None and len(data) not in allowed:
             # canopen's handlers assume these lengths (an NMT command of one
