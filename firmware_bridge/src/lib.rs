@@ -3,6 +3,9 @@
 //! - [`frame`]: one classic CAN frame (standard or extended id; data,
 //!   remote or error) and the SocketCAN `can_frame` wire layout.
 //! - [`protocol`]: the messages of `hi5.dbc`, encode and decode.
+//! - [`cia402`]: a CANopen master for a CiA 402 drive (the second drive
+//!   profile, `docs/cia402.md`).
+//! - [`drive_link`]: one interface to a drive of either profile.
 //! - [`transport`]: sending and receiving frames over SocketCAN or over a
 //!   loopback-only UDP "virtual CAN bus".
 //!
@@ -12,7 +15,9 @@
 #![deny(missing_docs)]
 #![deny(clippy::undocumented_unsafe_blocks)]
 
+pub mod cia402;
 pub mod dbc;
+pub mod drive_link;
 pub mod frame;
 pub mod protocol;
 pub mod transport;

@@ -40,7 +40,7 @@ import can
 from sensaug_bridge import protocol as p
 from sensaug_bridge.protocol import FaultFlag, State
 
-__all__ = ["DriveConfig", "VirtualHi5", "main", "parse_args"]
+__all__ = ["DriveConfig", "VirtualHi5", "encoder_counts", "main", "new_plant", "parse_args"]
 
 _COUNTER_MAX = 255
 
@@ -62,7 +62,7 @@ class DriveConfig:
 
     def validate(self) -> None:
         """Raises ValueError naming the field."""
-        p.frame_id("TorqueCommand", self.node)  # checks the node range
+        self._check_node()
         checks: list[tuple[str, float, bool]] = [
             ("torque_limit_nm", self.torque_limit_nm, self.torque_limit_nm > 0),
             ("mass", self.mass, self.mass > 0),
@@ -81,6 +81,25 @@ class DriveConfig:
                 f"encoder_counts_per_rev: must be >= 1, got {self.encoder_counts_per_rev}"
             )
 
+    def _check_node(self) -> None:
+        p.frame_id("TorqueCommand", self.node)  # checks the Hi5 node range 0..15
+
+
+def new_plant(config: DriveConfig) -> Any:
+    """The drive's 1-DoF load: ``sensaug.Plant`` with the config's M, C, F_c, dt, x0 (v0 = 0).
+
+    Shared by every virtual drive profile (Hi5, CiA 402)."""
+    import sensaug  # the project's Rust extension; imported late so protocol users need not build it
+
+    return sensaug.Plant(
+        mass=config.mass, damping=config.damping, coulomb=config.coulomb, dt_s=config.dt_s, x0=config.x0_rad, v0=0.0
+    )
+
+
+def encoder_counts(x_rad: float, counts_per_rev: int) -> int:
+    """The encoder: position quantised to whole counts (``2 pi / counts_per_rev`` rad each)."""
+    return round(x_rad / (2.0 * math.pi / counts_per_rev))
+
 
 @dataclass
 class DriveLog:
@@ -93,6 +112,17 @@ class DriveLog:
     position_rad: list[float] = field(default_factory=list)
     velocity_rad_s: list[float] = field(default_factory=list)
     latency_s: list[float] = field(default_factory=list)
+
+    def latency_summary(self) -> dict[str, float]:
+        """Handling latency percentiles, us (empty without rows)."""
+        if not self.latency_s:
+            return {}
+        lat = sorted(self.latency_s)
+        return {
+            "latency_us_p50": round(lat[len(lat) // 2] * 1e6, 1),
+            "latency_us_p99": round(lat[min(len(lat) - 1, int(0.99 * len(lat)))] * 1e6, 1),
+            "latency_us_max": round(lat[-1] * 1e6, 1),
+        }
 
     def save(self, path: str) -> None:
         import numpy as np
@@ -125,8 +155,6 @@ class VirtualHi5:
         log: bool = False,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        import sensaug  # the project's Rust extension; imported late so protocol users need not build it
-
         self.config = config or DriveConfig()
         self.config.validate()
         self.bus = bus
@@ -135,8 +163,7 @@ class VirtualHi5:
         #: arrival time (``SO_TIMESTAMPNS``, wall clock): the watchdog is then
         #: measured from when a frame arrived, not from when this process read it.
         self.kernel_timestamps = _has_kernel_timestamps(bus)
-        self._Plant = sensaug.Plant
-        self.plant = self._new_plant()
+        self.plant = new_plant(self.config)
         cfg = self.config
         self._rad_per_count = 2.0 * math.pi / cfg.encoder_counts_per_rev
         self._ids = {name: p.frame_id(name, cfg.node) for name in p.BASE_IDS}
@@ -172,12 +199,6 @@ class VirtualHi5:
         self.log: Optional[DriveLog] = DriveLog() if log else None
 
     # -- set-up --------------------------------------------------------------------
-
-    def _new_plant(self) -> Any:
-        cfg = self.config
-        return self._Plant(
-            mass=cfg.mass, damping=cfg.damping, coulomb=cfg.coulomb, dt_s=cfg.dt_s, x0=cfg.x0_rad, v0=0.0
-        )
 
     def start(self) -> None:
         """Announce BOOT, move to DISABLED, send the first Heartbeat."""
@@ -303,7 +324,7 @@ class VirtualHi5:
             self.torque_nm = 0.0
             self._latch(FaultFlag.OVERSPEED)
         # The encoder: position quantised to whole counts, then to the field's 1e-6 rad.
-        x_q = round(x / self._rad_per_count) * self._rad_per_count
+        x_q = encoder_counts(x, cfg.encoder_counts_per_rev) * self._rad_per_count
         x_rep = p.saturate("Feedback", "position", x_q)
         v_rep = p.saturate("Feedback", "velocity", v)
         reply = p.Feedback(
@@ -441,11 +462,8 @@ class VirtualHi5:
             "unknown_ids": hb.unknown_ids,
             "range_errors": self.range_errors,
         }
-        if self.log is not None and self.log.latency_s:
-            lat = sorted(self.log.latency_s)
-            out["latency_us_p50"] = round(lat[len(lat) // 2] * 1e6, 1)
-            out["latency_us_p99"] = round(lat[min(len(lat) - 1, int(0.99 * len(lat)))] * 1e6, 1)
-            out["latency_us_max"] = round(lat[-1] * 1e6, 1)
+        if self.log is not None:
+            out.update(self.log.latency_summary())
         return out
 
 
@@ -461,16 +479,10 @@ def _has_kernel_timestamps(bus: can.BusABC) -> bool:
 # -- command line ----------------------------------------------------------------------
 
 
-def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
-    d = DriveConfig()
-    ap = argparse.ArgumentParser(
-        prog="sensaug-virtual-hi5",
-        description="Virtual Hi5 drive on a python-can bus (default: loopback sensaug_udp). "
-        "See docs/virtual_hi5.md.",
-    )
+def add_drive_args(ap: argparse.ArgumentParser, d: DriveConfig) -> None:
+    """The options every virtual drive profile shares (bus, plant, encoder, limits, run)."""
     ap.add_argument("-i", "--interface", default="sensaug_udp", help="python-can interface (default sensaug_udp)")
     ap.add_argument("-c", "--channel", default="47100", help="python-can channel; for sensaug_udp the UDP port (default 47100)")
-    ap.add_argument("--node", type=int, default=d.node, help="node id 0..15 (default 1)")
     ap.add_argument("--torque-limit", type=float, default=d.torque_limit_nm, help="N m (default 3)")
     ap.add_argument("--mass", type=float, default=d.mass, help="inertia M, kg m^2 (default 0.0035)")
     ap.add_argument("--damping", type=float, default=d.damping, help="viscous C, N m s/rad (default 0)")
@@ -487,13 +499,11 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
     ap.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     ap.add_argument("--log", default=None, metavar="FILE.npz", help="save t_s, torque_nm, position_rad, velocity_rad_s, ...")
     ap.add_argument("-q", "--quiet", action="store_true", help="no summary line on stderr at exit")
-    return ap.parse_args(argv)
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    """Console entry point. Exit code 0 on a clean stop (duration, SIGINT, SIGTERM)."""
-    args = parse_args(argv)
-    config = DriveConfig(
+def drive_config_fields(args: argparse.Namespace) -> dict[str, Any]:
+    """The DriveConfig fields from the options of :func:`add_drive_args` (plus ``--node``)."""
+    return dict(
         node=args.node,
         torque_limit_nm=args.torque_limit,
         mass=args.mass,
@@ -505,10 +515,16 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         heartbeat_period_s=1.0 / args.heartbeat_hz if args.heartbeat_hz > 0 else math.nan,
         x0_rad=args.x0,
     )
+
+
+def serve(prog: str, args: argparse.Namespace, config: DriveConfig, make_drive: Callable[[can.BusABC], Any]) -> int:
+    """Run one virtual drive from the command line: validate, open the bus, start,
+    run until SIGINT/SIGTERM/--duration, stop, save the log, print the summary.
+    Exit code 0 on a clean stop, 2 for a bad option value, 1 if the bus cannot be opened."""
     try:
         config.validate()
     except ValueError as err:
-        print(f"sensaug-virtual-hi5: {err}", file=sys.stderr)
+        print(f"{prog}: {err}", file=sys.stderr)
         return 2
     stop = threading.Event()
 
@@ -520,10 +536,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     try:
         bus = can.Bus(interface=args.interface, channel=args.channel)
     except (can.CanError, ValueError, OSError, NotImplementedError) as err:
-        print(f"sensaug-virtual-hi5: cannot open bus: {err}", file=sys.stderr)
+        print(f"{prog}: cannot open bus: {err}", file=sys.stderr)
         return 1
     try:
-        drive = VirtualHi5(bus, config, log=args.log is not None)
+        drive = make_drive(bus)
         drive.start()
         try:
             drive.run(stop=stop, duration_s=args.duration)
@@ -532,10 +548,29 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             if args.log is not None and drive.log is not None:
                 drive.log.save(args.log)
             if not args.quiet:
-                print(f"sensaug-virtual-hi5: {drive.summary()}", file=sys.stderr)
+                print(f"{prog}: {drive.summary()}", file=sys.stderr)
     finally:
         bus.shutdown()
     return 0
+
+
+def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
+    d = DriveConfig()
+    ap = argparse.ArgumentParser(
+        prog="sensaug-virtual-hi5",
+        description="Virtual Hi5 drive on a python-can bus (default: loopback sensaug_udp). "
+        "See docs/virtual_hi5.md.",
+    )
+    ap.add_argument("--node", type=int, default=d.node, help="node id 0..15 (default 1)")
+    add_drive_args(ap, d)
+    return ap.parse_args(argv)
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Console entry point. Exit code 0 on a clean stop (duration, SIGINT, SIGTERM)."""
+    args = parse_args(argv)
+    config = DriveConfig(**drive_config_fields(args))
+    return serve("sensaug-virtual-hi5", args, config, lambda bus: VirtualHi5(bus, config, log=args.log is not None))
 
 
 if __name__ == "__main__":

@@ -1,0 +1,584 @@
+//! The master: set-up over SDO, the controlword state machine, one RPDO +
+//! SYNC per tick, feedback from TPDOs, EMCY and heartbeats.
+//!
+//! Life cycle: [`Master::new`] (checks the settings) -> [`Master::boot`]
+//! (waits for the drive, SDO set-up and checks, starts its own heartbeat,
+//! NMT start) -> [`Master::enable`] (statusword-driven transitions to
+//! OperationEnabled at zero torque) -> per tick [`Master::tick`] then, before
+//! the next, [`Master::drain`] -> [`Master::shut_down`] (or
+//! [`Master::quick_stop`] first). `boot`, `enable` and `shut_down` wait on
+//! the bus; `tick` and `drain` never wait and never allocate.
+
+use std::time::{Duration, Instant};
+
+use super::frames::{self, Emcy, NmtCommand, NmtState, SdoResponse};
+use super::od::{self, CanopenNode, Object, PdoMapping};
+use super::state::{controlword, decode_statusword, next_controlword, DriveState, Goal};
+use super::units::Units;
+use super::Cia402Error;
+use crate::frame::Frame;
+use crate::transport::Transport;
+
+/// How the master and the drive watch each other.
+#[derive(Clone, Copy, Debug)]
+pub struct MasterSettings {
+    /// The drive's node-ID.
+    pub node: CanopenNode,
+    /// The master's own node-ID (its heartbeat's COB-ID is 0x700 + this).
+    pub master_node: CanopenNode,
+    /// The master's heartbeat period (producer). Must be shorter than
+    /// `drive_consumer_ms`.
+    pub heartbeat_period: Duration,
+    /// Written to the drive's 0x1016:01: the drive faults when the master's
+    /// heartbeat is missing this long (its command watchdog). 1..=65535 ms.
+    pub drive_consumer_ms: u16,
+    /// Written to the drive's 0x1017: its heartbeat period.
+    pub drive_producer_ms: u16,
+    /// The master reports the drive lost ([`Feedback::drive_heartbeat_lost`])
+    /// when its heartbeat is missing this long.
+    pub drive_heartbeat_timeout: Duration,
+    /// Longest wait for one SDO answer or one state transition at set-up.
+    pub response_timeout: Duration,
+}
+
+impl MasterSettings {
+    /// Node 1, master 127; master heartbeat every 10 ms, the drive's
+    /// watchdog 100 ms, its heartbeat every 100 ms, lost after 500 ms.
+    pub fn new(node: CanopenNode) -> Self {
+        Self {
+            node,
+            // Constant in range.
+            master_node: CanopenNode::new(127).unwrap_or(node),
+            heartbeat_period: Duration::from_millis(10),
+            drive_consumer_ms: 100,
+            drive_producer_ms: 100,
+            drive_heartbeat_timeout: Duration::from_millis(500),
+            response_timeout: Duration::from_secs(2),
+        }
+    }
+
+    fn validate(&self) -> Result<(), Cia402Error> {
+        if self.node == self.master_node {
+            return Err(Cia402Error::BadParameter {
+                field: "master_node",
+                value: u64::from(self.master_node.get()),
+                why: "must differ from the drive's node",
+            });
+        }
+        if self.drive_consumer_ms == 0
+            || Duration::from_millis(u64::from(self.drive_consumer_ms)) <= self.heartbeat_period
+        {
+            return Err(Cia402Error::BadParameter {
+                field: "drive_consumer_ms",
+                value: u64::from(self.drive_consumer_ms),
+                why: "must be > 0 and longer than heartbeat_period (else the drive faults)",
+            });
+        }
+        if self.heartbeat_period.is_zero() {
+            return Err(Cia402Error::BadParameter {
+                field: "heartbeat_period",
+                value: 0,
+                why: "must be > 0",
+            });
+        }
+        let producer = Duration::from_millis(u64::from(self.drive_producer_ms));
+        if self.drive_producer_ms == 0 || producer >= self.drive_heartbeat_timeout {
+            return Err(Cia402Error::BadParameter {
+                field: "drive_producer_ms",
+                value: u64::from(self.drive_producer_ms),
+                why: "must be > 0 and shorter than drive_heartbeat_timeout",
+            });
+        }
+        Ok(())
+    }
+}
+
+/// What the master knows about the drive, updated by every received frame.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Feedback {
+    /// Last statusword (TPDO1).
+    pub statusword: u16,
+    /// Decoded from it (None before the first TPDO1, or for an invalid
+    /// statusword).
+    pub state: Option<DriveState>,
+    /// Position actual, shaft rad.
+    pub position_rad: f64,
+    /// Velocity actual, shaft rad/s.
+    pub velocity_rad_s: f64,
+    /// Torque actual, N m.
+    pub torque_nm: f64,
+    /// TPDO1 frames received.
+    pub tpdo1_received: u64,
+    /// TPDO2 frames received.
+    pub tpdo2_received: u64,
+    /// The last EMCY (code 0: the drive's error reset).
+    pub last_emcy: Option<Emcy>,
+    /// EMCY frames received.
+    pub emcy_received: u64,
+    /// The NMT state of the drive's last heartbeat or boot-up.
+    pub drive_nmt: Option<NmtState>,
+    /// Heartbeats (and boot-ups) received from the drive.
+    pub heartbeats_received: u64,
+    /// True once the drive's heartbeat has been missing longer than
+    /// `drive_heartbeat_timeout` (checked by [`Master::drain`]).
+    pub drive_heartbeat_lost: bool,
+    /// Frames from the drive that did not decode.
+    pub decode_errors: u64,
+}
+
+/// The CiA 402 master for one drive.
+pub struct Master {
+    settings: MasterSettings,
+    units: Units,
+    fb: Feedback,
+    controlword: u16,
+    next_heartbeat: Instant,
+    last_drive_heartbeat: Option<Instant>,
+    syncs_sent: u64,
+}
+
+impl Master {
+    /// Checks the settings. Units are the EDS defaults until [`Master::boot`]
+    /// reads the drive's.
+    pub fn new(settings: MasterSettings) -> Result<Self, Cia402Error> {
+        settings.validate()?;
+        Ok(Self {
+            settings,
+            units: Units::eds_defaults(),
+            fb: Feedback::default(),
+            controlword: controlword::DISABLE_VOLTAGE,
+            next_heartbeat: Instant::now(),
+            last_drive_heartbeat: None,
+            syncs_sent: 0,
+        })
+    }
+
+    /// The settings.
+    pub fn settings(&self) -> &MasterSettings {
+        &self.settings
+    }
+
+    /// The drive's units (read at boot).
+    pub fn units(&self) -> &Units {
+        &self.units
+    }
+
+    /// The feedback as of the last [`Master::drain`].
+    pub fn feedback(&self) -> &Feedback {
+        &self.fb
+    }
+
+    /// SYNCs sent so far (one per tick and per set-up step).
+    pub fn syncs_sent(&self) -> u64 {
+        self.syncs_sent
+    }
+
+    /// Set-up: wait for the drive's boot-up or heartbeat; check it is a
+    /// CiA 402 device; set cyclic synchronous torque mode and check the
+    /// display; write the heartbeat times; read the units; check the PDO
+    /// communication and mapping parameters are the EDS defaults; start the
+    /// master's heartbeat; NMT start the drive.
+    pub fn boot(&mut self, bus: &mut dyn Transport) -> Result<(), Cia402Error> {
+        let start = Instant::now();
+        while self.fb.heartbeats_received == 0 {
+            if start.elapsed() > self.settings.response_timeout {
+                return Err(Cia402Error::Timeout {
+                    what: "the drive's boot-up or heartbeat",
+                    state: None,
+                });
+            }
+            self.receive_one(bus, Duration::from_millis(10))?;
+        }
+        let s = self.settings;
+        let device = self.sdo_read_u32(bus, od::DEVICE_TYPE)?;
+        self.expect(od::DEVICE_TYPE, od::PROFILE_402, device & 0xFFFF)?;
+        self.sdo_write(
+            bus,
+            od::MODES_OF_OPERATION,
+            &od::MODE_CYCLIC_SYNCHRONOUS_TORQUE.to_le_bytes(),
+        )?;
+        let display = self.sdo_read(bus, od::MODES_OF_OPERATION_DISPLAY)?;
+        self.expect(
+            od::MODES_OF_OPERATION_DISPLAY,
+            od::MODE_CYCLIC_SYNCHRONOUS_TORQUE as u32,
+            u32::from(display[0]),
+        )?;
+        self.sdo_write(
+            bus,
+            od::PRODUCER_HEARTBEAT,
+            &s.drive_producer_ms.to_le_bytes(),
+        )?;
+        let consumer = (u32::from(s.master_node.get()) << 16) | u32::from(s.drive_consumer_ms);
+        // The master's heartbeat must run before the drive's consumer is armed.
+        self.send_heartbeat(bus, NmtState::PreOperational)?;
+        self.sdo_write(bus, od::CONSUMER_HEARTBEAT, &consumer.to_le_bytes())?;
+        self.read_units(bus)?;
+        self.check_pdos(bus)?;
+        self.send_heartbeat(bus, NmtState::Operational)?;
+        bus.send(&frames::nmt(NmtCommand::Start, s.node.get()))?;
+        Ok(())
+    }
+
+    fn read_units(&mut self, bus: &mut dyn Transport) -> Result<(), Cia402Error> {
+        let rated = self.sdo_read_u32(bus, od::RATED_TORQUE)?;
+        let max = self.sdo_read_u32(bus, od::MAX_TORQUE)?;
+        let max = u16::try_from(max)
+            .ok()
+            .filter(|m| *m <= i16::MAX as u16)
+            .ok_or(Cia402Error::BadParameter {
+                field: "0x6072 max torque",
+                value: u64::from(max),
+                why: "must fit the INTEGER16 target torque (<= 32767 per-mille)",
+            })?;
+        let enc = (
+            self.sdo_read_u32(bus, od::ENCODER_INCREMENTS)?,
+            self.sdo_read_u32(bus, od::ENCODER_MOTOR_REVOLUTIONS)?,
+        );
+        let gear = (
+            self.sdo_read_u32(bus, od::GEAR_MOTOR_REVOLUTIONS)?,
+            self.sdo_read_u32(bus, od::GEAR_SHAFT_REVOLUTIONS)?,
+        );
+        self.units = Units::new(rated, max, enc, gear)?;
+        Ok(())
+    }
+
+    /// The drive must use the EDS's default PDO set: COB-IDs valid and the
+    /// predefined ones, transmission type 1 (every SYNC), the mapping of
+    /// [`od::RPDO1_MAPPING`], [`od::TPDO1_MAPPING`], [`od::TPDO2_MAPPING`].
+    fn check_pdos(&mut self, bus: &mut dyn Transport) -> Result<(), Cia402Error> {
+        let n = self.settings.node;
+        let cob_ids = [
+            (od::RPDO1_COB_ID, n.rpdo1(), od::RPDO1_TRANSMISSION),
+            (od::TPDO1_COB_ID, n.tpdo1(), od::TPDO1_TRANSMISSION),
+            (od::TPDO2_COB_ID, n.tpdo2(), od::TPDO2_TRANSMISSION),
+        ];
+        for (cob, id, trans) in cob_ids {
+            let got = self.sdo_read_u32(bus, cob)?;
+            // Bit 31 set: PDO not valid; bit 30: RTR not allowed (ignored).
+            self.expect(cob, id, got & !(1 << 30))?;
+            let t = self.sdo_read_u32(bus, trans)?;
+            self.expect(trans, u32::from(od::TRANSMISSION_EVERY_SYNC), t)?;
+        }
+        for m in [od::RPDO1_MAPPING, od::TPDO1_MAPPING, od::TPDO2_MAPPING] {
+            self.check_mapping(bus, &m)?;
+        }
+        Ok(())
+    }
+
+    fn check_mapping(
+        &mut self,
+        bus: &mut dyn Transport,
+        m: &PdoMapping,
+    ) -> Result<(), Cia402Error> {
+        let count = Object {
+            index: m.index,
+            subindex: 0,
+            name: "Number of mapped objects",
+        };
+        let got = self.sdo_read_u32(bus, count)?;
+        self.expect(count, m.entries.len() as u32, got)?;
+        for (i, &entry) in m.entries.iter().enumerate() {
+            let o = Object {
+                index: m.index,
+                subindex: i as u8 + 1,
+                name: "Mapped object",
+            };
+            let got = self.sdo_read_u32(bus, o)?;
+            self.expect(o, entry, got)?;
+        }
+        Ok(())
+    }
+
+    fn expect(&self, o: Object, expected: u32, got: u32) -> Result<(), Cia402Error> {
+        if expected == got {
+            Ok(())
+        } else {
+            Err(Cia402Error::Mismatch {
+                object: o.name,
+                index: o.index,
+                subindex: o.subindex,
+                expected,
+                got,
+            })
+        }
+    }
+
+    /// Brings the drive to OperationEnabled at zero torque: one RPDO + SYNC
+    /// per `step`, each controlword chosen from the last statusword (a
+    /// Fault is reset once, on a rising edge of bit 7).
+    /// Returns once every SYNC sent has been answered, so the feedback is
+    /// the enabled drive's.
+    pub fn enable(&mut self, bus: &mut dyn Transport, step: Duration) -> Result<(), Cia402Error> {
+        self.drive_towards(bus, step, Goal::Enabled, "OperationEnabled", |s| {
+            s == DriveState::OperationEnabled
+        })?;
+        let start = Instant::now();
+        while !self.all_answered() {
+            if start.elapsed() > self.settings.response_timeout {
+                return Err(Cia402Error::Timeout {
+                    what: "the TPDOs answering the enabling SYNCs",
+                    state: self.fb.state,
+                });
+            }
+            self.receive_one(bus, step)?;
+        }
+        Ok(())
+    }
+
+    /// Every SYNC sent has been answered by its TPDO1 and TPDO2 (the drive
+    /// sends one of each per SYNC while NMT OPERATIONAL; TPDOs carry no
+    /// counter, so a late answer is told from a fresh one by counting).
+    pub fn all_answered(&self) -> bool {
+        self.fb.tpdo1_received.min(self.fb.tpdo2_received) >= self.syncs_sent
+    }
+
+    fn drive_towards(
+        &mut self,
+        bus: &mut dyn Transport,
+        step: Duration,
+        goal: Goal,
+        what: &'static str,
+        done: impl Fn(DriveState) -> bool,
+    ) -> Result<(), Cia402Error> {
+        let start = Instant::now();
+        loop {
+            let state = self.fb.state.unwrap_or(DriveState::NotReadyToSwitchOn);
+            if self.fb.tpdo1_received > 0 && done(state) {
+                return Ok(());
+            }
+            if start.elapsed() > self.settings.response_timeout * 2 {
+                return Err(Cia402Error::Timeout {
+                    what,
+                    state: self.fb.state,
+                });
+            }
+            let cw = next_controlword(state, goal, self.controlword);
+            self.send_cycle(bus, cw, 0)?;
+            let until = Instant::now() + step;
+            while let Some(left) = until.checked_duration_since(Instant::now()) {
+                self.receive_one(bus, left)?;
+            }
+        }
+    }
+
+    /// One control tick: RPDO1 (enable operation, `torque_nm` as per-mille
+    /// of rated torque) then SYNC, and the master's heartbeat when due.
+    /// Refuses a non-finite torque or one beyond 0x6072 (nothing is sent).
+    /// The drive applies the torque at this SYNC and answers with TPDO1 and
+    /// TPDO2. Does not wait, does not allocate.
+    pub fn tick(&mut self, bus: &mut dyn Transport, torque_nm: f64) -> Result<(), Cia402Error> {
+        let per_mille = self.units.torque_to_per_mille(torque_nm)?;
+        self.send_cycle(bus, controlword::ENABLE_OPERATION, per_mille)
+    }
+
+    /// Quick stop: torque 0 at once (controlword 0x0002), with a SYNC.
+    pub fn quick_stop(&mut self, bus: &mut dyn Transport) -> Result<(), Cia402Error> {
+        self.send_cycle(bus, controlword::QUICK_STOP, 0)
+    }
+
+    fn send_cycle(
+        &mut self,
+        bus: &mut dyn Transport,
+        cw: u16,
+        per_mille: i16,
+    ) -> Result<(), Cia402Error> {
+        self.controlword = cw;
+        bus.send(&frames::rpdo1(self.settings.node, cw, per_mille))?;
+        bus.send(&frames::sync())?;
+        self.syncs_sent += 1;
+        let now = Instant::now();
+        if now >= self.next_heartbeat {
+            self.send_heartbeat(bus, NmtState::Operational)?;
+        }
+        Ok(())
+    }
+
+    fn send_heartbeat(&mut self, bus: &mut dyn Transport, s: NmtState) -> Result<(), Cia402Error> {
+        bus.send(&frames::heartbeat(self.settings.master_node, s))?;
+        let now = Instant::now();
+        // Skip missed beats after a stall instead of bursting.
+        self.next_heartbeat = (self.next_heartbeat + self.settings.heartbeat_period).max(now);
+        Ok(())
+    }
+
+    /// Takes every frame already received into the feedback, without
+    /// waiting; then checks the drive's heartbeat. Returns the number of
+    /// frames read. Does not allocate.
+    pub fn drain(&mut self, bus: &mut dyn Transport) -> Result<usize, Cia402Error> {
+        let mut n = 0;
+        while let Some(f) = bus.recv(Duration::ZERO)? {
+            self.absorb(&f);
+            n += 1;
+        }
+        self.check_drive_heartbeat(Instant::now());
+        Ok(n)
+    }
+
+    fn check_drive_heartbeat(&mut self, now: Instant) {
+        if let Some(t) = self.last_drive_heartbeat {
+            if now.duration_since(t) > self.settings.drive_heartbeat_timeout {
+                self.fb.drive_heartbeat_lost = true;
+            }
+        }
+    }
+
+    fn receive_one(
+        &mut self,
+        bus: &mut dyn Transport,
+        timeout: Duration,
+    ) -> Result<(), Cia402Error> {
+        if let Some(f) = bus.recv(timeout)? {
+            self.absorb(&f);
+        }
+        Ok(())
+    }
+
+    /// Updates the feedback from one frame (frames not from the drive, or
+    /// SDO responses outside a transfer, are ignored).
+    fn absorb(&mut self, f: &Frame) {
+        if !f.is_standard_data() {
+            return;
+        }
+        let n = self.settings.node;
+        let p = f.payload();
+        let ok = if f.id == n.tpdo1() {
+            frames::decode_tpdo1(p).map(|t| {
+                self.fb.tpdo1_received += 1;
+                self.fb.statusword = t.statusword;
+                self.fb.state = decode_statusword(t.statusword).ok();
+                self.fb.position_rad = self.units.increments_to_rad(t.position_increments);
+            })
+        } else if f.id == n.tpdo2() {
+            frames::decode_tpdo2(p).map(|t| {
+                self.fb.tpdo2_received += 1;
+                self.fb.velocity_rad_s = self
+                    .units
+                    .increments_per_s_to_rad_s(t.velocity_increments_s);
+                self.fb.torque_nm = self.units.per_mille_to_torque_nm(t.torque_per_mille);
+            })
+        } else if f.id == n.emcy() {
+            frames::decode_emcy(p).map(|e| {
+                self.fb.emcy_received += 1;
+                self.fb.last_emcy = Some(e);
+            })
+        } else if f.id == n.heartbeat() {
+            frames::decode_heartbeat(p).map(|s| {
+                self.fb.heartbeats_received += 1;
+                self.fb.drive_nmt = Some(s);
+                self.last_drive_heartbeat = Some(Instant::now());
+                self.fb.drive_heartbeat_lost = false;
+            })
+        } else {
+            Ok(())
+        };
+        if ok.is_err() {
+            self.fb.decode_errors += 1;
+        }
+    }
+
+    /// Reads up to 4 bytes of `o` (expedited upload), little-endian,
+    /// zero-padded.
+    pub fn sdo_read(&mut self, bus: &mut dyn Transport, o: Object) -> Result<[u8; 4], Cia402Error> {
+        bus.send(&frames::sdo_upload(self.settings.node, o))?;
+        match self.sdo_response(bus, o)? {
+            SdoResponse::Uploaded { data, len, .. } => {
+                let mut out = [0u8; 4];
+                out[..usize::from(len)].copy_from_slice(&data[..usize::from(len)]);
+                Ok(out)
+            }
+            _ => Err(Cia402Error::InvalidValue {
+                field: "SDO upload response",
+                raw: 0,
+            }),
+        }
+    }
+
+    fn sdo_read_u32(&mut self, bus: &mut dyn Transport, o: Object) -> Result<u32, Cia402Error> {
+        self.sdo_read(bus, o).map(u32::from_le_bytes)
+    }
+
+    /// Writes 1 to 4 bytes to `o` (expedited download) and waits for the
+    /// confirmation.
+    pub fn sdo_write(
+        &mut self,
+        bus: &mut dyn Transport,
+        o: Object,
+        value: &[u8],
+    ) -> Result<(), Cia402Error> {
+        bus.send(&frames::sdo_download(self.settings.node, o, value)?)?;
+        match self.sdo_response(bus, o)? {
+            SdoResponse::Downloaded { .. } => Ok(()),
+            _ => Err(Cia402Error::InvalidValue {
+                field: "SDO download response",
+                raw: 0,
+            }),
+        }
+    }
+
+    /// Waits for the SDO response to `o`, absorbing other frames meanwhile.
+    fn sdo_response(
+        &mut self,
+        bus: &mut dyn Transport,
+        o: Object,
+    ) -> Result<SdoResponse, Cia402Error> {
+        let start = Instant::now();
+        let tx = self.settings.node.sdo_tx();
+        loop {
+            let left = self
+                .settings
+                .response_timeout
+                .checked_sub(start.elapsed())
+                .ok_or(Cia402Error::Timeout {
+                    what: "an SDO response",
+                    state: self.fb.state,
+                })?;
+            let Some(f) = bus.recv(left)? else { continue };
+            if f.id != tx || !f.is_standard_data() {
+                self.absorb(&f);
+                continue;
+            }
+            let r = frames::decode_sdo_response(f.payload())?;
+            let (index, subindex) = match r {
+                SdoResponse::Downloaded { index, subindex }
+                | SdoResponse::Uploaded {
+                    index, subindex, ..
+                }
+                | SdoResponse::Aborted {
+                    index, subindex, ..
+                } => (index, subindex),
+            };
+            if (index, subindex) != (o.index, o.subindex) {
+                continue; // a late answer to an earlier request
+            }
+            if let SdoResponse::Aborted { code, .. } = r {
+                return Err(Cia402Error::SdoAbort {
+                    object: o.name,
+                    index,
+                    subindex,
+                    code,
+                });
+            }
+            return Ok(r);
+        }
+    }
+
+    /// Leaves the drive safe: controlword shutdown at zero torque (SYNC
+    /// stepped until it leaves OperationEnabled), its heartbeat consumer
+    /// switched off (0x1016:01 = 0, so the master may go silent), NMT
+    /// pre-operational (PDOs stop).
+    pub fn shut_down(
+        &mut self,
+        bus: &mut dyn Transport,
+        step: Duration,
+    ) -> Result<(), Cia402Error> {
+        let disabled = self.drive_towards(bus, step, Goal::Disabled, "ReadyToSwitchOn", |s| {
+            s != DriveState::OperationEnabled
+        });
+        self.sdo_write(bus, od::CONSUMER_HEARTBEAT, &0u32.to_le_bytes())?;
+        bus.send(&frames::nmt(
+            NmtCommand::EnterPreOperational,
+            self.settings.node.get(),
+        ))?;
+        disabled
+    }
+}
