@@ -537,14 +537,10 @@ fn propagate<const N: usize, const R: usize, const S: usize>(
     f: &mut impl FnMut(&SVector<f64, N>) -> SVector<f64, R>,
 ) -> Option<SMatrix<f64, R, S>> {
     let mut chi_f = SMatrix::<f64, R, S>::zeros();
-    for i in 0..S {
-        let mut xi = *x;
-        if i >= 1 && i <= N {
-            xi += L.column(i - 1);
-        } else if i > N && i <= 2 * N {
-            xi -= L.column(i - 1 - N);
-        }
-        chi_f.set_column(i, &f(&xi));
+    chi_f.set_column(0, &f(x));
+    for k in 0..N {
+        chi_f.set_column(1 + k, &f(&(x + L.column(k))));
+        chi_f.set_column(1 + N + k, &f(&(x - L.column(k))));
     }
     all_finite(&chi_f).then_some(chi_f)
 }
@@ -824,9 +820,20 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         let Q_tt = Q.fixed_view::<R, R>(0, 0).into_owned();
         let P_tt = unscented_covariance(&self.Wc, &chi_f, &x_t, &Q_tt);
         // D = [f(x + L e_k) - f(x - L e_k)]_k (R x N); T = w D L' (R x N),
-        // whose columns c >= R are P-_tb without Q.
+        // whose columns c >= R are P-_tb without Q (only those are formed:
+        // T_rc = (sum_k D_rk L_ck) w, summed in ascending k, the order of
+        // nalgebra's product, so the same bits).
         let D = SMatrix::<f64, R, N>::from_fn(|r, k| chi_f[(r, 1 + k)] - chi_f[(r, 1 + N + k)]);
-        let T = (D * L.transpose()) * self.Wc[1];
+        let mut T = SMatrix::<f64, R, N>::zeros();
+        for c in R..N {
+            for r in 0..R {
+                let mut t = D[(r, 0)] * L[(c, 0)];
+                for k in 1..N {
+                    t += D[(r, k)] * L[(c, k)];
+                }
+                T[(r, c)] = t * self.Wc[1];
+            }
+        }
         // P- = [[P-_tt, T_b + Q_tb], [.., P_bb + Q_bb]], mirrored from the upper triangle.
         let mut P_prior = P;
         for c in 0..N {
@@ -1027,13 +1034,21 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
             let _ = self.factor(&mut P, Stage::UpdateSigmaPoints, &mut pending);
         }
         let idx = sel.indices();
-        // P as the sigma points see it: its upper triangle.
-        let Pu = |i: usize, j: usize| if i <= j { P[(i, j)] } else { P[(j, i)] };
+        // P as the sigma points see it: its upper triangle, mirrored.
+        let mut Pu = P;
+        for j in 0..N {
+            for i in j + 1..N {
+                Pu[(i, j)] = Pu[(j, i)];
+            }
+        }
         // z_bar = H x
         let z_bar = sel.apply(&self.x);
-        // S = H P H' + R ; Pxz = P H'
-        let S_innov = SMatrix::<f64, M, M>::from_fn(|a, b| Pu(idx[a], idx[b]) + R[(a, b)]);
-        let Pxz = SMatrix::<f64, N, M>::from_fn(|r, b| Pu(r, idx[b]));
+        // Pxz = P H' (the selected columns) ; S = H P H' + R
+        let mut Pxz = SMatrix::<f64, N, M>::zeros();
+        for (b, &c) in idx.iter().enumerate() {
+            Pxz.set_column(b, &Pu.column(c));
+        }
+        let S_innov = SMatrix::<f64, M, M>::from_fn(|a, b| Pxz[(idx[a], b)] + R[(a, b)]);
         // z_bar and Pxz are entries of the finite x and P; S can overflow.
         if !all_finite(&S_innov) {
             return self.reject(UkfError::NonFiniteResult {
