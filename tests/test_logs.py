@@ -162,3 +162,15 @@ def test_bad_files_and_bad_data_are_named(trial, tmp_path):
     short = {n: trial[n] for n in logs.COLUMNS} | {"x": trial["x"][:10]}
     with pytest.raises(ValueError, match=r"data\.x: 10 values"):
         _core.write_log(str(tmp_path / "x.csv"), short, meta_json="{}")
+
+
+def test_packed_records_view_and_bad_bytes_are_named(trial):
+    # The core hands a trial over as packed rows in DTYPE's layout (one
+    # buffer, viewed without a copy); other bytes are refused by name.
+    raw = np.frombuffer(trial.data.tobytes(), dtype=np.uint8).copy()
+    assert logs.from_records(raw).tobytes() == trial.data.tobytes()
+    np.testing.assert_array_equal(logs.from_records(raw)["tick"], np.arange(len(trial)))
+    with pytest.raises(ValueError, match="records: expected 1-D uint8 bytes"):
+        logs.from_records(raw[:-1])
+    with pytest.raises(ValueError, match="records: expected 1-D uint8 bytes"):
+        logs.from_records(raw.view(np.int8))

@@ -246,11 +246,12 @@ class GoalIntegrator:
 
 # --- scenario ---
 
-def run_scenario(config: dict) -> tuple[dict[str, NDArray[Any]], dict[str, int]]:
+def run_scenario(config: dict) -> tuple[NDArray[np.uint8], dict[str, int]]:
     """One whole simulated trial from the resolved dict of ``sensaug.experiment.resolve``.
 
-    Returns ``(columns, summary)``: one array per column of the log schema
-    (``log_schema()``; float64, int64 or bool), by name.
+    Returns ``(records, summary)``: the log's rows as the bytes of packed
+    records in the log schema's column order (``log_schema()``; int64 and
+    float64 native-endian, bool one byte), ``records.view(sensaug.logs.DTYPE)``.
 
     Raises:
         ValueError: a setting out of range (the message names its path).

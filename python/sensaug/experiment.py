@@ -118,7 +118,7 @@ def _git_commit() -> str | None:
 def run(config: ScenarioConfig) -> Trial:
     """Runs one whole trial in the compiled core and returns its log."""
     toml = config._toml()
-    columns, summary = _core.run_scenario(toml)
+    records, summary = _core.run_scenario(toml)
     summary = dict(summary)
     robot_gains = np.asarray(summary.pop("robot_gains"), dtype=float)
     partner_gains = np.asarray(summary.pop("partner_gains"), dtype=float)
@@ -132,7 +132,7 @@ def run(config: ScenarioConfig) -> Trial:
     )
     meta["end"] = summary
     return Trial(
-        data=logs.from_columns(columns),
+        data=logs.from_records(records),
         meta=meta,
         config=config,
         summary=summary,

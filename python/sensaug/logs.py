@@ -24,7 +24,7 @@ import numpy as np
 
 from sensaug import _core
 
-__all__ = ["COLUMNS", "DTYPE", "PHASE_NAMES", "UNITS", "UNKNOWN_INT", "Log", "from_columns", "load_log", "to_json"]
+__all__ = ["COLUMNS", "DTYPE", "PHASE_NAMES", "UNITS", "UNKNOWN_INT", "Log", "from_columns", "from_records", "load_log", "to_json"]
 
 _SCHEMA = _core.log_schema()
 FORMAT_LINE: str = _SCHEMA["format_line"]
@@ -57,6 +57,18 @@ def from_columns(columns: Mapping[str, np.ndarray]) -> np.ndarray:
     for name in COLUMNS:
         data[name] = columns[name]
     return data
+
+
+def from_records(records: np.ndarray) -> np.ndarray:
+    """A structured array with :data:`DTYPE` viewing ``records``, the bytes of
+    packed rows in :data:`COLUMNS` order (as ``_core.run_scenario`` returns
+    them): no copy."""
+    if records.dtype != np.uint8 or records.ndim != 1 or records.size % DTYPE.itemsize:
+        raise ValueError(
+            f"records: expected 1-D uint8 bytes, a multiple of {DTYPE.itemsize} (one row of DTYPE); "
+            f"got {records.dtype} with shape {records.shape}"
+        )
+    return records.view(DTYPE)
 
 
 @dataclass(repr=False)

@@ -18,7 +18,7 @@
 //! complete, finite new state or returns an error; see [`UkfError`] for what
 //! each error leaves behind.
 
-use nalgebra::{Cholesky, SMatrix, SVector};
+use nalgebra::{SMatrix, SVector};
 
 pub use crate::linalg::all_finite;
 
@@ -247,34 +247,55 @@ pub fn merwe_weights<const S: usize>(
 /// is `U = L'`). `None` if `c P` is not positive definite or anything is not
 /// finite.
 ///
-/// Column by column (left-looking, the operation order of nalgebra's
-/// `Cholesky`, so the factor is the same to the last bit), for `i >= j`:
-/// `a_ij = c P_ji - sum_{k<j} L_jk L_ik`, `L_jj = sqrt(a_jj)`,
-/// `L_ij = a_ij / L_jj`. Written out so the tick needs no transpose, no
-/// copy of `c P` and no second pass for the finiteness of the factor.
+/// `a_ij = c P_ji` for `i >= j` (upper triangle of `P`, as LAPACK
+/// `potrf(uplo='U')` reads it; column-major, so `P_ji` is `p[i N + j]`),
+/// then [`cholesky_in_place`]. Written out so the tick needs no transpose and
+/// no copy of `c P`.
 #[inline(always)]
 pub fn scaled_cholesky<const N: usize>(
     P: &SMatrix<f64, N, N>,
     c: f64,
 ) -> Option<SMatrix<f64, N, N>> {
-    if !P
-        .as_slice()
-        .iter()
-        .fold(true, |ok, v| ok & (v * c).is_finite())
-    {
-        return None;
-    }
-    // l[j][i] = L_ij: plain column-major arrays.
     let p = P.as_slice();
     let mut l = [[0.0f64; N]; N];
-    for j in 0..N {
-        let (done, rest) = l.split_at_mut(j);
-        let col = &mut rest[0];
-        // a_ij = c P_ji (upper triangle of P, as LAPACK potrf(uplo='U') reads
-        // it; column-major, so P_ji is p[i N + j])
+    for (j, col) in l.iter_mut().enumerate() {
         for i in j..N {
             col[i] = p[i * N + j] * c;
         }
+    }
+    cholesky_in_place(l)
+}
+
+/// Cholesky factor `L` with `L L' = A` of a symmetric `A`, reading only its
+/// lower triangle (as nalgebra's `Cholesky::new` does), used for the
+/// innovation covariance `S`. `None` if `A` is not positive definite or
+/// anything is not finite.
+#[inline(always)]
+pub fn cholesky_lower<const M: usize>(A: &SMatrix<f64, M, M>) -> Option<SMatrix<f64, M, M>> {
+    let a = A.as_slice();
+    let mut l = [[0.0f64; M]; M];
+    for (j, col) in l.iter_mut().enumerate() {
+        col[j..].copy_from_slice(&a[j * M + j..(j + 1) * M]);
+    }
+    cholesky_in_place(l)
+}
+
+/// The factorisation itself, on the lower triangle `a_ij` (`i >= j`) of
+/// `A` given as columns `l[j][i]`; entries above the diagonal are ignored
+/// and returned as 0.
+///
+/// Column by column (left-looking, the operation order of nalgebra's
+/// `Cholesky`, so the factor is the same to the last bit), for `i >= j`:
+/// `a_ij <- a_ij - sum_{k<j} L_jk L_ik`, `L_jj = sqrt(a_jj)`,
+/// `L_ij = a_ij / L_jj`. Non-finite input needs no separate pass: a pivot
+/// that is NaN, zero, negative or infinite is refused, and every `L_ij`
+/// below the diagonal enters pivot `i` as `-L_ij^2`, so a NaN or infinite
+/// entry makes that pivot NaN or `-inf`.
+#[inline(always)]
+fn cholesky_in_place<const N: usize>(mut l: [[f64; N]; N]) -> Option<SMatrix<f64, N, N>> {
+    for j in 0..N {
+        let (done, rest) = l.split_at_mut(j);
+        let col = &mut rest[0];
         for lk in done.iter() {
             // a_ij += (-L_jk) L_ik for i >= j, in nalgebra's order (axpy)
             let f = -lk[j];
@@ -283,10 +304,6 @@ pub fn scaled_cholesky<const N: usize>(
             }
         }
         let d = col[j];
-        // A pivot that is NaN, zero, negative or infinite: not positive
-        // definite (or overflow). This also covers every L_ij below the
-        // diagonal: it enters pivot i as -L_ij^2, so a NaN or infinite L_ij
-        // makes that pivot NaN or -inf.
         if !d.is_finite() || d <= 0.0 {
             return None;
         }
@@ -385,15 +402,44 @@ pub fn cross_covariance<const N: usize, const M: usize, const S: usize>(
     Pxz
 }
 
-/// Kalman gain `K = Pxz S^-1`, solved, not inverted: `S K' = Pxz'` with the
-/// Cholesky factor of the symmetric `S`.
+/// Kalman gain `K = Pxz S^-1`, solved, not inverted: `S K' = Pxz'` with
+/// the lower Cholesky factor `L` of the symmetric `S` ([`cholesky_lower`]),
+/// row `r` of `K` by forward substitution `L w = Pxz_r'` then back
+/// substitution `L' k = w`, in the operation order of nalgebra's
+/// `Cholesky::solve_mut` (column-wise `axpy` forward, ascending dot
+/// products backward), so the gain is the same to the last bit.
+#[inline(always)]
 pub fn kalman_gain<const N: usize, const M: usize>(
     Pxz: &SMatrix<f64, N, M>,
-    chol_S: &Cholesky<f64, nalgebra::Const<M>>,
+    L: &SMatrix<f64, M, M>,
 ) -> SMatrix<f64, N, M> {
-    let mut Kt = Pxz.transpose();
-    chol_S.solve_mut(&mut Kt);
-    Kt.transpose()
+    let mut K = SMatrix::<f64, N, M>::zeros();
+    for r in 0..N {
+        let mut b = [0.0f64; M];
+        for (m, bm) in b.iter_mut().enumerate() {
+            *bm = Pxz[(r, m)];
+        }
+        // L w = b: w_i = b_i / L_ii, b_k += (-w_i) L_ki for k > i
+        for i in 0..M {
+            let w = b[i] / L[(i, i)];
+            b[i] = w;
+            for k in i + 1..M {
+                b[k] += -w * L[(k, i)];
+            }
+        }
+        // L' k = w: k_i = (w_i - sum_{j>i} L_ji k_j) / L_ii
+        for i in (0..M).rev() {
+            let mut dot = 0.0;
+            for j in i + 1..M {
+                dot += L[(j, i)] * b[j];
+            }
+            b[i] = (b[i] - dot) / L[(i, i)];
+        }
+        for (m, bm) in b.iter().enumerate() {
+            K[(r, m)] = *bm;
+        }
+    }
+    K
 }
 
 /// Posterior mean: `x+ = x- + K y` with innovation `y = z - z_bar`.
@@ -491,14 +537,10 @@ fn propagate<const N: usize, const R: usize, const S: usize>(
     f: &mut impl FnMut(&SVector<f64, N>) -> SVector<f64, R>,
 ) -> Option<SMatrix<f64, R, S>> {
     let mut chi_f = SMatrix::<f64, R, S>::zeros();
-    for i in 0..S {
-        let mut xi = *x;
-        if i >= 1 && i <= N {
-            xi += L.column(i - 1);
-        } else if i > N && i <= 2 * N {
-            xi -= L.column(i - 1 - N);
-        }
-        chi_f.set_column(i, &f(&xi));
+    chi_f.set_column(0, &f(x));
+    for k in 0..N {
+        chi_f.set_column(1 + k, &f(&(x + L.column(k))));
+        chi_f.set_column(1 + N + k, &f(&(x - L.column(k))));
     }
     all_finite(&chi_f).then_some(chi_f)
 }
@@ -778,9 +820,20 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         let Q_tt = Q.fixed_view::<R, R>(0, 0).into_owned();
         let P_tt = unscented_covariance(&self.Wc, &chi_f, &x_t, &Q_tt);
         // D = [f(x + L e_k) - f(x - L e_k)]_k (R x N); T = w D L' (R x N),
-        // whose columns c >= R are P-_tb without Q.
+        // whose columns c >= R are P-_tb without Q (only those are formed:
+        // T_rc = (sum_k D_rk L_ck) w, summed in ascending k, the order of
+        // nalgebra's product, so the same bits).
         let D = SMatrix::<f64, R, N>::from_fn(|r, k| chi_f[(r, 1 + k)] - chi_f[(r, 1 + N + k)]);
-        let T = (D * L.transpose()) * self.Wc[1];
+        let mut T = SMatrix::<f64, R, N>::zeros();
+        for c in R..N {
+            for r in 0..R {
+                let mut t = D[(r, 0)] * L[(c, 0)];
+                for k in 1..N {
+                    t += D[(r, k)] * L[(c, k)];
+                }
+                T[(r, c)] = t * self.Wc[1];
+            }
+        }
         // P- = [[P-_tt, T_b + Q_tb], [.., P_bb + Q_bb]], mirrored from the upper triangle.
         let mut P_prior = P;
         for c in 0..N {
@@ -913,6 +966,11 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         let S_innov = unscented_covariance(&self.Wc, &Z, &z_bar, R);
         // Pxz = sum_i Wc_i (chi_i - x)(Z_i - z_bar)'
         let Pxz = cross_covariance(&self.Wc, chi, &self.x, &Z, &z_bar);
+        if !all_finite(&z_bar) || !all_finite(&S_innov) || !all_finite(&Pxz) {
+            return self.reject(UkfError::NonFiniteResult {
+                phase: Phase::Update,
+            });
+        }
         self.correct(z, &z_bar, S_innov, &Pxz, &P, pending, Posterior::Filterpy)
     }
 
@@ -924,6 +982,9 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         z: &SVector<f64, M>,
         sel: &Selection<N, M>,
     ) -> Result<Status, UkfError> {
+        if !all_finite(z) {
+            return self.reject(UkfError::NonFiniteMeasurement);
+        }
         // The default R was validated at set-up: no copy, no re-check.
         self.update_selected_impl(z, None, sel)
     }
@@ -956,17 +1017,14 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         self.update_selected_impl(z, Some(R), sel)
     }
 
-    /// [`Ukf::update_selected_with_r`] with a checked per-call `R`, or the
-    /// default.
+    /// [`Ukf::update_selected_with_r`] with a checked `z` and a checked
+    /// per-call `R`, or the default.
     fn update_selected_impl(
         &mut self,
         z: &SVector<f64, M>,
         R: Option<&SMatrix<f64, M, M>>,
         sel: &Selection<N, M>,
     ) -> Result<Status, UkfError> {
-        if !all_finite(z) {
-            return self.reject(UkfError::NonFiniteMeasurement);
-        }
         let R = R.unwrap_or(&self.R);
         let mut pending = Pending::default();
         let mut P = self.P;
@@ -976,18 +1034,33 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
             let _ = self.factor(&mut P, Stage::UpdateSigmaPoints, &mut pending);
         }
         let idx = sel.indices();
-        // P as the sigma points see it: its upper triangle.
-        let Pu = |i: usize, j: usize| if i <= j { P[(i, j)] } else { P[(j, i)] };
+        // P as the sigma points see it: its upper triangle, mirrored.
+        let mut Pu = P;
+        for j in 0..N {
+            for i in j + 1..N {
+                Pu[(i, j)] = Pu[(j, i)];
+            }
+        }
         // z_bar = H x
         let z_bar = sel.apply(&self.x);
-        // S = H P H' + R ; Pxz = P H'
-        let S_innov = SMatrix::<f64, M, M>::from_fn(|a, b| Pu(idx[a], idx[b]) + R[(a, b)]);
-        let Pxz = SMatrix::<f64, N, M>::from_fn(|r, b| Pu(r, idx[b]));
+        // Pxz = P H' (the selected columns) ; S = H P H' + R
+        let mut Pxz = SMatrix::<f64, N, M>::zeros();
+        for (b, &c) in idx.iter().enumerate() {
+            Pxz.set_column(b, &Pu.column(c));
+        }
+        let S_innov = SMatrix::<f64, M, M>::from_fn(|a, b| Pxz[(idx[a], b)] + R[(a, b)]);
+        // z_bar and Pxz are entries of the finite x and P; S can overflow.
+        if !all_finite(&S_innov) {
+            return self.reject(UkfError::NonFiniteResult {
+                phase: Phase::Update,
+            });
+        }
         self.correct(z, &z_bar, S_innov, &Pxz, &P, pending, Posterior::Symmetric)
     }
 
-    /// The correction shared by both update paths, from `z_bar`, `S`, `Pxz`
-    /// and the prior `P`: factor `S` (with the recovery policy), then
+    /// The correction shared by both update paths, from the finite (checked
+    /// by the caller) `z_bar`, `S`, `Pxz` and the prior `P`: factor `S`
+    /// (with the recovery policy), then
     /// `K = Pxz S^-1`, `y = z - z_bar`, `x+ = x + K y`, and `P+` as chosen.
     #[allow(clippy::too_many_arguments)]
     fn correct(
@@ -1000,16 +1073,11 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         mut pending: Pending,
         posterior: Posterior,
     ) -> Result<Status, UkfError> {
-        if !all_finite(z_bar) || !all_finite(&S_innov) || !all_finite(Pxz) {
-            return self.reject(UkfError::NonFiniteResult {
-                phase: Phase::Update,
-            });
-        }
-        let chol_S = match Cholesky::new(S_innov) {
+        let L_S = match cholesky_lower(&S_innov) {
             Some(ch) => ch,
             None => {
                 S_innov = symmetrise(&S_innov);
-                match Cholesky::new(S_innov) {
+                match cholesky_lower(&S_innov) {
                     Some(ch) => {
                         pending.resymmetrised += 1;
                         pending.last_resym = Some(Stage::InnovationCovariance);
@@ -1030,7 +1098,7 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
             }
         };
         // K = Pxz S^-1
-        let K = kalman_gain(Pxz, &chol_S);
+        let K = kalman_gain(Pxz, &L_S);
         // y = z - z_bar
         let y = z - z_bar;
         // x+ = x- + K y

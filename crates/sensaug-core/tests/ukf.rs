@@ -589,3 +589,33 @@ fn run_checks_slices_and_matches_stepping() {
     assert!(xs.iter().chain(pd.iter()).all(|v| v.is_finite()));
     assert_eq!(ukf.recoveries().rejected, 1);
 }
+
+/// The hand-written factor and solve of `S` give nalgebra's `Cholesky` and
+/// `solve_mut` to the last bit, and refuse what it refuses.
+#[test]
+fn innovation_factor_and_gain_equal_nalgebra_bitwise() {
+    use sensaug_core::ukf::{cholesky_lower, kalman_gain};
+    let mut seed = 0x2545_f491_4f6c_dd1du64;
+    let mut next = || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+    };
+    for _ in 0..200 {
+        let A = SMatrix::<f64, 5, 5>::from_fn(|_, _| next());
+        let S = A * A.transpose() + SMatrix::<f64, 5, 5>::identity() * 1e-3;
+        let Pxz = SMatrix::<f64, 6, 5>::from_fn(|_, _| next());
+        let ch = nalgebra::Cholesky::new(S).expect("positive definite");
+        let L = cholesky_lower(&S).expect("positive definite");
+        assert_eq!(L, ch.l());
+        let mut Kt = Pxz.transpose();
+        ch.solve_mut(&mut Kt);
+        assert_eq!(kalman_gain(&Pxz, &L), Kt.transpose());
+    }
+    let indefinite = Matrix2::new(1.0, 2.0, 2.0, 1.0);
+    assert!(cholesky_lower(&indefinite).is_none());
+    assert!(nalgebra::Cholesky::new(indefinite).is_none());
+    assert!(cholesky_lower(&Matrix2::new(f64::NAN, 0.0, 0.0, 1.0)).is_none());
+    assert!(cholesky_lower(&Matrix2::new(1.0, 0.0, f64::INFINITY, 1.0)).is_none());
+}

@@ -2,7 +2,7 @@
 //! metadata of a simulated trial, rows <-> numpy columns, and the writer of
 //! a log file. Conversion only; the format lives in `sensaug-log`.
 
-use numpy::{IntoPyArray, PyReadonlyArray1};
+use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1};
 use pyo3::exceptions::{PyOSError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -104,6 +104,35 @@ pub fn rows_to_columns<'py>(py: Python<'py>, rows: &[Row]) -> PyResult<Bound<'py
         }
     }
     Ok(d)
+}
+
+/// Rows as the bytes of one packed record per row, the columns in schema
+/// order (native-endian int64 / float64, bool as one byte: the layout of
+/// `sensaug.logs.DTYPE`), for `ndarray.view(DTYPE)`. One pass and one
+/// buffer, handed to numpy without a copy (no per-column arrays to
+/// re-interleave in Python, no intermediate `Vec<Row>`).
+pub fn rows_to_records<'py>(
+    py: Python<'py>,
+    rows: impl ExactSizeIterator<Item = Row>,
+) -> Bound<'py, PyArray1<u8>> {
+    let width: usize = COLUMNS
+        .iter()
+        .map(|c| match c.kind {
+            Kind::Bool => 1,
+            Kind::Int | Kind::Float => 8,
+        })
+        .sum();
+    let mut buf = Vec::with_capacity(rows.len() * width);
+    for r in rows {
+        for v in r.values() {
+            match v {
+                Value::Int(x) => buf.extend_from_slice(&x.to_ne_bytes()),
+                Value::Float(x) => buf.extend_from_slice(&x.to_ne_bytes()),
+                Value::Bool(x) => buf.push(u8::from(x)),
+            }
+        }
+    }
+    buf.into_pyarray(py)
 }
 
 /// Rows from `data[name]` for every column (a numpy structured array or a

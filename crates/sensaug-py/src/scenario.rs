@@ -75,15 +75,16 @@ fn config_schema() -> String {
     serde_json::to_string_pretty(sensaug_config::json_schema()).expect("a schema is JSON")
 }
 
-/// Runs one trial from configuration text. Returns `(columns, summary)`:
-/// one array per column of the log schema (`log_schema()`), by name.
+/// Runs one trial from configuration text. Returns `(records, summary)`:
+/// the log's rows as the bytes of packed records in the log schema's column
+/// order (`log_schema()`; `records.view(sensaug.logs.DTYPE)` is the log).
 #[pyfunction]
 #[pyo3(signature = (text, /, *, format = "toml"))]
 fn run_scenario<'py>(
     py: Python<'py>,
     text: &str,
     format: &str,
-) -> PyResult<(Bound<'py, PyDict>, Bound<'py, PyDict>)> {
+) -> PyResult<(Bound<'py, numpy::PyArray1<u8>>, Bound<'py, PyDict>)> {
     let spec = load(text, format)?;
     let resolved = sensaug_config::resolve(&spec).map_err(config_err)?;
     let mut scenario = Scenario::new(
@@ -101,12 +102,11 @@ fn run_scenario<'py>(
     let summary = py.detach(|| scenario.run(&mut records)).map_err(|_| {
         PyValueError::new_err("internal: the output buffer is shorter than the trial")
     })?;
-    let rows: Vec<Row> = records
+    let rows = records
         .iter()
         .enumerate()
-        .map(|(k, r)| Row::from_tick_record(k as u64, r))
-        .collect();
-    let out = crate::log::rows_to_columns(py, &rows)?;
+        .map(|(k, r)| Row::from_tick_record(k as u64, r));
+    let out = crate::log::rows_to_records(py, rows);
     let d = PyDict::new(py);
     d.set_item("ticks", summary.ticks)?;
     d.set_item("robot_clamped", summary.robot.clamped)?;
