@@ -2,8 +2,18 @@
 //! one schema the Python API and this binary share).
 
 use crate::control::LoopSettings;
+use sensaug_bridge::drive_link::{DriveLink, Hi5Link};
 use sensaug_bridge::protocol::NodeId;
 use sensaug_config::{ConfigError, Resolved};
+use std::time::Duration;
+
+/// How long each set-up step may wait for the drive.
+pub const SETUP_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// The link to the drive the configuration names.
+pub fn drive_link(s: &LoopSettings) -> Box<dyn DriveLink + Send> {
+    Box::new(Hi5Link::new(s.node, s.watchdog_ms, SETUP_TIMEOUT))
+}
 
 /// The loop's settings: the `[rig]` table and the controller's period, unit
 /// and virtual human (zero gains when a person holds the handle).

@@ -12,14 +12,13 @@ use sensaug_bridge::protocol::MessageKind;
 use sensaug_config::Resolved;
 use sensaug_config::{load_file, validate, ConfigError, ScenarioSpec};
 use sensaug_core::controller::Robot;
-use sensaug_rt::config::loop_settings;
+use sensaug_rt::config::{drive_link, loop_settings};
 use sensaug_rt::control::{LoopSettings, Rig, StartError, StopReason};
 use sensaug_rt::{log, os};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
-use std::time::Duration;
 
 /// The 1 kHz real-time loop of sensaug: the paper's three-phase experiment
 /// over CAN, with the robot controller (and optionally a virtual human)
@@ -246,7 +245,7 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, RunError> {
         );
     }
 
-    let mut rig_loop = match Rig::start(settings, transport, robot, Duration::from_secs(5)) {
+    let mut rig_loop = match Rig::start(settings, drive_link(&settings), transport, robot) {
         Ok(r) => r,
         Err(e) => {
             // The run never started: any older log and statistics stay.

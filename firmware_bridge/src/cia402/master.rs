@@ -126,6 +126,17 @@ pub struct Feedback {
     pub decode_errors: u64,
 }
 
+/// What [`Master::absorb`] made of one frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Heard {
+    /// The drive's TPDO2: with the TPDO1 before it, one tick's feedback.
+    Tpdo2,
+    /// A frame from the drive that did not decode.
+    Undecodable,
+    /// Any other frame (TPDO1, EMCY, heartbeat, or not from the drive).
+    Other,
+}
+
 /// The CiA 402 master for one drive.
 pub struct Master {
     settings: MasterSettings,
@@ -376,6 +387,12 @@ impl Master {
         self.send_cycle(bus, controlword::QUICK_STOP, 0)
     }
 
+    /// Shutdown at zero torque (controlword 0x0006, leaves
+    /// OperationEnabled for ReadyToSwitchOn), with a SYNC. Does not wait.
+    pub fn disable(&mut self, bus: &mut dyn Transport) -> Result<(), Cia402Error> {
+        self.send_cycle(bus, controlword::SHUTDOWN, 0)
+    }
+
     fn send_cycle(
         &mut self,
         bus: &mut dyn Transport,
@@ -414,7 +431,11 @@ impl Master {
         Ok(n)
     }
 
-    fn check_drive_heartbeat(&mut self, now: Instant) {
+    /// Marks the drive's heartbeat lost when none came within
+    /// [`MasterSettings::drive_heartbeat_timeout`] of `now` (after the
+    /// first). [`Master::drain`] calls it; a caller that reads frames
+    /// itself ([`Master::absorb`]) calls it once per tick.
+    pub fn check_drive_heartbeat(&mut self, now: Instant) {
         if let Some(t) = self.last_drive_heartbeat {
             if now.duration_since(t) > self.settings.drive_heartbeat_timeout {
                 self.fb.drive_heartbeat_lost = true;
@@ -434,10 +455,11 @@ impl Master {
     }
 
     /// Updates the feedback from one frame (frames not from the drive, or
-    /// SDO responses outside a transfer, are ignored).
-    fn absorb(&mut self, f: &Frame) {
+    /// SDO responses outside a transfer, are ignored) and says what it was.
+    /// Does not allocate.
+    pub fn absorb(&mut self, f: &Frame) -> Heard {
         if !f.is_standard_data() {
-            return;
+            return Heard::Other;
         }
         let n = self.settings.node;
         let p = f.payload();
@@ -469,10 +491,15 @@ impl Master {
                 self.fb.drive_heartbeat_lost = false;
             })
         } else {
-            Ok(())
+            return Heard::Other;
         };
-        if ok.is_err() {
-            self.fb.decode_errors += 1;
+        match ok {
+            Ok(()) if f.id == n.tpdo2() => Heard::Tpdo2,
+            Ok(()) => Heard::Other,
+            Err(_) => {
+                self.fb.decode_errors += 1;
+                Heard::Undecodable
+            }
         }
     }
 
