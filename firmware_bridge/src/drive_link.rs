@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 
 use crate::cia402::{Cia402Error, DriveState as Cia402State, Heard, Master, MasterSettings};
 use crate::frame::Frame;
-use crate::protocol::{decode, encode, DriveState, FaultFlags, Message, NodeId};
+use crate::protocol::{decode, encode, DriveState, FaultFlags, Message, MessageKind, NodeId};
 use crate::transport::{Transport, TransportError};
 
 /// What the loop senses from the drive in one tick.
@@ -169,6 +169,11 @@ pub trait DriveLink {
     /// After the last tick `k - 1`: zero torque, then leave the drive
     /// disabled. May wait (bounded).
     fn shut_down(&mut self, bus: &mut dyn Transport, k: u64) -> Result<(), LinkError>;
+
+    /// The CAN ids the loop must receive (a kernel filter may drop the
+    /// rest): the drive's frames and commands to it (which only another
+    /// sender can have put on the bus).
+    fn receive_ids(&self) -> Vec<u32>;
 
     /// [`DriveLink::connect`] then [`DriveLink::enable`].
     fn bring_up(&mut self, bus: &mut dyn Transport) -> Result<EnableTimes, LinkError> {
@@ -386,6 +391,20 @@ impl DriveLink for Hi5Link {
         first.and(second)
     }
 
+    fn receive_ids(&self) -> Vec<u32> {
+        [
+            MessageKind::Feedback,
+            MessageKind::Fault,
+            MessageKind::Heartbeat,
+            MessageKind::TorqueCommand,
+            MessageKind::SetState,
+            MessageKind::EmergencyStop,
+            MessageKind::ClearFaults,
+        ]
+        .map(|kind| kind.id(self.node))
+        .to_vec()
+    }
+
     fn shut_down(&mut self, bus: &mut dyn Transport, k: u64) -> Result<(), LinkError> {
         self.stop(bus, k, false)?;
         self.wait_for(bus, "Hi5 DISABLED", |s| s.state != DriveState::Enabled)
@@ -512,6 +531,24 @@ impl DriveLink for Cia402Link {
             self.master.disable(bus)?;
         }
         Ok(())
+    }
+
+    /// The drive's TPDOs, EMCY, heartbeat and SDO responses; its RPDO1 and
+    /// SDO requests, SYNC and NMT (another master's).
+    fn receive_ids(&self) -> Vec<u32> {
+        use crate::cia402::od::{NMT_COB_ID, SYNC_COB_ID};
+        let n = self.master.settings().node;
+        vec![
+            n.tpdo1(),
+            n.tpdo2(),
+            n.emcy(),
+            n.heartbeat(),
+            n.sdo_tx(),
+            n.rpdo1(),
+            n.sdo_rx(),
+            SYNC_COB_ID,
+            NMT_COB_ID,
+        ]
     }
 
     /// [`Master::shut_down`].

@@ -47,7 +47,8 @@ fn main() {
     let drive_stop = Arc::new(AtomicBool::new(false));
     let handle = drive::drive(port, Arc::clone(&drive_stop), u64::MAX);
     let transport = Box::new(UdpBus::open(port).expect("loopback bus"));
-    let mut rig = Rig::start(settings, drive_link(&settings), transport, robot).expect("drive");
+    let mut rig =
+        Rig::start(settings, drive_link(&settings).unwrap(), transport, robot).expect("drive");
     let dir = std::env::temp_dir().join(format!("sensaug-rig-tick-{port}"));
     let meta = serde_json::json!({"source": "rig"});
     let (mut sink, writer) = log::start(&dir.join("log.csv"), 1 << 14, &meta).expect("log");

@@ -17,6 +17,7 @@ use crate::stats::{CanCounters, Histogram, LoopReport, StartGap};
 use sensaug_bridge::drive_link::{Absorbed, DriveLink, DriveSample};
 use sensaug_bridge::protocol::NodeId;
 use sensaug_bridge::{Frame, Transport};
+use sensaug_config::DriveProfile;
 use sensaug_core::agent::{guard_torque, Guard, VirtualHuman};
 use sensaug_core::controller::{Robot, RobotTick};
 use sensaug_core::protocol::{Protocol, Sample};
@@ -155,6 +156,8 @@ impl std::error::Error for StartError {}
 /// Settings of the loop (from `[rig]` and the controller's configuration).
 #[derive(Clone, Copy, Debug)]
 pub struct LoopSettings {
+    /// Drive profile.
+    pub drive: DriveProfile,
     /// Drive node id.
     pub node: NodeId,
     /// Loop period (s).

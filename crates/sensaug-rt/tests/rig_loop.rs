@@ -64,7 +64,7 @@ fn run_loop(answer_for: u64, stop_after: Option<Duration>) -> Outcome {
     let robot = Robot::new(resolved.robot, protocol).unwrap();
     let settings = drive::loop_settings(&resolved);
     let transport = Box::new(UdpBus::open(port).unwrap());
-    let mut rig = Rig::start(settings, drive_link(&settings), transport, robot).unwrap();
+    let mut rig = Rig::start(settings, drive_link(&settings).unwrap(), transport, robot).unwrap();
     let dir = std::env::temp_dir().join(format!("sensaug-rt-test-{port}"));
     let meta = serde_json::json!({"source": "rig"});
     let (mut sink, writer) = log::start(&dir.join("log.csv"), 1 << 14, &meta).unwrap();
