@@ -7,10 +7,10 @@
 //! [`DriveLink::enable`]. Per tick `k`: sense ([`DriveLink::absorb`] each
 //! received frame, then [`DriveLink::sample`]; or both in
 //! [`DriveLink::drain`]), then actuate ([`DriveLink::send_torque`]). After
-//! the last tick: [`DriveLink::stop`] (never waits) or
-//! [`DriveLink::shut_down`] (waits until disabled). Set-up and `shut_down`
-//! may wait on the bus (bounded); the per-tick calls and `stop` never wait
-//! and never allocate.
+//! the last tick: [`DriveLink::stop`] (no wait, but for CiA 402's normal
+//! stop: [`Cia402Link`]) or [`DriveLink::shut_down`] (waits until
+//! disabled). Set-up and `shut_down` may wait on the bus (bounded); the
+//! per-tick calls never wait and never allocate.
 
 use core::fmt;
 use std::time::{Duration, Instant};
@@ -159,16 +159,23 @@ pub trait DriveLink {
         torque_nm: f64,
     ) -> Result<(), LinkError>;
 
-    /// After the last tick `k - 1`, without waiting: zero torque and
+    /// After the last tick `k - 1`, without waiting (but CiA 402's normal
+    /// stop waits, bounded: [`Cia402Link`]'s `stop`): zero torque and
     /// disable; with `emergency`, the profile's emergency stop instead,
     /// which leaves the drive unable to move until set up again (Hi5:
-    /// EmergencyStop latches FAULT; CiA 402: quick stop, then the drive's
-    /// heartbeat consumer faults once this master is silent).
+    /// EmergencyStop latches FAULT until ClearFaults; CiA 402: quick stop,
+    /// the drive holds QuickStopActive at zero torque until a master's
+    /// controlword moves it on).
     fn stop(&mut self, bus: &mut dyn Transport, k: u64, emergency: bool) -> Result<(), LinkError>;
 
     /// After the last tick `k - 1`: zero torque, then leave the drive
     /// disabled. May wait (bounded).
     fn shut_down(&mut self, bus: &mut dyn Transport, k: u64) -> Result<(), LinkError>;
+
+    /// Commands to this drive from another sender seen while
+    /// [`DriveLink::connect`] and [`DriveLink::enable`] read the bus
+    /// (the loop counts the rest through [`DriveLink::absorb`]).
+    fn foreign_commands_in_setup(&self) -> u64;
 
     /// The CAN ids the loop must receive (a kernel filter may drop the
     /// rest): the drive's frames and commands to it (which only another
@@ -203,6 +210,8 @@ pub struct Hi5Link {
     faults: FaultFlags,
     sample: DriveSample,
     last_seq: Option<u8>,
+    /// Foreign commands seen by set-up's waits.
+    foreign_in_setup: u64,
 }
 
 impl Hi5Link {
@@ -217,6 +226,7 @@ impl Hi5Link {
             faults: FaultFlags::empty(),
             sample: DriveSample::default(),
             last_seq: None,
+            foreign_in_setup: 0,
         }
     }
 
@@ -241,7 +251,9 @@ impl Hi5Link {
                 });
             }
             if let Some(f) = bus.recv(Duration::from_millis(10))? {
-                self.absorb(&f);
+                if self.absorb(&f) == Absorbed::ForeignCommand {
+                    self.foreign_in_setup += 1;
+                }
             }
         }
         Ok(())
@@ -391,6 +403,10 @@ impl DriveLink for Hi5Link {
         first.and(second)
     }
 
+    fn foreign_commands_in_setup(&self) -> u64 {
+        self.foreign_in_setup
+    }
+
     fn receive_ids(&self) -> Vec<u32> {
         [
             MessageKind::Feedback,
@@ -432,33 +448,23 @@ impl Cia402Link {
     pub fn master(&self) -> &Master {
         &self.master
     }
-
-    /// A command to this drive that only a master sends: its RPDO1, an SDO
-    /// request to it, a SYNC, an NMT command to it or to all nodes.
-    fn is_foreign_command(&self, f: &Frame) -> bool {
-        use crate::cia402::od::{NMT_COB_ID, SYNC_COB_ID};
-        let n = self.master.settings().node;
-        f.is_standard_data()
-            && (f.id == n.rpdo1()
-                || f.id == n.sdo_rx()
-                || f.id == SYNC_COB_ID
-                || (f.id == NMT_COB_ID
-                    && matches!(f.payload().get(1), Some(&t) if t == 0 || t == n.get())))
-    }
 }
 
 impl DriveLink for Cia402Link {
-    /// [`Master::boot`]: boot-up or heartbeat, SDO set-up, NMT start.
+    /// [`Master::wait_for_drive`]: its boot-up or heartbeat; sends nothing
+    /// (the loop listens for another master before anything is sent).
     fn connect(&mut self, bus: &mut dyn Transport) -> Result<(), LinkError> {
-        self.master.boot(bus)?;
+        self.master.wait_for_drive(bus)?;
         Ok(())
     }
 
+    /// [`Master::configure`] (SDO set-up, heartbeats, NMT start), then
     /// [`Master::enable`]: controlword steps (one RPDO + SYNC each, a fault
     /// reset first if needed) until OperationEnabled at zero torque, and
     /// every SYNC answered. Every step is a zero-torque command the drive's
     /// heartbeat consumer is fed by.
     fn enable(&mut self, bus: &mut dyn Transport) -> Result<EnableTimes, LinkError> {
+        self.master.configure(bus)?;
         let enable = Instant::now();
         self.master.enable(bus, self.step)?;
         let fb = self.master.feedback();
@@ -474,9 +480,6 @@ impl DriveLink for Cia402Link {
     }
 
     fn absorb(&mut self, f: &Frame) -> Absorbed {
-        if self.is_foreign_command(f) {
-            return Absorbed::ForeignCommand;
-        }
         match self.master.absorb(f) {
             Heard::Tpdo2 => {
                 let fb = self.master.feedback();
@@ -485,6 +488,7 @@ impl DriveLink for Cia402Link {
                     velocity_rad_s: fb.velocity_rad_s,
                 }
             }
+            Heard::ForeignCommand => Absorbed::ForeignCommand,
             Heard::Undecodable => Absorbed::Undecodable,
             Heard::Other => Absorbed::Other,
         }
@@ -521,16 +525,25 @@ impl DriveLink for Cia402Link {
         Ok(())
     }
 
-    /// Emergency: [`Master::quick_stop`] (torque 0 at once; the drive's
-    /// heartbeat consumer faults it once this master is silent). Else one
-    /// shutdown controlword at zero torque (leaves OperationEnabled).
+    /// Emergency: [`Master::quick_stop`] (torque 0 at once; the drive
+    /// holds QuickStopActive until a master's controlword). Else
+    /// [`Master::shut_down`], which, unlike the Hi5's stop, waits (bounded
+    /// by the response timeout) for the drive to leave OperationEnabled and
+    /// for its heartbeat consumer to be switched off: without that, the
+    /// drive would fault when this master falls silent.
     fn stop(&mut self, bus: &mut dyn Transport, _k: u64, emergency: bool) -> Result<(), LinkError> {
         if emergency {
             self.master.quick_stop(bus)?;
         } else {
-            self.master.disable(bus)?;
+            self.master.shut_down(bus, self.step)?;
         }
         Ok(())
+    }
+
+    /// Every foreign command the master counted (set-up reads the bus
+    /// through the master alone).
+    fn foreign_commands_in_setup(&self) -> u64 {
+        self.master.feedback().foreign_commands
     }
 
     /// The drive's TPDOs, EMCY, heartbeat and SDO responses; its RPDO1 and

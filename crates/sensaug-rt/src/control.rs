@@ -299,6 +299,9 @@ impl<'a> Rig<'a> {
         rig.link
             .connect(rig.transport.as_mut())
             .map_err(|e| StartError::Drive(e.to_string()))?;
+        // Commands seen while connecting refuse the start like the listen's.
+        let seen_connecting = rig.link.foreign_commands_in_setup();
+        rig.can.foreign_commands += seen_connecting;
         // Listen before sending anything that enables: a running controller
         // on this drive sends a command at least every watchdog period.
         rig.listen(settings.quiet_period());
@@ -309,6 +312,8 @@ impl<'a> Rig<'a> {
             .link
             .enable(rig.transport.as_mut())
             .map_err(|e| StartError::Drive(e.to_string()))?;
+        // Commands seen while the link alone read the bus: tick 0 stops on them.
+        rig.can.foreign_commands += rig.link.foreign_commands_in_setup() - seen_connecting;
         rig.times.enable_ns = instant_ns(times.enable);
         rig.times.first_command_ns = instant_ns(times.first_command);
         // The enable's feedback: the first one, seen by tick 0.
