@@ -52,7 +52,7 @@ class Processes:
         cfg.to_toml(self.toml)
         self.log, self.stats = tmp / "log.csv", tmp / "stats.json"
         self.monitor = can.Bus(interface="sensaug_udp", channel=self.port)
-        self.drive = rig.start_drive(self.port, duration_s=120, extra=drive_args)
+        self.drive = rig.start_drive(self.port, duration_s=120, extra=drive_args, drive=cfg.rig.drive)
         self.controller: subprocess.Popen | None = None
 
     def start_controller(self) -> subprocess.Popen:

@@ -9,6 +9,12 @@ the same bus, bounded in time, and stops every process it started. Each
 scenario is a function returning its measured figures, so that
 ``scripts/measure_safety.py`` repeats the same code and quotes median and
 maximum. Timing is reported, never asserted tightly: these VMs are noisy.
+
+Every scenario runs on both drive profiles (``[rig] drive``, the
+``drive`` parameter); the one that does not apply to CiA 402 says why in
+its parametrization. On CiA 402 the frames the tests watch and forge are
+PDOs and SDOs by COB-ID (node 1), the drive's state is its statusword
+0x6041 read over SDO from the test's socket.
 """
 from __future__ import annotations
 
@@ -19,6 +25,7 @@ import subprocess
 import time
 from pathlib import Path
 
+import can
 import numpy as np
 import pytest
 from sensaug_bridge import protocol as p
@@ -29,15 +36,106 @@ from sensaug import rig
 from sensaug.config import ScenarioConfig
 from sensaug.logs import load_log
 
+#: CiA 402 COB-IDs of node 1 (docs/cia402.md).
+RPDO1, TPDO1, TPDO2, SDO_RX, SDO_TX, SYNC, NMT = 0x201, 0x181, 0x281, 0x601, 0x581, 0x080, 0x000
+#: CiA 402 controlwords the controller sends at its stops.
+CW_QUICK_STOP, CW_SHUTDOWN = 0x0002, 0x0006
+#: The frames only a controller (master) sends, per profile.
+COMMAND_IDS = {"cia402": {RPDO1, SDO_RX, SYNC, NMT}}
+
+#: Both profiles, for the scenarios that apply to both.
+PROFILES = ["hi5", "cia402"]
+
 #: Exit codes (docs/realtime.md).
 EXIT_SETUP, EXIT_OTHER_CONTROLLER, EXIT_FOREIGN, EXIT_IMPLAUSIBLE, EXIT_DEGRADED, EXIT_LOG = 2, 3, 4, 5, 6, 7
 
 
-def rig_processes(tmp: Path, cfg: ScenarioConfig) -> Processes:
-    """A virtual drive on a free port, booted (its heartbeat runs)."""
+def rig_processes(tmp: Path, cfg: ScenarioConfig, drive: str = "hi5") -> Processes:
+    """A virtual drive of profile ``drive`` on a free port, booted (its
+    heartbeat runs)."""
+    cfg.rig.drive = drive
     pr = Processes(tmp, cfg)
     time.sleep(0.5)
     return pr
+
+
+def _drain(pr: Processes) -> None:
+    while pr.monitor.recv(timeout=0) is not None:
+        pass
+
+
+def cia_frames(pr: Processes, seconds: float):
+    """Raw frames seen on the bus for ``seconds``."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        msg = pr.monitor.recv(timeout=0.05)
+        if msg is not None:
+            yield msg
+
+
+def cia_controlword(msg: can.Message) -> int | None:
+    """The controlword of an RPDO1 frame, else None."""
+    return int.from_bytes(msg.data[0:2], "little") if msg.arbitration_id == RPDO1 and len(msg.data) >= 2 else None
+
+
+def cia_statusword(pr: Processes) -> int:
+    """The drive's statusword 0x6041, read over SDO (expedited upload)."""
+    _drain(pr)
+    pr.monitor.send(can.Message(arbitration_id=SDO_RX, data=[0x40, 0x41, 0x60, 0, 0, 0, 0, 0], is_extended_id=False))
+    for msg in cia_frames(pr, 1.0):
+        d = msg.data
+        if msg.arbitration_id == SDO_TX and len(d) == 8 and d[0] & 0xE0 == 0x40 and bytes(d[1:4]) == b"\x41\x60\x00":
+            return int.from_bytes(d[4:6], "little")
+    raise AssertionError("the drive did not answer an SDO read of 0x6041")
+
+
+def cia_state(statusword: int) -> str:
+    """The CiA 402 state of a statusword (table 30)."""
+    for mask, value, name in [(0x4F, 0x00, "NotReadyToSwitchOn"), (0x4F, 0x40, "SwitchOnDisabled"),
+                              (0x6F, 0x21, "ReadyToSwitchOn"), (0x6F, 0x23, "SwitchedOn"),
+                              (0x6F, 0x27, "OperationEnabled"), (0x6F, 0x07, "QuickStopActive"),
+                              (0x4F, 0x0F, "FaultReactionActive"), (0x4F, 0x08, "Fault")]:
+        if statusword & mask == value:
+            return name
+    raise AssertionError(f"statusword {statusword:#06x} is no CiA 402 state")
+
+
+def assert_drive_disabled(pr: Processes, drive: str) -> None:
+    """The drive applies no torque and is not faulted (Hi5 DISABLED; CiA 402
+    ReadyToSwitchOn or SwitchOnDisabled)."""
+    if drive == "hi5":
+        assert drive_state(pr).state == State.DISABLED
+    else:
+        assert cia_state(cia_statusword(pr)) in ("ReadyToSwitchOn", "SwitchOnDisabled")
+
+
+def assert_drive_latched_off(pr: Processes, drive: str) -> None:
+    """After an emergency stop the drive applies no torque until a
+    controller sets it up again: Hi5 FAULT(EMERGENCY_STOP) (cleared only by
+    ClearFaults); CiA 402 QuickStopActive (torque 0, left only on a
+    controlword from a master; the virtual drive faults on a lost master
+    heartbeat only in OperationEnabled), still so after the watchdog."""
+    if drive == "hi5":
+        beat = drive_state(pr)
+        assert beat.state == State.FAULT and beat.fault_flags & FaultFlag.EMERGENCY_STOP, beat
+        return
+    time.sleep(0.5)  # > rig.watchdog_ms (200 ms here): the master's silence changes nothing
+    assert cia_state(cia_statusword(pr)) == "QuickStopActive"
+
+
+def first_command(pr: Processes, drive: str, seconds: float, *, emergency: bool) -> float | None:
+    """Monotonic time of the first stop command seen within ``seconds``:
+    the emergency stop (Hi5 EmergencyStop; CiA 402 controlword quick stop) or
+    the disable (Hi5 SetState(disable); CiA 402 controlword shutdown)."""
+    if drive == "hi5":
+        seen = (first_frame(pr, {"EmergencyStop"}, seconds) if emergency
+                else first_frame(pr, {"SetState"}, seconds, lambda d: not d.message.enable))
+        return None if seen is None else seen[0]
+    want = CW_QUICK_STOP if emergency else CW_SHUTDOWN
+    for msg in cia_frames(pr, seconds):
+        if cia_controlword(msg) == want:
+            return time.monotonic()
+    return None
 
 
 def controller(pr: Processes, log: Path, stats: Path, **kw) -> subprocess.Popen:
@@ -48,12 +146,19 @@ def controller(pr: Processes, log: Path, stats: Path, **kw) -> subprocess.Popen:
     )
 
 
-def wait_running(pr: Processes, timeout: float = 10.0) -> p.Feedback:
+def wait_running(pr: Processes, timeout: float = 10.0, drive: str = "hi5") -> p.Feedback | None:
     """Waits until the controller's loop runs (feedback on the bus) and
-    returns the latest feedback."""
+    returns the latest feedback (Hi5; CiA 402: None)."""
     end = time.monotonic() + timeout
+    ticks = 0
     while time.monotonic() < end:
         assert pr.controller.poll() is None, pr.controller.stderr.read()
+        if drive == "cia402":
+            # The loop's ticks: enable-operation RPDO1s past the set-up's few steps.
+            ticks += sum(cia_controlword(m) == 0x000F for m in cia_frames(pr, 0.05))
+            if ticks > 100:
+                return None
+            continue
         for d in pr.frames(0.05):
             if d.name == "Feedback":
                 return latest_feedback(pr, d.message)
@@ -107,13 +212,13 @@ def drive_state(pr: Processes) -> p.Heartbeat:
 # --- 1. a second controller -------------------------------------------------
 
 
-def scenario_second_controller(tmp: Path) -> dict:
+def scenario_second_controller(tmp: Path, drive: str = "hi5") -> dict:
     """A second sensaug-rt on the same port and node while one runs: it
     refuses to start (exit 3) without sending anything; the first runs on."""
-    pr = rig_processes(tmp, stall_tolerant(short_config(gain_s=10.0)))
+    pr = rig_processes(tmp, stall_tolerant(short_config(gain_s=10.0)), drive)
     try:
         pr.start_controller()
-        wait_running(pr)
+        wait_running(pr, drive=drive)
         log2, stats2 = tmp / "second_log.csv", tmp / "second_stats.json"
         t0 = time.monotonic()
         second = controller(pr, log2, stats2)
@@ -136,31 +241,36 @@ def scenario_second_controller(tmp: Path) -> dict:
         pr.close()
 
 
-def scenario_foreign_command(tmp: Path) -> dict:
-    """A foreign command frame for the node (a SetState with another
-    watchdog: valid, and ignored by the drive while ENABLED, so only the
+def scenario_foreign_command(tmp: Path, drive: str = "hi5") -> dict:
+    """A foreign command frame for the node (Hi5: a SetState with another
+    watchdog: valid, and ignored by the drive while ENABLED; CiA 402: an SDO
+    read of the statusword, which the drive just answers; so only the
     controller reacts): the controller stops at once with an emergency stop
-    (exit 4), which latches the drive's FAULT."""
+    (exit 4), which leaves the drive off until set up again (Hi5 FAULT;
+    CiA 402 QuickStopActive)."""
     cfg = stall_tolerant(short_config(gain_s=10.0))
-    pr = rig_processes(tmp, cfg)
+    pr = rig_processes(tmp, cfg, drive)
     try:
         pr.start_controller()
-        wait_running(pr)
-        latest_feedback(pr)  # drop what the monitor buffered
+        wait_running(pr, drive=drive)
+        _drain(pr)  # drop what the monitor buffered
         sent = time.monotonic()
-        pr.monitor.send(p.SetState(True, cfg.rig.watchdog_ms - 1, 0).encode(NODE))
-        seen = first_frame(pr, {"EmergencyStop"}, 5.0)
-        assert seen is not None, "no emergency stop within 5 s"
+        if drive == "hi5":
+            pr.monitor.send(p.SetState(True, cfg.rig.watchdog_ms - 1, 0).encode(NODE))
+        else:
+            pr.monitor.send(can.Message(arbitration_id=SDO_RX, data=[0x40, 0x41, 0x60, 0, 0, 0, 0, 0],
+                                        is_extended_id=False))
+        seen_at = first_command(pr, drive, 5.0, emergency=True)
+        assert seen_at is not None, "no emergency stop within 5 s"
         code, stats, err = end_of_run(pr)
         assert code == EXIT_FOREIGN, err
         assert stats["stop_reason"].startswith("foreign command"), stats["stop_reason"]
         assert "another controller" in stats["stop_reason"] and "foreign command" in err
         assert stats["can"]["foreign_commands"] >= 1 and stats["exit_code"] == EXIT_FOREIGN
-        beat = drive_state(pr)
-        assert beat.state == State.FAULT and beat.fault_flags & FaultFlag.EMERGENCY_STOP, beat
+        assert_drive_latched_off(pr, drive)
         log = load_log(pr.log)
         assert log.complete and len(log) == stats["ticks"]
-        return {"emergency_stop_after_ms": 1e3 * (seen[0] - sent)}
+        return {"emergency_stop_after_ms": 1e3 * (seen_at - sent)}
     finally:
         pr.close()
 
@@ -168,21 +278,48 @@ def scenario_foreign_command(tmp: Path) -> dict:
 # --- 2. feedback plausibility -----------------------------------------------
 
 
-def scenario_forged_jump(tmp: Path) -> dict:
+def forge_jump(pr: Processes, drive: str, jump_rad: float) -> float:
+    """Sends a feedback ``jump_rad`` away from the latest one (Hi5: a
+    Feedback with the next sequence; CiA 402: TPDO1 with the position moved,
+    then TPDO2 as last sent); returns when it was sent."""
+    if drive == "hi5":
+        fb = latest_feedback(pr)
+        forged = p.Feedback(fb.position_rad + jump_rad, fb.velocity_rad_s, (fb.sequence + 1) % 256, fb.state,
+                            False, False)
+        sent = time.monotonic()
+        pr.monitor.send(forged.encode(NODE))
+        return sent
+    from sensaug_bridge.virtual_cia402 import Cia402Config
+
+    _drain(pr)
+    last: dict[int, bytes] = {}
+    for msg in cia_frames(pr, 1.0):
+        if msg.arbitration_id in (TPDO1, TPDO2):
+            last[msg.arbitration_id] = bytes(msg.data)
+        if len(last) == 2:
+            break
+    assert len(last) == 2, "no TPDOs on the bus"
+    counts = Cia402Config().encoder_counts_per_rev
+    position = int.from_bytes(last[TPDO1][2:6], "little", signed=True) + round(jump_rad * counts / (2 * np.pi))
+    tpdo1 = last[TPDO1][0:2] + position.to_bytes(4, "little", signed=True)
+    sent = time.monotonic()
+    pr.monitor.send(can.Message(arbitration_id=TPDO1, data=tpdo1, is_extended_id=False))
+    pr.monitor.send(can.Message(arbitration_id=TPDO2, data=last[TPDO2], is_extended_id=False))
+    return sent
+
+
+def scenario_forged_jump(tmp: Path, drive: str = "hi5") -> dict:
     """A forged feedback 0.5 rad away from the last one: the controller
     never acts on it; the torque ramps down from the last command (never
     above it), the drive is disabled, exit 5."""
-    pr = rig_processes(tmp, stall_tolerant(short_config(gain_s=10.0)))
+    pr = rig_processes(tmp, stall_tolerant(short_config(gain_s=10.0)), drive)
     try:
         pr.start_controller()
-        wait_running(pr)
+        wait_running(pr, drive=drive)
         time.sleep(1.0)
-        fb = latest_feedback(pr)
-        forged = p.Feedback(fb.position_rad + 0.5, fb.velocity_rad_s, (fb.sequence + 1) % 256, fb.state, False, False)
-        sent = time.monotonic()
-        pr.monitor.send(forged.encode(NODE))
-        disabled = first_frame(pr, {"SetState"}, 5.0, lambda d: not d.message.enable)
-        assert disabled is not None, "the controller did not disable the drive within 5 s"
+        sent = forge_jump(pr, drive, 0.5)
+        disabled_at = first_command(pr, drive, 5.0, emergency=False)
+        assert disabled_at is not None, "the controller did not disable the drive within 5 s"
         code, stats, err = end_of_run(pr)
         assert code == EXIT_IMPLAUSIBLE, err
         assert stats["stop_reason"].startswith("implausible feedback: position step"), stats["stop_reason"]
@@ -199,9 +336,9 @@ def scenario_forged_jump(tmp: Path) -> dict:
         # The controller never ran on the jump: no running tick saw it (deg).
         running_x = log["x"][:first]
         assert np.abs(np.diff(running_x)).max() < np.degrees(0.1)
-        assert drive_state(pr).state == State.DISABLED
+        assert_drive_disabled(pr, drive)
         return {
-            "disabled_after_ms": 1e3 * (disabled[0] - sent),
+            "disabled_after_ms": 1e3 * (disabled_at - sent),
             "ramp_ticks": int(ramp.sum()),
             "torque_before_nm": float(before),
         }
@@ -256,23 +393,34 @@ def scenario_stale_flood(tmp: Path, flood_s: float = 5.0) -> dict:
         pr.close()
 
 
-def test_a_second_controller_refuses_to_start_and_the_first_runs_on(tmp_path):
-    figures = scenario_second_controller(tmp_path)
+@pytest.mark.parametrize("drive", PROFILES)
+def test_a_second_controller_refuses_to_start_and_the_first_runs_on(tmp_path, drive):
+    figures = scenario_second_controller(tmp_path, drive)
     print(f"\nsecond controller refused after {figures['refused_after_ms']:.0f} ms")
 
 
-def test_a_foreign_command_frame_stops_a_running_controller_with_an_emergency_stop(tmp_path):
-    figures = scenario_foreign_command(tmp_path)
+@pytest.mark.parametrize("drive", PROFILES)
+def test_a_foreign_command_frame_stops_a_running_controller_with_an_emergency_stop(tmp_path, drive):
+    figures = scenario_foreign_command(tmp_path, drive)
     print(f"\nforeign command -> emergency stop on the bus after {figures['emergency_stop_after_ms']:.1f} ms")
 
 
-def test_a_forged_feedback_jump_ramps_down_and_never_raises_the_torque(tmp_path):
-    figures = scenario_forged_jump(tmp_path)
+@pytest.mark.parametrize("drive", PROFILES)
+def test_a_forged_feedback_jump_ramps_down_and_never_raises_the_torque(tmp_path, drive):
+    figures = scenario_forged_jump(tmp_path, drive)
     print(f"\nforged 0.5 rad jump -> drive disabled after {figures['disabled_after_ms']:.0f} ms "
           f"({figures['ramp_ticks']} ramp ticks from {figures['torque_before_nm']:.4f} N m)")
 
 
-def test_a_flood_of_stale_feedback_ends_the_run_as_degraded(tmp_path):
+@pytest.mark.parametrize("drive", [
+    "hi5",
+    pytest.param("cia402", marks=pytest.mark.skip(reason=(
+        "does not apply as written: CiA 402 TPDOs carry no sequence number, so a replayed TPDO cannot be told "
+        "from a fresh one; the master counts answers per SYNC, and a flood of replayed TPDOs is counted as "
+        "answers (fresh), not as stale (docs/safety.md, profile notes). Missing CiA 402 feedback is covered by "
+        "the feedback timeout and by the drive's heartbeat consumer."))),
+])
+def test_a_flood_of_stale_feedback_ends_the_run_as_degraded(tmp_path, drive):
     figures = scenario_stale_flood(tmp_path)
     print(f"\nstale flood: {figures}")
 
@@ -280,9 +428,10 @@ def test_a_flood_of_stale_feedback_ends_the_run_as_degraded(tmp_path):
 # --- 4. outputs ----------------------------------------------------------------
 
 
+@pytest.mark.parametrize("drive", PROFILES)
 @pytest.mark.parametrize("which", ["log", "stats"])
-def test_an_unwritable_output_refuses_to_start_and_never_enables_the_drive(tmp_path, which):
-    pr = rig_processes(tmp_path, short_config())
+def test_an_unwritable_output_refuses_to_start_and_never_enables_the_drive(tmp_path, which, drive):
+    pr = rig_processes(tmp_path, short_config(), drive)
     try:
         blocker = tmp_path / "not_a_dir"
         blocker.write_text("a file, so nothing can be created under it (even by root)\n")
@@ -295,22 +444,28 @@ def test_an_unwritable_output_refuses_to_start_and_never_enables_the_drive(tmp_p
         err = proc.stderr.read()
         assert code == EXIT_SETUP, err
         assert f"rig.{which}: cannot write" in err and f"--{which}" in err, err
-        # Nothing for the drive came from the controller; the drive stayed DISABLED.
-        commands = [d for d in pr.frames(0.5) if d.name in ("SetState", "TorqueCommand")]
+        # Nothing for the drive came from the controller; the drive stayed disabled.
+        if drive == "hi5":
+            commands = [d for d in pr.frames(0.5) if d.name in ("SetState", "TorqueCommand")]
+        else:
+            commands = [m for m in cia_frames(pr, 0.5) if m.arbitration_id in COMMAND_IDS["cia402"]]
         assert commands == []
-        assert drive_state(pr).state == State.DISABLED
+        assert_drive_disabled(pr, drive)
         assert not list(tmp_path.glob("*.partial"))
     finally:
         pr.close()
 
 
-def test_an_old_log_is_kept_when_the_run_never_starts(tmp_path):
+@pytest.mark.parametrize("drive", PROFILES)
+def test_an_old_log_is_kept_when_the_run_never_starts(tmp_path, drive):
     """No drive on the bus: set-up times out (exit 2) and leaves the old log
     and statistics as they were."""
     from sensaug_bridge.udp_bus import free_port
 
     toml = tmp_path / "trial.toml"
-    short_config().to_toml(toml)
+    cfg = short_config()
+    cfg.rig.drive = drive
+    cfg.to_toml(toml)
     log, stats = tmp_path / "log.csv", tmp_path / "stats.json"
     log.write_text("the previous run's log\n")
     stats.write_text("{}\n")
@@ -332,11 +487,11 @@ def _file_size_limit(limit: int):
     return pre
 
 
-def scenario_log_failure(tmp: Path, limit_bytes: int = 1_000_000) -> dict:
+def scenario_log_failure(tmp: Path, limit_bytes: int = 1_000_000, drive: str = "hi5") -> dict:
     """A full disk, as a file-size limit on the controller (RLIMIT_FSIZE):
     the write fails (EFBIG), the loop ramps down and stops (exit 7); the log
     holds a readable prefix from tick 0."""
-    pr = rig_processes(tmp, stall_tolerant(short_config(gain_s=10.0)))
+    pr = rig_processes(tmp, stall_tolerant(short_config(gain_s=10.0)), drive)
     try:
         pr.controller = controller(pr, pr.log, pr.stats, preexec_fn=_file_size_limit(limit_bytes))
         code, stats, err = end_of_run(pr)
@@ -350,25 +505,27 @@ def scenario_log_failure(tmp: Path, limit_bytes: int = 1_000_000) -> dict:
         assert len(log) <= stats["records_written"] + stats["log_records_lost"]
         np.testing.assert_array_equal(log["tick"], np.arange(len(log)))
         assert pr.log.stat().st_size <= limit_bytes
-        assert drive_state(pr).state == State.DISABLED
+        assert_drive_disabled(pr, drive)
         return {"records_kept": len(log), "ticks_after_last_record": stats["ticks"] - len(log)}
     finally:
         pr.close()
 
 
-def test_a_log_write_failure_ramps_down_and_keeps_what_was_written(tmp_path):
-    figures = scenario_log_failure(tmp_path)
+@pytest.mark.parametrize("drive", PROFILES)
+def test_a_log_write_failure_ramps_down_and_keeps_what_was_written(tmp_path, drive):
+    figures = scenario_log_failure(tmp_path, drive=drive)
     print(f"\nlog failed: {figures}")
 
 
 # --- 5. the first tick after the enable ------------------------------------------
 
 
-def test_the_drive_is_fed_from_the_enable_to_the_first_tick(tmp_path):
+@pytest.mark.parametrize("drive", PROFILES)
+def test_the_drive_is_fed_from_the_enable_to_the_first_tick(tmp_path, drive):
     """The statistics report both gaps the drive's watchdog sees at the
     start; each is far below the watchdog (50 ms) on an idle machine; here
     only that they are measured and below the watchdog we ran with."""
-    pr = rig_processes(tmp_path, stall_tolerant(short_config(gain_s=0.5, other_s=0.2)))
+    pr = rig_processes(tmp_path, stall_tolerant(short_config(gain_s=0.5, other_s=0.2)), drive)
     try:
         pr.start_controller()
         code, stats, err = end_of_run(pr)

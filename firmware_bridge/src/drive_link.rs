@@ -2,18 +2,22 @@
 //! (`hi5.dbc`) or CiA 402 over CANopen ([`crate::cia402`]).
 //!
 //! A control loop holds a `Box<dyn DriveLink + Send>` (chosen by
-//! `[rig] drive = "hi5" | "cia402"`) and calls, per tick `k`:
-//! [`DriveLink::drain`] (sense: the feedback and whether it answers tick
-//! `k - 1`), then [`DriveLink::send_torque`] (actuate). Set-up
-//! ([`DriveLink::enable`]) and [`DriveLink::shut_down`] may wait on the bus;
-//! `drain` and `send_torque` never wait and never allocate.
+//! `[rig] drive = "hi5" | "cia402"`). Set-up: [`DriveLink::connect`] (the
+//! drive is on the bus; nothing that moves it is sent), then
+//! [`DriveLink::enable`]. Per tick `k`: sense ([`DriveLink::absorb`] each
+//! received frame, then [`DriveLink::sample`]; or both in
+//! [`DriveLink::drain`]), then actuate ([`DriveLink::send_torque`]). After
+//! the last tick: [`DriveLink::stop`] (no wait, but for CiA 402's normal
+//! stop: [`Cia402Link`]) or [`DriveLink::shut_down`] (waits until
+//! disabled). Set-up and `shut_down` may wait on the bus (bounded); the
+//! per-tick calls never wait and never allocate.
 
 use core::fmt;
 use std::time::{Duration, Instant};
 
-use crate::cia402::{Cia402Error, DriveState as Cia402State, Master, MasterSettings};
+use crate::cia402::{Cia402Error, DriveState as Cia402State, Heard, Master, MasterSettings};
 use crate::frame::Frame;
-use crate::protocol::{decode, encode, DriveState, FaultFlags, Message, NodeId};
+use crate::protocol::{decode, encode, DriveState, FaultFlags, Message, MessageKind, NodeId};
 use crate::transport::{Transport, TransportError};
 
 /// What the loop senses from the drive in one tick.
@@ -30,6 +34,48 @@ pub struct DriveSample {
     pub enabled: bool,
     /// The drive is in its fault state, or (CiA 402) its heartbeat is lost.
     pub fault: bool,
+    /// The profile's state code, for the log (Hi5: the DBC's `state`;
+    /// CiA 402: [`Cia402State`] as `u8`, 255 before the first statusword).
+    pub state_code: u8,
+    /// The profile's fault code (Hi5: the latched fault flags; CiA 402: the
+    /// last EMCY error code, [`HEARTBEAT_LOST_CODE`] when the drive's
+    /// heartbeat is lost).
+    pub fault_code: u16,
+}
+
+/// CiA 301's EMCY error code for a heartbeat (life guard) error, reported
+/// as the fault code when the master stops hearing the drive.
+pub const HEARTBEAT_LOST_CODE: u16 = 0x8130;
+
+/// What one received frame was, for the loop's counters and checks.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Absorbed {
+    /// One tick's feedback (Hi5 Feedback; CiA 402 TPDO1 + TPDO2).
+    Feedback {
+        /// Position, rad.
+        position_rad: f64,
+        /// Velocity, rad/s.
+        velocity_rad_s: f64,
+    },
+    /// A command to this drive that this process did not send (transports
+    /// never hand a socket its own frames): another controller is on the
+    /// bus.
+    ForeignCommand,
+    /// A frame for or from this drive that did not decode.
+    Undecodable,
+    /// Anything else (state reports, other nodes' traffic).
+    Other,
+}
+
+/// When [`DriveLink::enable`] sent its enabling command and the first
+/// command the drive's watchdog counts (the start gap in the statistics).
+#[derive(Clone, Copy, Debug)]
+pub struct EnableTimes {
+    /// The enabling command (Hi5 SetState; CiA 402 the first controlword
+    /// step).
+    pub enable: Instant,
+    /// The first zero-torque command.
+    pub first_command: Instant,
 }
 
 /// Why a drive link failed.
@@ -45,6 +91,13 @@ pub enum LinkError {
     Timeout {
         /// What was awaited.
         what: &'static str,
+        /// How long.
+        waited: Duration,
+    },
+    /// The drive faulted while being enabled.
+    Faulted {
+        /// The profile's fault code ([`DriveSample::fault_code`]).
+        code: u16,
     },
 }
 
@@ -54,9 +107,13 @@ impl fmt::Display for LinkError {
             Self::Transport(e) => write!(f, "CAN bus: {e}"),
             Self::Hi5Encode(e) => write!(f, "Hi5 protocol: {e}"),
             Self::Cia402(e) => write!(f, "CiA 402: {e}"),
-            Self::Timeout { what } => {
-                write!(f, "timed out waiting for {what}; is the drive on the bus?")
+            Self::Timeout { what, waited } => {
+                write!(f, "waited {waited:?} for {what}; is the drive on the bus?")
             }
+            Self::Faulted { code } => write!(
+                f,
+                "faulted (fault code {code:#06x}) right after the enable; see the drive's fault flags"
+            ),
         }
     }
 }
@@ -77,9 +134,22 @@ impl From<Cia402Error> for LinkError {
 
 /// A drive the control loop can run, whatever its protocol.
 pub trait DriveLink {
-    /// Set-up: bring the drive to the state where it applies torque, at zero
-    /// torque, ready for tick 0. May wait (bounded).
-    fn enable(&mut self, bus: &mut dyn Transport) -> Result<(), LinkError>;
+    /// Set-up, first step: wait (bounded) until the drive is on the bus and
+    /// configured; sends nothing that enables it.
+    fn connect(&mut self, bus: &mut dyn Transport) -> Result<(), LinkError>;
+
+    /// Set-up, last step (after [`DriveLink::connect`]): clear a latched
+    /// fault, bring the drive to the state where it applies torque, at zero
+    /// torque, and read its answer, ready for tick 0. May wait (bounded).
+    fn enable(&mut self, bus: &mut dyn Transport) -> Result<EnableTimes, LinkError>;
+
+    /// Sense: take one received frame. No wait, no allocation.
+    fn absorb(&mut self, frame: &Frame) -> Absorbed;
+
+    /// Sense tick `k`, after absorbing every frame received so far: `fresh`
+    /// when the feedback answers tick `k - 1` (tick 0: the set-up's). No
+    /// allocation.
+    fn sample(&mut self, k: u64) -> DriveSample;
 
     /// Actuate tick `k`: send `torque_nm`. No wait, no allocation.
     fn send_torque(
@@ -89,14 +159,43 @@ pub trait DriveLink {
         torque_nm: f64,
     ) -> Result<(), LinkError>;
 
-    /// Sense tick `k`: take every frame received so far; `fresh` when the
-    /// feedback answers tick `k - 1` (tick 0: the set-up's). No wait, no
-    /// allocation.
-    fn drain(&mut self, bus: &mut dyn Transport, k: u64) -> Result<DriveSample, LinkError>;
+    /// After the last tick `k - 1`, without waiting (but CiA 402's normal
+    /// stop waits, bounded: [`Cia402Link`]'s `stop`): zero torque and
+    /// disable; with `emergency`, the profile's emergency stop instead,
+    /// which leaves the drive unable to move until set up again (Hi5:
+    /// EmergencyStop latches FAULT until ClearFaults; CiA 402: quick stop,
+    /// the drive holds QuickStopActive at zero torque until a master's
+    /// controlword moves it on).
+    fn stop(&mut self, bus: &mut dyn Transport, k: u64, emergency: bool) -> Result<(), LinkError>;
 
     /// After the last tick `k - 1`: zero torque, then leave the drive
     /// disabled. May wait (bounded).
     fn shut_down(&mut self, bus: &mut dyn Transport, k: u64) -> Result<(), LinkError>;
+
+    /// Commands to this drive from another sender seen while
+    /// [`DriveLink::connect`] and [`DriveLink::enable`] read the bus
+    /// (the loop counts the rest through [`DriveLink::absorb`]).
+    fn foreign_commands_in_setup(&self) -> u64;
+
+    /// The CAN ids the loop must receive (a kernel filter may drop the
+    /// rest): the drive's frames and commands to it (which only another
+    /// sender can have put on the bus).
+    fn receive_ids(&self) -> Vec<u32>;
+
+    /// [`DriveLink::connect`] then [`DriveLink::enable`].
+    fn bring_up(&mut self, bus: &mut dyn Transport) -> Result<EnableTimes, LinkError> {
+        self.connect(bus)?;
+        self.enable(bus)
+    }
+
+    /// Sense tick `k`: [`DriveLink::absorb`] every frame received so far,
+    /// then [`DriveLink::sample`]. No wait, no allocation.
+    fn drain(&mut self, bus: &mut dyn Transport, k: u64) -> Result<DriveSample, LinkError> {
+        while let Some(f) = bus.recv(Duration::ZERO)? {
+            self.absorb(&f);
+        }
+        Ok(self.sample(k))
+    }
 }
 
 // -- Hi5 ------------------------------------------------------------------------------
@@ -111,6 +210,8 @@ pub struct Hi5Link {
     faults: FaultFlags,
     sample: DriveSample,
     last_seq: Option<u8>,
+    /// Foreign commands seen by set-up's waits.
+    foreign_in_setup: u64,
 }
 
 impl Hi5Link {
@@ -125,6 +226,7 @@ impl Hi5Link {
             faults: FaultFlags::empty(),
             sample: DriveSample::default(),
             last_seq: None,
+            foreign_in_setup: 0,
         }
     }
 
@@ -134,7 +236,100 @@ impl Hi5Link {
         Ok(())
     }
 
-    fn absorb(&mut self, f: &Frame) {
+    fn wait_for(
+        &mut self,
+        bus: &mut dyn Transport,
+        what: &'static str,
+        done: impl Fn(&Self) -> bool,
+    ) -> Result<(), LinkError> {
+        let start = Instant::now();
+        while !done(self) {
+            if start.elapsed() > self.timeout {
+                return Err(LinkError::Timeout {
+                    what,
+                    waited: self.timeout,
+                });
+            }
+            if let Some(f) = bus.recv(Duration::from_millis(10))? {
+                if self.absorb(&f) == Absorbed::ForeignCommand {
+                    self.foreign_in_setup += 1;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Disable; the next TorqueCommand after it would carry sequence 0.
+    fn disable(&self, bus: &mut dyn Transport) -> Result<(), LinkError> {
+        self.send(
+            bus,
+            &Message::SetState {
+                enable: false,
+                watchdog_ms: self.watchdog_ms,
+                sequence: 0,
+            },
+        )
+    }
+}
+
+/// The sequence number of tick `k`'s command (`k mod 256`).
+fn hi5_sequence(k: u64) -> u8 {
+    (k & 0xff) as u8
+}
+
+impl DriveLink for Hi5Link {
+    /// Waits for a heartbeat (any state but BOOT).
+    fn connect(&mut self, bus: &mut dyn Transport) -> Result<(), LinkError> {
+        self.wait_for(bus, "a heartbeat from the drive", |s| {
+            s.state != DriveState::Boot
+        })
+    }
+
+    /// ClearFaults if in FAULT (and wait for DISABLED); SetState(enable,
+    /// resync to sequence 255) followed at once by a zero-torque command
+    /// 255 (the drive handles frames in order and enables on SetState: its
+    /// watchdog, armed by the enable, never waits for our round trip); wait
+    /// for its Feedback, or a fault.
+    fn enable(&mut self, bus: &mut dyn Transport) -> Result<EnableTimes, LinkError> {
+        if self.state == DriveState::Fault {
+            self.send(bus, &Message::ClearFaults)?;
+            self.wait_for(bus, "DISABLED after clearing faults", |s| {
+                s.state == DriveState::Disabled
+            })?;
+        }
+        self.last_seq = None;
+        let enable = Instant::now();
+        self.send(
+            bus,
+            &Message::SetState {
+                enable: true,
+                watchdog_ms: self.watchdog_ms,
+                sequence: 255,
+            },
+        )?;
+        let first_command = Instant::now();
+        self.send(
+            bus,
+            &Message::TorqueCommand {
+                torque_nm: 0.0,
+                sequence: 255,
+            },
+        )?;
+        self.wait_for(bus, "ENABLED and the first feedback", |s| {
+            s.last_seq == Some(255) || s.state == DriveState::Fault
+        })?;
+        if self.state == DriveState::Fault {
+            return Err(LinkError::Faulted {
+                code: self.faults.bits(),
+            });
+        }
+        Ok(EnableTimes {
+            enable,
+            first_command,
+        })
+    }
+
+    fn absorb(&mut self, f: &Frame) -> Absorbed {
         match decode(self.node, f) {
             Ok(Message::Feedback {
                 position_rad,
@@ -147,6 +342,10 @@ impl Hi5Link {
                 self.sample.velocity_rad_s = velocity_rad_s;
                 self.state = state;
                 self.last_seq = Some(sequence);
+                Absorbed::Feedback {
+                    position_rad,
+                    velocity_rad_s,
+                }
             }
             Ok(Message::Heartbeat {
                 state, fault_flags, ..
@@ -156,56 +355,23 @@ impl Hi5Link {
             }) => {
                 self.state = state;
                 self.faults = fault_flags;
+                Absorbed::Other
             }
-            _ => {}
+            Ok(Message::TorqueCommand { .. })
+            | Ok(Message::SetState { .. })
+            | Ok(Message::EmergencyStop)
+            | Ok(Message::ClearFaults) => Absorbed::ForeignCommand,
+            Err(_) => Absorbed::Undecodable,
         }
     }
 
-    fn wait_for(
-        &mut self,
-        bus: &mut dyn Transport,
-        what: &'static str,
-        done: impl Fn(&Self) -> bool,
-    ) -> Result<(), LinkError> {
-        let start = Instant::now();
-        while !done(self) {
-            if start.elapsed() > self.timeout {
-                return Err(LinkError::Timeout { what });
-            }
-            if let Some(f) = bus.recv(Duration::from_millis(10))? {
-                self.absorb(&f);
-            }
-        }
-        Ok(())
-    }
-}
-
-impl DriveLink for Hi5Link {
-    /// Heartbeat, ClearFaults if in FAULT, SetState(enable, sequence 255),
-    /// a zero-torque command 255 and its Feedback.
-    fn enable(&mut self, bus: &mut dyn Transport) -> Result<(), LinkError> {
-        self.wait_for(bus, "a Hi5 heartbeat", |s| s.state != DriveState::Boot)?;
-        if self.state == DriveState::Fault {
-            self.send(bus, &Message::ClearFaults)?;
-            self.wait_for(bus, "Hi5 DISABLED", |s| s.state == DriveState::Disabled)?;
-        }
-        self.send(
-            bus,
-            &Message::SetState {
-                enable: true,
-                watchdog_ms: self.watchdog_ms,
-                sequence: 255,
-            },
-        )?;
-        self.wait_for(bus, "Hi5 ENABLED", |s| s.state == DriveState::Enabled)?;
-        self.send(
-            bus,
-            &Message::TorqueCommand {
-                torque_nm: 0.0,
-                sequence: 255,
-            },
-        )?;
-        self.wait_for(bus, "the first Hi5 Feedback", |s| s.last_seq == Some(255))
+    fn sample(&mut self, k: u64) -> DriveSample {
+        self.sample.fresh = k == 0 || self.last_seq == Some(hi5_sequence(k.wrapping_sub(1)));
+        self.sample.enabled = self.state == DriveState::Enabled;
+        self.sample.fault = self.state == DriveState::Fault;
+        self.sample.state_code = self.state.raw();
+        self.sample.fault_code = self.faults.bits();
+        self.sample
     }
 
     fn send_torque(
@@ -218,38 +384,45 @@ impl DriveLink for Hi5Link {
             bus,
             &Message::TorqueCommand {
                 torque_nm,
-                sequence: (k & 0xff) as u8,
+                sequence: hi5_sequence(k),
             },
         )
     }
 
-    fn drain(&mut self, bus: &mut dyn Transport, k: u64) -> Result<DriveSample, LinkError> {
-        while let Some(f) = bus.recv(Duration::ZERO)? {
-            self.absorb(&f);
-        }
-        let expected = (k.wrapping_sub(1) & 0xff) as u8;
-        self.sample.fresh = self.last_seq == Some(expected);
-        self.sample.enabled = self.state == DriveState::Enabled;
-        self.sample.fault = self.state == DriveState::Fault;
-        Ok(self.sample)
+    /// Emergency: EmergencyStop (latches FAULT: no controller can drive the
+    /// motor until faults are cleared); else a zero-torque command with the
+    /// next sequence. Then SetState(disable). Both are sent even if the
+    /// first fails; the first error is returned.
+    fn stop(&mut self, bus: &mut dyn Transport, k: u64, emergency: bool) -> Result<(), LinkError> {
+        let first = if emergency {
+            self.send(bus, &Message::EmergencyStop)
+        } else {
+            self.send_torque(bus, k, 0.0)
+        };
+        let second = self.disable(bus);
+        first.and(second)
+    }
+
+    fn foreign_commands_in_setup(&self) -> u64 {
+        self.foreign_in_setup
+    }
+
+    fn receive_ids(&self) -> Vec<u32> {
+        [
+            MessageKind::Feedback,
+            MessageKind::Fault,
+            MessageKind::Heartbeat,
+            MessageKind::TorqueCommand,
+            MessageKind::SetState,
+            MessageKind::EmergencyStop,
+            MessageKind::ClearFaults,
+        ]
+        .map(|kind| kind.id(self.node))
+        .to_vec()
     }
 
     fn shut_down(&mut self, bus: &mut dyn Transport, k: u64) -> Result<(), LinkError> {
-        self.send(
-            bus,
-            &Message::TorqueCommand {
-                torque_nm: 0.0,
-                sequence: (k & 0xff) as u8,
-            },
-        )?;
-        self.send(
-            bus,
-            &Message::SetState {
-                enable: false,
-                watchdog_ms: self.watchdog_ms,
-                sequence: 0,
-            },
-        )?;
+        self.stop(bus, k, false)?;
         self.wait_for(bus, "Hi5 DISABLED", |s| s.state != DriveState::Enabled)
     }
 }
@@ -278,11 +451,68 @@ impl Cia402Link {
 }
 
 impl DriveLink for Cia402Link {
-    /// [`Master::boot`] then [`Master::enable`].
-    fn enable(&mut self, bus: &mut dyn Transport) -> Result<(), LinkError> {
-        self.master.boot(bus)?;
-        self.master.enable(bus, self.step)?;
+    /// [`Master::wait_for_drive`]: its boot-up or heartbeat; sends nothing
+    /// (the loop listens for another master before anything is sent).
+    fn connect(&mut self, bus: &mut dyn Transport) -> Result<(), LinkError> {
+        self.master.wait_for_drive(bus)?;
         Ok(())
+    }
+
+    /// [`Master::configure`] (SDO set-up, heartbeats, NMT start), then
+    /// [`Master::enable`]: controlword steps (one RPDO + SYNC each, a fault
+    /// reset first if needed) until OperationEnabled at zero torque, and
+    /// every SYNC answered. Every step is a zero-torque command the drive's
+    /// heartbeat consumer is fed by.
+    fn enable(&mut self, bus: &mut dyn Transport) -> Result<EnableTimes, LinkError> {
+        self.master.configure(bus)?;
+        let enable = Instant::now();
+        self.master.enable(bus, self.step)?;
+        let fb = self.master.feedback();
+        if fb.state == Some(Cia402State::Fault) || fb.drive_heartbeat_lost {
+            return Err(LinkError::Faulted {
+                code: self.sample(0).fault_code,
+            });
+        }
+        Ok(EnableTimes {
+            enable,
+            first_command: enable,
+        })
+    }
+
+    fn absorb(&mut self, f: &Frame) -> Absorbed {
+        match self.master.absorb(f) {
+            Heard::Tpdo2 => {
+                let fb = self.master.feedback();
+                Absorbed::Feedback {
+                    position_rad: fb.position_rad,
+                    velocity_rad_s: fb.velocity_rad_s,
+                }
+            }
+            Heard::ForeignCommand => Absorbed::ForeignCommand,
+            Heard::Undecodable => Absorbed::Undecodable,
+            Heard::Other => Absorbed::Other,
+        }
+    }
+
+    /// Fresh: every SYNC sent so far has been answered
+    /// ([`Master::all_answered`]), so the TPDOs are the last tick's.
+    fn sample(&mut self, k: u64) -> DriveSample {
+        self.master.check_drive_heartbeat(Instant::now());
+        let fb = self.master.feedback();
+        let fault_code = if fb.drive_heartbeat_lost {
+            HEARTBEAT_LOST_CODE
+        } else {
+            fb.last_emcy.map_or(0, |e| e.code)
+        };
+        DriveSample {
+            position_rad: fb.position_rad,
+            velocity_rad_s: fb.velocity_rad_s,
+            fresh: k == 0 || self.master.all_answered(),
+            enabled: fb.state == Some(Cia402State::OperationEnabled),
+            fault: fb.state == Some(Cia402State::Fault) || fb.drive_heartbeat_lost,
+            state_code: fb.state.map_or(u8::MAX, |s| s as u8),
+            fault_code,
+        }
     }
 
     fn send_torque(
@@ -295,18 +525,43 @@ impl DriveLink for Cia402Link {
         Ok(())
     }
 
-    /// Fresh: every SYNC sent so far has been answered
-    /// ([`Master::all_answered`]), so the TPDOs are the last tick's.
-    fn drain(&mut self, bus: &mut dyn Transport, k: u64) -> Result<DriveSample, LinkError> {
-        self.master.drain(bus)?;
-        let fb = self.master.feedback();
-        Ok(DriveSample {
-            position_rad: fb.position_rad,
-            velocity_rad_s: fb.velocity_rad_s,
-            fresh: k == 0 || self.master.all_answered(),
-            enabled: fb.state == Some(Cia402State::OperationEnabled),
-            fault: fb.state == Some(Cia402State::Fault) || fb.drive_heartbeat_lost,
-        })
+    /// Emergency: [`Master::quick_stop`] (torque 0 at once; the drive
+    /// holds QuickStopActive until a master's controlword). Else
+    /// [`Master::shut_down`], which, unlike the Hi5's stop, waits (bounded
+    /// by the response timeout) for the drive to leave OperationEnabled and
+    /// for its heartbeat consumer to be switched off: without that, the
+    /// drive would fault when this master falls silent.
+    fn stop(&mut self, bus: &mut dyn Transport, _k: u64, emergency: bool) -> Result<(), LinkError> {
+        if emergency {
+            self.master.quick_stop(bus)?;
+        } else {
+            self.master.shut_down(bus, self.step)?;
+        }
+        Ok(())
+    }
+
+    /// Every foreign command the master counted (set-up reads the bus
+    /// through the master alone).
+    fn foreign_commands_in_setup(&self) -> u64 {
+        self.master.feedback().foreign_commands
+    }
+
+    /// The drive's TPDOs, EMCY, heartbeat and SDO responses; its RPDO1 and
+    /// SDO requests, SYNC and NMT (another master's).
+    fn receive_ids(&self) -> Vec<u32> {
+        use crate::cia402::od::{NMT_COB_ID, SYNC_COB_ID};
+        let n = self.master.settings().node;
+        vec![
+            n.tpdo1(),
+            n.tpdo2(),
+            n.emcy(),
+            n.heartbeat(),
+            n.sdo_tx(),
+            n.rpdo1(),
+            n.sdo_rx(),
+            SYNC_COB_ID,
+            NMT_COB_ID,
+        ]
     }
 
     /// [`Master::shut_down`].

@@ -118,7 +118,7 @@ fn start(module: &str, link: &mut dyn DriveLink, log: bool) -> (UdpBus, Child) {
         .spawn()
         .unwrap();
     let started = Instant::now();
-    if let Err(e) = link.enable(&mut bus) {
+    if let Err(e) = link.bring_up(&mut bus) {
         let err = stop(child);
         panic!("{module}: enable failed: {e}; drive: {err}");
     }
@@ -167,7 +167,7 @@ fn trip_watchdog(module: &str, link: &mut dyn DriveLink, watchdog: Duration) -> 
 
 /// After a fault: enabling again brings the drive back; then shut down.
 fn reenable(module: &str, link: &mut dyn DriveLink, mut bus: UdpBus, child: Child) {
-    link.enable(&mut bus).unwrap();
+    link.bring_up(&mut bus).unwrap();
     idle_ticks(module, link, &mut bus, 0, 50);
     let s = link.drain(&mut bus, 50).unwrap();
     assert!(s.enabled && !s.fault, "{module}: not enabled again: {s:?}");

@@ -159,8 +159,9 @@ def rig_demo(
     t_start = time.perf_counter()
     phases = ", ".join(f"{p.kind} {p.duration_s:g} s" for p in config.phases)
     port = rig.bus_port(port)
+    drive = _DRIVE_NAMES[config.rig.drive]
     print(f"sensaug demo: the Hi5 experiment on the virtual rig ({phases})")
-    print("virtual Hi5 drive (Python, python-can) <-> sensaug-rt (Rust, 1 kHz) over the loopback CAN bus")
+    print(f"virtual {drive} drive (Python, python-can) <-> sensaug-rt (Rust, 1 kHz) over the loopback CAN bus")
     print(f"bus: sensaug_udp port {port} (watch it: python -m can.viewer -i sensaug_udp -c {port})")
     print(f"capture: {out / capture} ({rig.capture_format(out / capture)})\n" if capture else "capture: off\n", flush=True)
     run = rig.run_virtual_rig(config, out=out, port=port, capture=capture, progress=progress)
@@ -296,8 +297,14 @@ def check(path: str) -> int:
     return 0
 
 
+#: How the demo names each ``[rig] drive`` profile.
+_DRIVE_NAMES = {"hi5": "Hi5", "cia402": "CiA 402 (CANopen)"}
+
+
 def _rig_options(p: argparse.ArgumentParser) -> None:
-    """``demo``'s and ``rig``'s bus, capture and progress options."""
+    """``demo``'s and ``rig``'s drive profile, bus, capture and progress options."""
+    p.add_argument("--drive", choices=sorted(_DRIVE_NAMES), default=None,
+                   help="drive profile (sets [rig] drive; default: the configuration's, hi5 unless it says otherwise)")
     p.add_argument("--port", type=int, default=None, help="loopback CAN bus UDP port 1..65535 (default: a free one)")
     p.add_argument("--capture", default="bus.log", metavar="NAME",
                    help="bus capture file in --out; the suffix picks the format: .log candump -l (default bus.log), .blf")
@@ -308,6 +315,13 @@ def _rig_options(p: argparse.ArgumentParser) -> None:
 def _progress(args: argparse.Namespace) -> bool | None:
     """Progress bars: off with --quiet, else tqdm's default (only on a terminal)."""
     return False if args.quiet else None
+
+
+def _with_drive(cfg: ScenarioConfig, args: argparse.Namespace) -> ScenarioConfig:
+    """``cfg`` with ``--drive``'s profile, if given."""
+    if args.drive is not None:
+        cfg.rig.drive = args.drive
+    return cfg
 
 
 def _rig_kwargs(args: argparse.Namespace) -> dict:
@@ -365,7 +379,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "demo":
             cfg = ScenarioConfig.from_toml(args.config) if args.config else presets.hi5_rig()
-            return rig_demo(cfg, args.out, not args.no_plots, **_rig_kwargs(args))
+            return rig_demo(_with_drive(cfg, args), args.out, not args.no_plots, **_rig_kwargs(args))
         if args.command == "paper":
             if args.seeds < 1:
                 parser.error("--seeds: must be >= 1")
@@ -385,7 +399,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{len(written)} files in {args.out} ({time.perf_counter() - t0:.1f} s); see {args.out / 'REPORT.md'}")
             return 0
         if args.command == "rig":
-            return rig_demo(ScenarioConfig.from_toml(args.config), args.out, True, **_rig_kwargs(args))
+            cfg = _with_drive(ScenarioConfig.from_toml(args.config), args)
+            return rig_demo(cfg, args.out, True, **_rig_kwargs(args))
         cfg = {"hi5": presets.hi5_experiment, "hi5-rig": presets.hi5_rig, "simulation": presets.simulation_section}[args.name]()
         sys.stdout.write(cfg.to_toml())
         return 0

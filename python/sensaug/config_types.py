@@ -281,6 +281,10 @@ class RigConfig:
 
     can: str = 'udp:47100'
     """CAN link: "udp:<port>" (loopback virtual bus, port 1..65535) or "socketcan:<ifname>"."""
+    drive: Literal["hi5", "cia402"] = 'hi5'
+    """Drive profile: "hi5" or "cia402" (its units are read from the drive over SDO; its
+    heartbeat consumer is armed with `watchdog_ms`).
+    """
     feedback_step_margin_rad: float = 0.01
     """Feedback plausibility: a position step between two feedbacks larger than
     `max_feedback_velocity_rad_s` times their time apart plus this margin (rad) stops the loop
@@ -308,7 +312,7 @@ class RigConfig:
     stops ("degraded").
     """
     node_id: int = 1
-    """Drive node id."""
+    """Drive node id (CiA 402: 1..15, node 0 is NMT broadcast)."""
     position_unit: Literal["deg", "rad"] = 'deg'
     """Unit of the controller's positions; the drive speaks rad and N m, and torque is scaled by
     the same factor (docs/model.md, Units).
@@ -507,7 +511,7 @@ class ScenarioConfig:
     """The partner: the virtual human (simulation, and inside the rig loop)."""
     plant: PlantConfig = field(default_factory=lambda: PlantConfig.from_dict({'coulomb': 0.0, 'damping': 0.0, 'dt_s': 0.001, 'mass': 0.0035}))
     """The handle as the controller models it."""
-    rig: RigConfig = field(default_factory=lambda: RigConfig.from_dict({'can': 'udp:47100', 'feedback_step_margin_rad': 0.01, 'feedback_timeout_ms': 20.0, 'log': 'out/rig_log.csv', 'max_estimator_errors': 10, 'max_feedback_velocity_rad_s': 8.0, 'max_missing_feedback_fraction': 0.5, 'max_stale_feedback_ticks': 100, 'node_id': 1, 'position_unit': 'deg', 'ramp_down_s': 0.2, 'realtime': {'mlockall': True}, 'ring_capacity': 65536, 'stats': 'out/rig_stats.json', 'torque_limit_nm': 3.0, 'virtual_human': True, 'watchdog_ms': 50}))
+    rig: RigConfig = field(default_factory=lambda: RigConfig.from_dict({'can': 'udp:47100', 'drive': 'hi5', 'feedback_step_margin_rad': 0.01, 'feedback_timeout_ms': 20.0, 'log': 'out/rig_log.csv', 'max_estimator_errors': 10, 'max_feedback_velocity_rad_s': 8.0, 'max_missing_feedback_fraction': 0.5, 'max_stale_feedback_ticks': 100, 'node_id': 1, 'position_unit': 'deg', 'ramp_down_s': 0.2, 'realtime': {'mlockall': True}, 'ring_capacity': 65536, 'stats': 'out/rig_stats.json', 'torque_limit_nm': 3.0, 'virtual_human': True, 'watchdog_ms': 50}))
     """The real-time loop and its CAN link (`sensaug-rt`; the simulation ignores it)."""
     robot: RobotConfig = field(default_factory=lambda: RobotConfig.from_dict({'gain_window_s': 8.0, 'integrate': True, 'q_pos': 1.0, 'q_vel': 0.0, 'seed': 1, 'sigma': {'alpha': 1.0, 'beta': 2.0, 'kappa': 0.0}, 'stage1': {'P0': [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0], 'Q': [0.01, 0.01, 0.01, 0.01, 0.01, 0.01], 'R': [1e-07, 1e-07, 1e-07], 'gains0': [0.0, 0.0, 0.0]}, 'stage2': {'P0': [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0], 'Q': [0.01, 0.01, 0.01, 0.01, 0.01, 0.01], 'R': [1e-07, 1e-07, 1e-07, 1e-07, 1e-07], 'gains0': [0.0, 0.0, 0.0]}, 'stage3': {'P0': [0.01, 0.01], 'Q': [0.01, 0.01], 'R_sensor': [1e-07, 1e-07], 'partner_window_s': 0.2}, 'torque_limit': 1000.0}))
     """The robot's controller and estimators."""

@@ -133,12 +133,21 @@ def write_readme(out: Path, files: dict[str, str], *, title: str) -> Path:
     return path
 
 
-def start_drive(port: int, *, duration_s: float, extra: list[str] | None = None) -> subprocess.Popen:
-    """The virtual Hi5 as a subprocess on the loopback bus at ``port``."""
+#: The virtual drive's module for each ``[rig] drive`` profile.
+VIRTUAL_DRIVES = {"hi5": "sensaug_bridge.virtual_hi5", "cia402": "sensaug_bridge.virtual_cia402"}
+
+
+def start_drive(
+    port: int, *, duration_s: float, extra: list[str] | None = None, drive: str = "hi5"
+) -> subprocess.Popen:
+    """The virtual drive of profile ``drive`` ("hi5" or "cia402",
+    :data:`VIRTUAL_DRIVES`) as a subprocess on the loopback bus at ``port``."""
+    if drive not in VIRTUAL_DRIVES:
+        raise ValueError(f"rig.drive: {drive!r} is not a drive profile; use one of {sorted(VIRTUAL_DRIVES)}")
     cmd = [
         sys.executable,
         "-m",
-        "sensaug_bridge.virtual_hi5",
+        VIRTUAL_DRIVES[drive],
         "--channel",
         str(port),
         "--duration",
@@ -173,6 +182,7 @@ def run_virtual_rig(
     """Runs one trial on the virtual rig and returns its log and statistics.
 
     ``config`` is a configuration or a TOML path; its ``[rig]`` table is used
+    (``drive`` picks the virtual drive started, :data:`VIRTUAL_DRIVES`)
     except for the CAN URL (``port``, checked by :func:`bus_port`; default: a
     free loopback port) and the output paths (under ``out``). ``capture`` is
     the bus capture's file name in ``out`` (the suffix picks python-can's
@@ -196,7 +206,7 @@ def run_virtual_rig(
     captured: Optional[CaptureStats] = None
     drive: Optional[subprocess.Popen] = None
     try:
-        drive = start_drive(port, duration_s=budget + 5.0)
+        drive = start_drive(port, duration_s=budget + 5.0, drive=cfg.rig.drive)
         time.sleep(0.5)
         with _ElapsedBar(cfg.duration_s, progress):
             proc = subprocess.run(

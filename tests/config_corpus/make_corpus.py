@@ -89,6 +89,10 @@ case("valid_dt_10ms", full({"plant": "dt_s = 0.01\n", "rig": "watchdog_ms = 200\
 case("valid_fifo", setting("rig.realtime", "fifo_priority", "80"), "valid")
 case("valid_node_15", setting("rig", "node_id", "15"), "valid")
 case("valid_rad", setting("rig", "position_unit", '"rad"'), "valid")
+case("valid_drive_hi5", setting("rig", "drive", '"hi5"'), "valid")
+case("valid_drive_cia402", setting("rig", "drive", '"cia402"'), "valid")
+case("valid_drive_cia402_node_15", full({"rig": 'drive = "cia402"\nnode_id = 15\n'}), "valid")
+case("cia402_node_0", full({"rig": 'drive = "cia402"\nnode_id = 0\n'}), "rig.node_id")
 case("valid_harmonics_defaults", BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
      '{ kind = "harmonics", amplitude = 1e-4, omega_rad_s = 1.0 }', 1), "valid")
 case("valid_sampled", BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
@@ -147,6 +151,9 @@ for table, key, value, name in [
     ("rig", "virtual_human", '"yes"', "virtual_human_string"),
     ("rig", "position_unit", '"degree"', "position_unit_bad"),
     ("rig", "position_unit", "1", "position_unit_int"),
+    ("rig", "drive", '"canopen"', "drive_bad"),
+    ("rig", "drive", '"CiA402"', "drive_uppercase"),
+    ("rig", "drive", "402", "drive_int"),
     ("rig", "log", "3", "log_int"),
     ("rig", "ring_capacity", "1e12", "ring_float"),
     ("rig.realtime", "mlockall", "1", "mlockall_int"),

@@ -9,7 +9,8 @@
 use crate::cov::Cov;
 use crate::error::{num, ConfigError};
 use crate::schema::{
-    ActsOnSpec, PhaseKindSpec, PositionUnit, RigSpec, RobotSpec, ScenarioSpec, ShapeSpec, MAX_PARTS,
+    ActsOnSpec, DriveProfile, PhaseKindSpec, PositionUnit, RigSpec, RobotSpec, ScenarioSpec,
+    ShapeSpec, MAX_PARTS,
 };
 use nalgebra::{SVector, Vector2};
 use sensaug_core::controller::{Robot, RobotConfig};
@@ -234,6 +235,13 @@ fn rig_timing(rig: &RigSpec, dt_s: f64) -> Result<(), ConfigError> {
                 num(dt_s),
                 num(dt_ms)
             ),
+        ));
+    }
+    if rig.drive == DriveProfile::Cia402 && rig.node_id == 0 {
+        return Err(ConfigError::new(
+            "rig.node_id",
+            "0 is the NMT broadcast address, not a CANopen node (rig.drive = \"cia402\"); \
+             use the drive's node-ID, 1..15",
         ));
     }
     if f64::from(rig.watchdog_ms) < 2.0 * dt_ms {

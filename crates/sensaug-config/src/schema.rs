@@ -524,6 +524,17 @@ pub enum PositionUnit {
     Rad,
 }
 
+/// The drive's protocol on the CAN bus.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum DriveProfile {
+    /// The Hi5 protocol (`hi5.dbc`, docs/can_protocol.md).
+    Hi5,
+    /// CiA 402 over CANopen (docs/cia402.md): rated torque, maximum torque,
+    /// encoder and gear ratios are read from the drive over SDO at set-up.
+    Cia402,
+}
+
 /// `[rig.realtime]`: thread settings of the loop; each falls back with a
 /// warning if the OS refuses it.
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
@@ -558,7 +569,10 @@ pub struct RigSpec {
     /// CAN link: "udp:<port>" (loopback virtual bus, port 1..65535) or
     /// "socketcan:<ifname>".
     pub can: String,
-    /// Drive node id.
+    /// Drive profile: "hi5" or "cia402" (its units are read from the drive
+    /// over SDO; its heartbeat consumer is armed with `watchdog_ms`).
+    pub drive: DriveProfile,
+    /// Drive node id (CiA 402: 1..15, node 0 is NMT broadcast).
     #[schemars(range(max = 15))]
     pub node_id: u32,
     /// Unit of the controller's positions; the drive speaks rad and N m, and
@@ -618,6 +632,7 @@ impl Default for RigSpec {
     fn default() -> Self {
         RigSpec {
             can: "udp:47100".into(),
+            drive: DriveProfile::Hi5,
             node_id: 1,
             position_unit: PositionUnit::Deg,
             torque_limit_nm: 3.0,

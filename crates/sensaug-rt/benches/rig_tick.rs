@@ -18,12 +18,12 @@ use sensaug_bridge::transport::UdpBus;
 use sensaug_config::{load_file, resolve};
 use sensaug_core::controller::Robot;
 use sensaug_core::protocol::Protocol;
+use sensaug_rt::config::drive_link;
 use sensaug_rt::control::Rig;
 use sensaug_rt::log;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
-use std::time::Duration;
 
 fn main() {
     let phase_s = std::env::args()
@@ -47,7 +47,8 @@ fn main() {
     let drive_stop = Arc::new(AtomicBool::new(false));
     let handle = drive::drive(port, Arc::clone(&drive_stop), u64::MAX);
     let transport = Box::new(UdpBus::open(port).expect("loopback bus"));
-    let mut rig = Rig::start(settings, transport, robot, Duration::from_secs(5)).expect("drive");
+    let mut rig =
+        Rig::start(settings, drive_link(&settings).unwrap(), transport, robot).expect("drive");
     let dir = std::env::temp_dir().join(format!("sensaug-rig-tick-{port}"));
     let meta = serde_json::json!({"source": "rig"});
     let (mut sink, writer) = log::start(&dir.join("log.csv"), 1 << 14, &meta).expect("log");

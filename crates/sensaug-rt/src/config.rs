@@ -2,8 +2,42 @@
 //! one schema the Python API and this binary share).
 
 use crate::control::LoopSettings;
+use sensaug_bridge::cia402::{CanopenNode, MasterSettings};
+use sensaug_bridge::drive_link::{Cia402Link, DriveLink, Hi5Link};
 use sensaug_bridge::protocol::NodeId;
-use sensaug_config::{ConfigError, Resolved};
+use sensaug_config::{ConfigError, DriveProfile, Resolved};
+use std::time::Duration;
+
+/// How long each set-up step may wait for the drive.
+pub const SETUP_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// CiA 402: the master's heartbeat period is this fraction of the drive's
+/// heartbeat consumer time (`rig.watchdog_ms`): five beats per watchdog.
+const HEARTBEATS_PER_WATCHDOG: u64 = 5;
+
+/// The link to the drive `[rig] drive` names. CiA 402: the drive's
+/// heartbeat consumer (its command watchdog) is `rig.watchdog_ms`, the
+/// master beats [`HEARTBEATS_PER_WATCHDOG`] times per watchdog; the drive's
+/// own heartbeat and the set-up's response timeout are
+/// [`MasterSettings::new`]'s.
+pub fn drive_link(s: &LoopSettings) -> Result<Box<dyn DriveLink + Send>, ConfigError> {
+    Ok(match s.drive {
+        DriveProfile::Hi5 => Box::new(Hi5Link::new(s.node, s.watchdog_ms, SETUP_TIMEOUT)),
+        DriveProfile::Cia402 => {
+            let node = CanopenNode::new(s.node.get())
+                .map_err(|e| ConfigError::new("rig.node_id", e.to_string()))?;
+            let mut m = MasterSettings::new(node);
+            m.drive_consumer_ms = s.watchdog_ms;
+            m.heartbeat_period =
+                Duration::from_millis((u64::from(s.watchdog_ms) / HEARTBEATS_PER_WATCHDOG).max(1));
+            let step = Duration::from_secs_f64(s.dt_s);
+            Box::new(
+                Cia402Link::new(m, step)
+                    .map_err(|e| ConfigError::new("rig.watchdog_ms", e.to_string()))?,
+            )
+        }
+    })
+}
 
 /// The loop's settings: the `[rig]` table and the controller's period, unit
 /// and virtual human (zero gains when a person holds the handle).
@@ -12,6 +46,7 @@ pub fn loop_settings(resolved: &Resolved<'_>) -> Result<LoopSettings, ConfigErro
     let node =
         NodeId::new(rig.node_id).map_err(|e| ConfigError::new("rig.node_id", e.to_string()))?;
     Ok(LoopSettings {
+        drive: rig.drive,
         node,
         dt_s: resolved.dt_s,
         rad_per_unit: resolved.rad_per_unit,

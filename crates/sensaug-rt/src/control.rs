@@ -14,8 +14,10 @@
 use crate::log::{LogRecord, LogSink};
 use crate::os;
 use crate::stats::{CanCounters, Histogram, LoopReport, StartGap};
-use sensaug_bridge::protocol::{decode, encode, DriveState, FaultFlags, Message, NodeId};
+use sensaug_bridge::drive_link::{Absorbed, DriveLink, DriveSample};
+use sensaug_bridge::protocol::NodeId;
 use sensaug_bridge::{Frame, Transport};
+use sensaug_config::DriveProfile;
 use sensaug_core::agent::{guard_torque, Guard, VirtualHuman};
 use sensaug_core::controller::{Robot, RobotTick};
 use sensaug_core::protocol::{Protocol, Sample};
@@ -26,6 +28,12 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use crate::safety::{degradation, plausible_feedback, DegradedLimits, Health, Implausible};
 pub use crate::safety::{Checks, Safety, StopReason};
 use std::time::{Duration, Instant};
+
+/// `t` on the `CLOCK_MONOTONIC` ns scale of [`os::now_ns`].
+fn instant_ns(t: Instant) -> u64 {
+    let ago = u64::try_from(t.elapsed().as_nanos()).unwrap_or(u64::MAX);
+    os::now_ns().saturating_sub(ago)
+}
 
 /// Tick timing, derived once from the settings before the first tick.
 #[derive(Clone, Copy, Debug)]
@@ -148,6 +156,8 @@ impl std::error::Error for StartError {}
 /// Settings of the loop (from `[rig]` and the controller's configuration).
 #[derive(Clone, Copy, Debug)]
 pub struct LoopSettings {
+    /// Drive profile.
+    pub drive: DriveProfile,
     /// Drive node id.
     pub node: NodeId,
     /// Loop period (s).
@@ -211,17 +221,19 @@ struct StartTimes {
 /// What the drive last told us.
 #[derive(Clone, Copy, Debug)]
 struct DriveView {
-    state: DriveState,
-    faults: FaultFlags,
+    /// The link's sample as of the last sense.
+    sample: DriveSample,
     x_rad: f64,
     v_rad_s: f64,
-    last_seq: Option<u8>,
+    /// A feedback has been received.
+    had_feedback: bool,
     last_feedback_tick: u64,
 }
 
 /// The loop's state: everything allocated at set-up.
 pub struct Rig<'a> {
     settings: LoopSettings,
+    link: Box<dyn DriveLink + Send>,
     transport: Box<dyn Transport + Send>,
     robot: Robot<'a>,
     partner: VirtualHuman,
@@ -243,32 +255,33 @@ pub struct Rig<'a> {
 }
 
 impl<'a> Rig<'a> {
-    /// Set-up: checks the virtual human, waits for the drive's heartbeat,
-    /// listens for another controller ([`LoopSettings::quiet_period`]; any
-    /// command for this node refuses the start), then brings the drive from
-    /// DISABLED (clearing faults if needed) to ENABLED, and reads the first
-    /// feedback with a zero-torque command sent right after the enable.
+    /// Set-up: checks the virtual human, waits for the drive to be on the
+    /// bus ([`DriveLink::connect`]), listens for another controller
+    /// ([`LoopSettings::quiet_period`]; any command for this drive refuses
+    /// the start), then enables it ([`DriveLink::enable`]: faults cleared,
+    /// zero torque, the first feedback read). Each step is bounded by the
+    /// link's own timeout.
     pub fn start(
         settings: LoopSettings,
+        link: Box<dyn DriveLink + Send>,
         transport: Box<dyn Transport + Send>,
         robot: Robot<'a>,
-        timeout: Duration,
     ) -> Result<Self, StartError> {
         let protocol = *robot.protocol();
         let partner = VirtualHuman::new(settings.partner_gains, settings.partner_torque_limit)
             .map_err(StartError::Scenario)?;
         let mut rig = Rig {
             settings,
+            link,
             transport,
             robot,
             partner,
             protocol,
             drive: DriveView {
-                state: DriveState::Boot,
-                faults: FaultFlags::empty(),
+                sample: DriveSample::default(),
                 x_rad: 0.0,
                 v_rad_s: 0.0,
-                last_seq: None,
+                had_feedback: false,
                 last_feedback_tick: 0,
             },
             wake: Histogram::new(50_000),
@@ -283,45 +296,33 @@ impl<'a> Rig<'a> {
             longest_stale_run: 0,
             times: StartTimes::default(),
         };
-        rig.wait_for(timeout, "a heartbeat from the drive", |d| {
-            d.state != DriveState::Boot
-        })?;
-        // Listen before sending anything: a running controller on this node
-        // sends a command at least every watchdog period.
+        rig.link
+            .connect(rig.transport.as_mut())
+            .map_err(|e| StartError::Drive(e.to_string()))?;
+        // Commands seen while connecting refuse the start like the listen's.
+        let seen_connecting = rig.link.foreign_commands_in_setup();
+        rig.can.foreign_commands += seen_connecting;
+        // Listen before sending anything that enables: a running controller
+        // on this drive sends a command at least every watchdog period.
         rig.listen(settings.quiet_period());
         if rig.can.foreign_commands > 0 {
             return Err(StartError::ForeignController(rig.can.foreign_commands));
         }
-        if rig.drive.state == DriveState::Fault {
-            rig.send(&Message::ClearFaults);
-            rig.wait_for(timeout, "DISABLED after clearing faults", |d| {
-                d.state == DriveState::Disabled
-            })?;
-        }
-        // Resync: the drive accepts exactly this sequence next, then +1 each.
-        // The first command follows the enable at once (the drive handles
-        // frames in order and enables on SetState): its watchdog, armed by
-        // the enable, never waits for our round trip.
-        rig.times.enable_ns = os::now_ns();
-        rig.send(&Message::SetState {
-            enable: true,
-            watchdog_ms: settings.watchdog_ms,
-            sequence: 255,
-        });
-        rig.times.first_command_ns = os::now_ns();
-        rig.send(&Message::TorqueCommand {
-            torque_nm: 0.0,
-            sequence: 255,
-        });
-        rig.wait_for(timeout, "ENABLED and the first feedback", |d| {
-            d.last_seq == Some(255) || d.state == DriveState::Fault
-        })?;
-        if rig.drive.state == DriveState::Fault {
-            return Err(StartError::Drive(format!(
-                "faulted ({:?}) right after the enable; see the drive's fault flags",
-                rig.drive.faults
-            )));
-        }
+        let times = rig
+            .link
+            .enable(rig.transport.as_mut())
+            .map_err(|e| StartError::Drive(e.to_string()))?;
+        // Commands seen while the link alone read the bus: tick 0 stops on them.
+        rig.can.foreign_commands += rig.link.foreign_commands_in_setup() - seen_connecting;
+        rig.times.enable_ns = instant_ns(times.enable);
+        rig.times.first_command_ns = instant_ns(times.first_command);
+        // The enable's feedback: the first one, seen by tick 0.
+        let first = rig.link.sample(0);
+        rig.check_plausible(first.position_rad, first.velocity_rad_s, 0);
+        rig.drive.sample = first;
+        rig.drive.x_rad = first.position_rad;
+        rig.drive.v_rad_s = first.velocity_rad_s;
+        rig.drive.had_feedback = true;
         Ok(rig)
     }
 
@@ -335,72 +336,24 @@ impl<'a> Rig<'a> {
         }
     }
 
-    fn wait_for(
-        &mut self,
-        timeout: Duration,
-        what: &str,
-        done: impl Fn(&DriveView) -> bool,
-    ) -> Result<(), StartError> {
-        let start = Instant::now();
-        while !done(&self.drive) {
-            if start.elapsed() > timeout {
-                return Err(StartError::Drive(format!(
-                    "waited {timeout:?} for {what} (state {:?}, faults {:?}); is the drive on the bus?",
-                    self.drive.state, self.drive.faults
-                )));
-            }
-            if let Ok(Some(f)) = self.transport.recv(Duration::from_millis(10)) {
-                self.absorb(&f, 0);
-            }
-        }
-        Ok(())
-    }
-
-    fn send(&mut self, msg: &Message) {
-        match encode(self.settings.node, msg) {
-            Ok(frame) => {
-                if self.transport.send(&frame).is_err() {
-                    self.can.send_errors += 1;
-                }
-            }
-            Err(_) => self.can.send_errors += 1,
-        }
-    }
-
-    /// Updates the drive view from one received frame.
+    /// Takes one received frame through the link; counts what the loop
+    /// watches (foreign commands, undecodable frames) and checks feedback
+    /// against physics.
     fn absorb(&mut self, frame: &Frame, tick: u64) {
-        match decode(self.settings.node, frame) {
-            Ok(Message::Feedback {
+        match self.link.absorb(frame) {
+            Absorbed::Feedback {
                 position_rad,
                 velocity_rad_s,
-                sequence,
-                state,
-                ..
-            }) => {
+            } => {
                 self.check_plausible(position_rad, velocity_rad_s, tick);
                 self.drive.x_rad = position_rad;
                 self.drive.v_rad_s = velocity_rad_s;
-                self.drive.state = state;
-                self.drive.last_seq = Some(sequence);
+                self.drive.had_feedback = true;
                 self.drive.last_feedback_tick = tick;
             }
-            Ok(Message::Heartbeat {
-                state, fault_flags, ..
-            })
-            | Ok(Message::Fault {
-                state, fault_flags, ..
-            }) => {
-                self.drive.state = state;
-                self.drive.faults = fault_flags;
-            }
-            // Neither transport hands a socket its own frames (udp.rs,
-            // socketcan.rs): every command for this node here is another
-            // sender's.
-            Ok(Message::TorqueCommand { .. })
-            | Ok(Message::SetState { .. })
-            | Ok(Message::EmergencyStop)
-            | Ok(Message::ClearFaults) => self.can.foreign_commands += 1,
-            Err(_) => self.can.decode_errors += 1,
+            Absorbed::ForeignCommand => self.can.foreign_commands += 1,
+            Absorbed::Undecodable => self.can.decode_errors += 1,
+            Absorbed::Other => {}
         }
     }
 
@@ -408,7 +361,7 @@ impl<'a> Rig<'a> {
     /// first violation.
     fn check_plausible(&mut self, x_rad: f64, v_rad_s: f64, tick: u64) {
         let s = &self.settings;
-        let prev = self.drive.last_seq.map(|_| {
+        let prev = self.drive.had_feedback.then(|| {
             (
                 self.drive.x_rad,
                 tick.saturating_sub(self.drive.last_feedback_tick),
@@ -504,8 +457,8 @@ impl<'a> Rig<'a> {
     /// answers command `k - 1` (tick 0 uses the set-up's feedback).
     fn sense(&mut self, k: u64, wake: Wake) -> Sensed {
         self.drain(k);
-        let expected = (k.wrapping_sub(1) & 0xff) as u8;
-        let fresh = k == 0 || self.drive.last_seq == Some(expected);
+        self.drive.sample = self.link.sample(k);
+        let fresh = self.drive.sample.fresh;
         if fresh {
             self.stale_run = 0;
         } else {
@@ -544,7 +497,11 @@ impl<'a> Rig<'a> {
         Checks {
             tick: k,
             feedback_timed_out: k > 0 && sensed.age_ticks > timing.timeout_ticks,
-            drive_fault: (self.drive.state == DriveState::Fault).then(|| self.drive.faults.bits()),
+            drive_fault: self
+                .drive
+                .sample
+                .fault
+                .then_some(self.drive.sample.fault_code),
             foreign_command: self.can.foreign_commands > 0,
             implausible: self.implausible,
             log_failed,
@@ -581,12 +538,15 @@ impl<'a> Rig<'a> {
         }
     }
 
-    /// Actuate: one torque command, sequence `k mod 256`.
+    /// Actuate: one torque command (the link numbers it for tick `k`).
     fn actuate(&mut self, k: u64, torque_nm: f64) {
-        self.send(&Message::TorqueCommand {
-            torque_nm,
-            sequence: (k & 0xff) as u8,
-        });
+        if self
+            .link
+            .send_torque(self.transport.as_mut(), k, torque_nm)
+            .is_err()
+        {
+            self.can.send_errors += 1;
+        }
     }
 
     /// Record: the tick's compute time and its log record.
@@ -618,33 +578,29 @@ impl<'a> Rig<'a> {
             wake_latency_us: woke_ns.saturating_sub(deadline_ns) as f64 / 1e3,
             compute_us: compute_ns as f64 / 1e3,
             feedback_age_ticks: sensed.age_ticks,
-            drive_state: self.drive.state.raw(),
+            drive_state: self.drive.sample.state_code,
             guard: command.guard,
             ramp: matches!(safety, Safety::RampingDown { .. }),
         });
     }
 
-    /// After the loop: an emergency stop on a feedback timeout or a foreign
-    /// command (it latches the drive's FAULT: no controller can drive the
-    /// motor until faults are cleared), else zero torque; then disable.
+    /// After the loop, without waiting: the drive's emergency stop on a
+    /// feedback timeout or a foreign command (it leaves the drive unable to
+    /// move until set up again: no controller can drive the motor), else
+    /// zero torque; then disable ([`DriveLink::stop`]).
     fn shut_down(&mut self, reason: StopReason) {
-        if matches!(
+        let emergency = matches!(
             reason,
             StopReason::FeedbackTimeout | StopReason::ForeignCommand
-        ) {
-            self.send(&Message::EmergencyStop);
-        } else {
-            // The sequence after the loop's last command (tick k sent k & 0xff).
-            self.send(&Message::TorqueCommand {
-                torque_nm: 0.0,
-                sequence: (self.ticks_run & 0xff) as u8,
-            });
+        );
+        // The command after the loop's last one (tick k - 1).
+        if self
+            .link
+            .stop(self.transport.as_mut(), self.ticks_run, emergency)
+            .is_err()
+        {
+            self.can.send_errors += 1;
         }
-        self.send(&Message::SetState {
-            enable: false,
-            watchdog_ms: self.settings.watchdog_ms,
-            sequence: 0,
-        });
     }
 
     /// The end-of-run report (without the log and real-time fields).

@@ -8,18 +8,16 @@
 //! docs/realtime.md).
 
 use clap::Parser;
-use sensaug_bridge::protocol::MessageKind;
 use sensaug_config::Resolved;
 use sensaug_config::{load_file, validate, ConfigError, ScenarioSpec};
 use sensaug_core::controller::Robot;
-use sensaug_rt::config::loop_settings;
+use sensaug_rt::config::{drive_link, loop_settings};
 use sensaug_rt::control::{LoopSettings, Rig, StartError, StopReason};
 use sensaug_rt::{log, os};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
-use std::time::Duration;
 
 /// The 1 kHz real-time loop of sensaug: the paper's three-phase experiment
 /// over CAN, with the robot controller (and optionally a virtual human)
@@ -157,20 +155,12 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, RunError> {
     })?;
     let rig = &spec.rig;
     let mut transport = sensaug_bridge::open(&rig.can).map_err(|e| format!("rig.can: {e}"))?;
+    let link = drive_link(&settings).map_err(|e| e.to_string())?;
     // Only this node's frames wake the loop (a kernel filter on SocketCAN):
     // the drive's, and commands to it, which only another sender can have
     // put on the bus (a socket does not receive its own frames).
-    let node_ids = [
-        MessageKind::Feedback,
-        MessageKind::Fault,
-        MessageKind::Heartbeat,
-        MessageKind::TorqueCommand,
-        MessageKind::SetState,
-        MessageKind::EmergencyStop,
-        MessageKind::ClearFaults,
-    ];
     transport
-        .accept_only(&node_ids.map(|k| k.id(settings.node)))
+        .accept_only(&link.receive_ids())
         .map_err(|e| format!("rig.can: {e}"))?;
 
     // A file-size limit (RLIMIT_FSIZE) makes a write fail (EFBIG) instead of
@@ -246,7 +236,7 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, RunError> {
         );
     }
 
-    let mut rig_loop = match Rig::start(settings, transport, robot, Duration::from_secs(5)) {
+    let mut rig_loop = match Rig::start(settings, link, transport, robot) {
         Ok(r) => r,
         Err(e) => {
             // The run never started: any older log and statistics stay.
@@ -308,6 +298,7 @@ fn log_metadata(resolved: &Resolved<'_>, s: &LoopSettings) -> serde_json::Value 
         start_unix_s: sensaug_log::now_unix_s(),
         loop_settings: serde_json::json!({
             "can": spec.rig.can,
+            "drive": spec.rig.drive,
             "node_id": s.node.get(),
             "dt_s": s.dt_s,
             "rad_per_unit": s.rad_per_unit,

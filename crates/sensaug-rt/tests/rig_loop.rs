@@ -7,6 +7,7 @@ use sensaug_bridge::transport::UdpBus;
 use sensaug_config::{load_str, resolve, Format};
 use sensaug_core::controller::Robot;
 use sensaug_core::protocol::Protocol;
+use sensaug_rt::config::drive_link;
 use sensaug_rt::control::{Rig, StopReason};
 use sensaug_rt::log;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -63,7 +64,7 @@ fn run_loop(answer_for: u64, stop_after: Option<Duration>) -> Outcome {
     let robot = Robot::new(resolved.robot, protocol).unwrap();
     let settings = drive::loop_settings(&resolved);
     let transport = Box::new(UdpBus::open(port).unwrap());
-    let mut rig = Rig::start(settings, transport, robot, Duration::from_secs(5)).unwrap();
+    let mut rig = Rig::start(settings, drive_link(&settings).unwrap(), transport, robot).unwrap();
     let dir = std::env::temp_dir().join(format!("sensaug-rt-test-{port}"));
     let meta = serde_json::json!({"source": "rig"});
     let (mut sink, writer) = log::start(&dir.join("log.csv"), 1 << 14, &meta).unwrap();

@@ -124,6 +124,23 @@ pub struct Feedback {
     pub drive_heartbeat_lost: bool,
     /// Frames from the drive that did not decode.
     pub decode_errors: u64,
+    /// Frames only a master sends to this drive (its RPDO1, an SDO request
+    /// to it, SYNC, NMT to it or to all): another master is on the bus
+    /// (a socket never receives its own frames).
+    pub foreign_commands: u64,
+}
+
+/// What [`Master::absorb`] made of one frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Heard {
+    /// The drive's TPDO2: with the TPDO1 before it, one tick's feedback.
+    Tpdo2,
+    /// A frame only a master sends ([`Feedback::foreign_commands`]).
+    ForeignCommand,
+    /// A frame from the drive that did not decode.
+    Undecodable,
+    /// Any other frame (TPDO1, EMCY, heartbeat, or not from the drive).
+    Other,
 }
 
 /// The CiA 402 master for one drive.
@@ -179,6 +196,12 @@ impl Master {
     /// communication and mapping parameters are the EDS defaults; start the
     /// master's heartbeat; NMT start the drive.
     pub fn boot(&mut self, bus: &mut dyn Transport) -> Result<(), Cia402Error> {
+        self.wait_for_drive(bus)?;
+        self.configure(bus)
+    }
+
+    /// Set-up, listening only: waits for the drive's boot-up or heartbeat.
+    pub fn wait_for_drive(&mut self, bus: &mut dyn Transport) -> Result<(), Cia402Error> {
         let start = Instant::now();
         while self.fb.heartbeats_received == 0 {
             if start.elapsed() > self.settings.response_timeout {
@@ -189,6 +212,11 @@ impl Master {
             }
             self.receive_one(bus, Duration::from_millis(10))?;
         }
+        Ok(())
+    }
+
+    /// Set-up after [`Master::wait_for_drive`]: the rest of [`Master::boot`].
+    pub fn configure(&mut self, bus: &mut dyn Transport) -> Result<(), Cia402Error> {
         let s = self.settings;
         let device = self.sdo_read_u32(bus, od::DEVICE_TYPE)?;
         self.expect(od::DEVICE_TYPE, od::PROFILE_402, device & 0xFFFF)?;
@@ -414,7 +442,11 @@ impl Master {
         Ok(n)
     }
 
-    fn check_drive_heartbeat(&mut self, now: Instant) {
+    /// Marks the drive's heartbeat lost when none came within
+    /// [`MasterSettings::drive_heartbeat_timeout`] of `now` (after the
+    /// first). [`Master::drain`] calls it; a caller that reads frames
+    /// itself ([`Master::absorb`]) calls it once per tick.
+    pub fn check_drive_heartbeat(&mut self, now: Instant) {
         if let Some(t) = self.last_drive_heartbeat {
             if now.duration_since(t) > self.settings.drive_heartbeat_timeout {
                 self.fb.drive_heartbeat_lost = true;
@@ -434,12 +466,22 @@ impl Master {
     }
 
     /// Updates the feedback from one frame (frames not from the drive, or
-    /// SDO responses outside a transfer, are ignored).
-    fn absorb(&mut self, f: &Frame) {
+    /// SDO responses outside a transfer, are ignored) and says what it was.
+    /// Does not allocate.
+    pub fn absorb(&mut self, f: &Frame) -> Heard {
         if !f.is_standard_data() {
-            return;
+            return Heard::Other;
         }
         let n = self.settings.node;
+        let to_node = |t: Option<&u8>| matches!(t, Some(&t) if t == 0 || t == n.get());
+        if f.id == n.rpdo1()
+            || f.id == n.sdo_rx()
+            || f.id == od::SYNC_COB_ID
+            || (f.id == od::NMT_COB_ID && to_node(f.payload().get(1)))
+        {
+            self.fb.foreign_commands += 1;
+            return Heard::ForeignCommand;
+        }
         let p = f.payload();
         let ok = if f.id == n.tpdo1() {
             frames::decode_tpdo1(p).map(|t| {
@@ -469,10 +511,15 @@ impl Master {
                 self.fb.drive_heartbeat_lost = false;
             })
         } else {
-            Ok(())
+            return Heard::Other;
         };
-        if ok.is_err() {
-            self.fb.decode_errors += 1;
+        match ok {
+            Ok(()) if f.id == n.tpdo2() => Heard::Tpdo2,
+            Ok(()) => Heard::Other,
+            Err(_) => {
+                self.fb.decode_errors += 1;
+                Heard::Undecodable
+            }
         }
     }
 

@@ -24,7 +24,7 @@ pub mod state;
 pub mod units;
 
 pub use frames::{Emcy, NmtCommand, NmtState, SdoResponse, Tpdo1, Tpdo2};
-pub use master::{Feedback, Master, MasterSettings};
+pub use master::{Feedback, Heard, Master, MasterSettings};
 pub use od::{CanopenNode, Object};
 pub use state::{DriveState, Goal};
 pub use units::Units;

@@ -86,6 +86,7 @@ pub fn free_port() -> u16 {
 /// and feedback timeout, 50 ms ramp) for a resolved configuration.
 pub fn loop_settings(resolved: &Resolved<'_>) -> LoopSettings {
     LoopSettings {
+        drive: sensaug_config::DriveProfile::Hi5,
         node: NodeId::new(1).unwrap(),
         dt_s: resolved.dt_s,
         rad_per_unit: resolved.rad_per_unit,
