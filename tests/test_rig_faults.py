@@ -356,9 +356,12 @@ def scenario_stale_flood(tmp: Path, flood_s: float = 5.0) -> dict:
     their defaults, 100 and 0.5) the run ramps down and ends as "degraded", exit 6, and says
     why."""
     cfg = stall_tolerant(short_config(gain_s=10.0))
-    # The thresholds under test: the defaults.
+    # The thresholds under test: the defaults. The estimator-error threshold
+    # is lifted (stall_tolerant) so that the stop can only come from the
+    # feedback thresholds: with its default of 10, the starved filters'
+    # recoveries crossed it first in one CI run (the run still ended
+    # "degraded", exit 6, but for the other reason).
     cfg.rig.max_stale_feedback_ticks, cfg.rig.max_missing_feedback_fraction = 100, 0.5
-    cfg.rig.max_estimator_errors = 10
     pr = rig_processes(tmp, cfg)
     try:
         pr.start_controller()
