@@ -233,6 +233,8 @@ struct DriveView {
 /// The loop's state: everything allocated at set-up.
 pub struct Rig<'a> {
     settings: LoopSettings,
+    /// From `settings`, built once at start (not in every tick).
+    degraded_limits: DegradedLimits,
     link: Box<dyn DriveLink + Send>,
     transport: Box<dyn Transport + Send>,
     robot: Robot<'a>,
@@ -271,6 +273,7 @@ impl<'a> Rig<'a> {
         let partner = VirtualHuman::new(settings.partner_gains, settings.partner_torque_limit)
             .map_err(StartError::Scenario)?;
         let mut rig = Rig {
+            degraded_limits: settings.degraded_limits(),
             settings,
             link,
             transport,
@@ -505,7 +508,7 @@ impl<'a> Rig<'a> {
             foreign_command: self.can.foreign_commands > 0,
             implausible: self.implausible,
             log_failed,
-            degraded: degradation(&health, &self.settings.degraded_limits()),
+            degraded: degradation(&health, &self.degraded_limits),
             stop_requested: stop.load(Ordering::Relaxed),
             protocol_done: k >= self.protocol.total_ticks(),
             last_torque_nm,

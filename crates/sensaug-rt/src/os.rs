@@ -46,43 +46,26 @@ pub fn set_fifo(priority: i32) -> io::Result<()> {
     };
     // SAFETY: pid 0 is the calling thread; `param` is valid for the call.
     let rc = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
-    if rc == 0 {
-        Ok(())
-    } else {
-        Err(io::Error::last_os_error())
-    }
+    os_result(rc)
 }
 
 /// Pins the calling thread to `cpu`.
 pub fn pin_to_cpu(cpu: usize) -> io::Result<()> {
-    if cpu >= libc::CPU_SETSIZE as usize {
-        return Err(io::Error::new(
-            io::ErrorKind::InvalidInput,
-            "cpu out of range",
-        ));
-    }
+    check_cpu(cpu)?;
     // SAFETY: a zeroed cpu_set_t is a valid empty set; CPU_SET stays in bounds (checked above).
     let rc = unsafe {
         let mut set: libc::cpu_set_t = std::mem::zeroed();
         libc::CPU_SET(cpu, &mut set);
         libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set)
     };
-    if rc == 0 {
-        Ok(())
-    } else {
-        Err(io::Error::last_os_error())
-    }
+    os_result(rc)
 }
 
 /// Locks current and future pages in RAM (no page faults in the loop).
 pub fn lock_memory() -> io::Result<()> {
     // SAFETY: plain system call with constant flags.
     let rc = unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) };
-    if rc == 0 {
-        Ok(())
-    } else {
-        Err(io::Error::last_os_error())
-    }
+    os_result(rc)
 }
 
 /// Sets the calling thread's timer slack to 1 ns, so absolute-deadline
@@ -90,11 +73,7 @@ pub fn lock_memory() -> io::Result<()> {
 pub fn minimal_timer_slack() -> io::Result<()> {
     // SAFETY: PR_SET_TIMERSLACK takes one unsigned long argument; the rest are ignored.
     let rc = unsafe { libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong, 0, 0, 0) };
-    if rc == 0 {
-        Ok(())
-    } else {
-        Err(io::Error::last_os_error())
-    }
+    os_result(rc)
 }
 
 /// Ignores SIGXFSZ: a write past RLIMIT_FSIZE then fails with EFBIG (and
@@ -111,12 +90,7 @@ pub fn ignore_file_size_signal() -> io::Result<()> {
 /// use except `cpu` (threads it spawns afterwards inherit this, so the log
 /// writer stays off the loop's CPU). An error if no other CPU is left.
 pub fn avoid_cpu(cpu: usize) -> io::Result<()> {
-    if cpu >= libc::CPU_SETSIZE as usize {
-        return Err(io::Error::new(
-            io::ErrorKind::InvalidInput,
-            "cpu out of range",
-        ));
-    }
+    check_cpu(cpu)?;
     // SAFETY: a zeroed cpu_set_t is a valid empty set; the get call fills it
     // (size passed is its own); CPU_CLR/CPU_COUNT stay in bounds (checked above).
     let rc = unsafe {
@@ -134,11 +108,7 @@ pub fn avoid_cpu(cpu: usize) -> io::Result<()> {
         }
         libc::sched_setaffinity(0, size, &set)
     };
-    if rc == 0 {
-        Ok(())
-    } else {
-        Err(io::Error::last_os_error())
-    }
+    os_result(rc)
 }
 
 /// Stack the loop may use, touched once before it starts.
@@ -154,4 +124,25 @@ pub fn prefault_stack() {
         *b = 1;
     }
     std::hint::black_box(&mut block);
+}
+
+/// A system call's return code (0 = success) as a `Result` with `errno`.
+fn os_result(rc: libc::c_int) -> io::Result<()> {
+    if rc == 0 {
+        Ok(())
+    } else {
+        Err(io::Error::last_os_error())
+    }
+}
+
+/// `cpu` fits a `cpu_set_t` (so `CPU_SET`/`CPU_CLR` stay in bounds).
+fn check_cpu(cpu: usize) -> io::Result<()> {
+    if cpu < libc::CPU_SETSIZE as usize {
+        Ok(())
+    } else {
+        Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            "cpu out of range",
+        ))
+    }
 }
