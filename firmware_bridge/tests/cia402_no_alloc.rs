@@ -4,7 +4,6 @@
 //! counting global allocator over 1000 warmed-up ticks against a scripted
 //! drive on the UDP bus must read 0 (counted on this test's thread only).
 
-use std::net::UdpSocket;
 use std::time::Duration;
 
 use sensaug_bridge::cia402::frames::{self, NmtState};
@@ -16,6 +15,8 @@ use sensaug_bridge::Frame;
 mod alloc_counter;
 
 use alloc_counter::allocations;
+
+mod common;
 
 fn frame(id: u32, payload: &[u8]) -> Frame {
     Frame::new(id, payload).unwrap()
@@ -62,11 +63,7 @@ fn tick(master: &mut Master, host: &mut UdpBus, drive: &mut UdpBus, node: Canope
 
 #[test]
 fn tick_and_drain_do_not_allocate() {
-    let port = UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
+    let port = common::free_port();
     let mut host = UdpBus::open(port).unwrap();
     let mut drive = UdpBus::open(port).unwrap();
     let node = CanopenNode::new(1).unwrap();

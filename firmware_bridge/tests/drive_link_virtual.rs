@@ -17,7 +17,6 @@
 //! and print its handling latency; run with `-- --nocapture --test-threads 1`.
 
 use std::io::Read;
-use std::net::UdpSocket;
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -27,6 +26,8 @@ use sensaug_bridge::drive_link::{Cia402Link, DriveLink, Hi5Link};
 use sensaug_bridge::protocol::NodeId;
 use sensaug_bridge::transport::UdpBus;
 use sensaug_core::plant::{Plant, PlantParams};
+
+mod common;
 
 /// Ticks per run: 300, or SENSAUG_LINK_TICKS.
 fn ticks() -> u64 {
@@ -49,14 +50,6 @@ fn python() -> PathBuf {
         p.display()
     );
     p
-}
-
-fn free_port() -> u16 {
-    UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
 }
 
 /// Stops the drive with SIGTERM (a clean shutdown) and returns its stderr.
@@ -97,7 +90,7 @@ struct Profile {
 /// Opens the bus on a fresh port, starts the drive on it, enables it
 /// through `link`.
 fn start(module: &str, link: &mut dyn DriveLink, log: bool) -> (UdpBus, Child) {
-    let port = free_port();
+    let port = common::free_port();
     let mut bus = UdpBus::open(port).unwrap();
     let mut args = vec![
         "-m".to_string(),

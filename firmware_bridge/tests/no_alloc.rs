@@ -15,6 +15,8 @@ mod alloc_counter;
 
 use alloc_counter::allocations;
 
+mod common;
+
 fn tick(host: &mut UdpBus, drive: &mut UdpBus, raw: &UdpSocket, dest: SocketAddrV4, i: u32) {
     let node = NodeId::new(i % 16).unwrap();
     let cmd = Message::TorqueCommand {
@@ -47,11 +49,7 @@ fn tick(host: &mut UdpBus, drive: &mut UdpBus, raw: &UdpSocket, dest: SocketAddr
 
 #[test]
 fn per_frame_paths_do_not_allocate() {
-    let port = UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
+    let port = common::free_port();
     let mut host = UdpBus::open(port).unwrap();
     let mut drive = UdpBus::open(port).unwrap();
     let raw = UdpSocket::bind("127.0.0.1:0").unwrap();

@@ -10,13 +10,7 @@ use std::time::{Duration, Instant};
 use sensaug_bridge::transport::{open, BusStats, Transport, TransportError, UdpBus, UDP_BUS_ADDR};
 use sensaug_bridge::{Frame, FrameKind, WireError};
 
-fn free_port() -> u16 {
-    UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
+mod common;
 
 fn frame(id: u32, byte: u8) -> Frame {
     Frame::new(id, &[byte, byte ^ 0xFF, 3]).unwrap()
@@ -27,7 +21,7 @@ const LONG: Duration = Duration::from_secs(2);
 
 #[test]
 fn three_peers_exchange_frames_and_never_see_their_own() {
-    let port = free_port();
+    let port = common::free_port();
     let mut a = UdpBus::open(port).unwrap();
     let mut b = UdpBus::open(port).unwrap();
     let mut c = UdpBus::open(port).unwrap();
@@ -67,7 +61,7 @@ fn three_peers_exchange_frames_and_never_see_their_own() {
 
 #[test]
 fn frames_arrive_in_order() {
-    let port = free_port();
+    let port = common::free_port();
     let mut a = UdpBus::open(port).unwrap();
     let mut b = UdpBus::open(port).unwrap();
     for i in 0..200u32 {
@@ -83,7 +77,7 @@ fn frames_arrive_in_order() {
 
 #[test]
 fn buses_on_different_ports_are_separate() {
-    let (p1, p2) = (free_port(), free_port());
+    let (p1, p2) = (common::free_port(), common::free_port());
     if p1 == p2 {
         return;
     }
@@ -95,7 +89,7 @@ fn buses_on_different_ports_are_separate() {
 
 #[test]
 fn garbage_datagrams_are_dropped_and_counted() {
-    let port = free_port();
+    let port = common::free_port();
     let mut peer = UdpBus::open(port).unwrap();
     let raw = UdpSocket::bind("127.0.0.1:0").unwrap();
     raw.set_broadcast(true).unwrap();
@@ -130,7 +124,7 @@ fn garbage_datagrams_are_dropped_and_counted() {
 
 #[test]
 fn extended_remote_and_error_frames_are_carried() {
-    let port = free_port();
+    let port = common::free_port();
     let mut a = UdpBus::open(port).unwrap();
     let mut b = UdpBus::open(port).unwrap();
     let ext = Frame::data(0x1ABC_DEF0, true, &[1, 2, 3, 4, 5, 6, 7, 8]).unwrap();
@@ -165,7 +159,7 @@ fn extended_remote_and_error_frames_are_carried() {
 
 #[test]
 fn kernel_drops_of_a_full_receive_buffer_are_counted() {
-    let port = free_port();
+    let port = common::free_port();
     let mut peer = UdpBus::open(port).unwrap();
     let granted = peer.recv_buffer_bytes().unwrap();
     assert!(granted >= 200_000, "receive buffer {granted} B");
@@ -199,7 +193,7 @@ fn kernel_drops_of_a_full_receive_buffer_are_counted() {
 
 #[test]
 fn recv_timeout_returns_none_in_time() {
-    let mut peer = UdpBus::open(free_port()).unwrap();
+    let mut peer = UdpBus::open(common::free_port()).unwrap();
     let t0 = Instant::now();
     assert_eq!(peer.recv(Duration::from_millis(50)).unwrap(), None);
     let dt = t0.elapsed();
@@ -213,7 +207,7 @@ fn recv_timeout_returns_none_in_time() {
 
 #[test]
 fn recv_wakes_up_when_a_frame_arrives() {
-    let port = free_port();
+    let port = common::free_port();
     let mut a = UdpBus::open(port).unwrap();
     let mut b = UdpBus::open(port).unwrap();
     let sender = thread::spawn(move || {
@@ -231,7 +225,7 @@ fn recv_wakes_up_when_a_frame_arrives() {
 
 #[test]
 fn send_refuses_invalid_frames() {
-    let mut peer = UdpBus::open(free_port()).unwrap();
+    let mut peer = UdpBus::open(common::free_port()).unwrap();
     let bad_len = Frame {
         id: 0x10,
         len: 9,
@@ -261,7 +255,7 @@ fn send_refuses_invalid_frames() {
 
 #[test]
 fn open_by_url_gives_a_working_boxed_transport() {
-    let port = free_port();
+    let port = common::free_port();
     let url = format!("udp:{port}");
     let mut a = open(&url).unwrap();
     let mut b = open(&url).unwrap();
