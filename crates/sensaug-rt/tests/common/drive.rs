@@ -8,7 +8,6 @@ use sensaug_bridge::Transport;
 use sensaug_config::Resolved;
 use sensaug_core::plant::{Plant, PlantParams};
 use sensaug_rt::control::LoopSettings;
-use std::net::UdpSocket;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
@@ -73,14 +72,10 @@ pub fn drive(port: u16, stop: Arc<AtomicBool>, answer_for: u64) -> JoinHandle<()
     })
 }
 
-/// A loopback port no one is bound to right now (for a fresh bus).
-pub fn free_port() -> u16 {
-    UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
+/// The bridge tests' helper: a loopback port no one is bound to right now.
+#[path = "../../../../firmware_bridge/tests/common/mod.rs"]
+mod bridge_common;
+pub use bridge_common::free_port;
 
 /// The loop's settings against this drive (node 1, 3 N m, 50 ms watchdog
 /// and feedback timeout, 50 ms ramp) for a resolved configuration.
