@@ -40,8 +40,10 @@ def test_eds_loads_with_canopens_importer() -> None:
     assert od[0x1017].data_type == odt.UNSIGNED16 and od[0x1017].writable
     assert od[0x1016][1].data_type == odt.UNSIGNED32 and od[0x1016][1].writable
     # Controlword/statusword and the process data are PDO-mappable.
-    for index in (0x6040, 0x6041, 0x6064, 0x606C, 0x6071, 0x6077):
+    for index in (0x6040, 0x6041, 0x6064, 0x606C, 0x6071, 0x6077, 0x2000):
         assert od[index].pdo_mappable, hex(index)
+    # The SYNC counter echo: one read-only byte (docs/cia402.md, "Freshness").
+    assert od[0x2000].data_type == odt.UNSIGNED8 and not od[0x2000].writable
     assert not od[0x6041].writable and od[0x6040].writable
     assert od[0x6071].data_type == odt.INTEGER16 and od[0x6064].data_type == odt.INTEGER32
     # $NODEID in the COB-IDs.
@@ -54,8 +56,8 @@ def test_eds_loads_with_canopens_importer() -> None:
     node.tpdo.read(from_od=True)
     node.rpdo.read(from_od=True)
     assert [v.name for v in node.rpdo[1]] == ["Controlword", "Target torque"]
-    assert [v.name for v in node.tpdo[1]] == ["Statusword", "Position actual value"]
-    assert [v.name for v in node.tpdo[2]] == ["Velocity actual value", "Torque actual value"]
+    assert [v.name for v in node.tpdo[1]] == ["Statusword", "Position actual value", "SYNC counter echo"]
+    assert [v.name for v in node.tpdo[2]] == ["Velocity actual value", "Torque actual value", "SYNC counter echo"]
     assert node.rpdo[1].trans_type == 1 and node.tpdo[1].trans_type == 1
 
 

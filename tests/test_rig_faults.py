@@ -11,8 +11,7 @@ scenario is a function returning its measured figures, so that
 maximum. Timing is reported, never asserted tightly: these VMs are noisy.
 
 Every scenario runs on both drive profiles (``[rig] drive``, the
-``drive`` parameter); the one that does not apply to CiA 402 says why in
-its parametrization. On CiA 402 the frames the tests watch and forge are
+``drive`` parameter). On CiA 402 the frames the tests watch and forge are
 PDOs and SDOs by COB-ID (node 1), the drive's state is its statusword
 0x6041 read over SDO from the test's socket.
 """
@@ -31,6 +30,7 @@ import pytest
 from sensaug_bridge import protocol as p
 from sensaug_bridge.protocol import FaultFlag, State
 from test_rig import NODE, Processes, short_config, stall_tolerant
+from test_virtual_cia402 import SYNC_COUNTER_OVERFLOW
 
 from sensaug import rig
 from sensaug.config import ScenarioConfig
@@ -292,20 +292,36 @@ def forge_jump(pr: Processes, drive: str, jump_rad: float) -> float:
     from sensaug_bridge.virtual_cia402 import Cia402Config
 
     _drain(pr)
-    last: dict[int, bytes] = {}
-    for msg in cia_frames(pr, 1.0):
+    last = latest_tpdos(pr)
+    counts = Cia402Config().encoder_counts_per_rev
+    position = int.from_bytes(last[TPDO1][2:6], "little", signed=True) + round(jump_rad * counts / (2 * np.pi))
+    tpdo1 = last[TPDO1][0:2] + position.to_bytes(4, "little", signed=True) + last[TPDO1][6:]
+    sent = time.monotonic()
+    pr.monitor.send(can.Message(arbitration_id=TPDO1, data=tpdo1, is_extended_id=False))
+    pr.monitor.send(can.Message(arbitration_id=TPDO2, data=last[TPDO2], is_extended_id=False))
+    return sent
+
+
+def latest_tpdos(pr: Processes, last: dict[int, bytes] | None = None) -> dict[int, bytes]:
+    """The latest TPDO1 and TPDO2 payloads the monitor has (draining its
+    queue; waiting up to 1 s for both when ``last`` has none)."""
+    last = dict(last or {})
+    while (msg := pr.monitor.recv(timeout=0)) is not None:
+        if msg.arbitration_id in (TPDO1, TPDO2):
+            last[msg.arbitration_id] = bytes(msg.data)
+    for msg in cia_frames(pr, 0.0 if len(last) == 2 else 1.0):
         if msg.arbitration_id in (TPDO1, TPDO2):
             last[msg.arbitration_id] = bytes(msg.data)
         if len(last) == 2:
             break
     assert len(last) == 2, "no TPDOs on the bus"
-    counts = Cia402Config().encoder_counts_per_rev
-    position = int.from_bytes(last[TPDO1][2:6], "little", signed=True) + round(jump_rad * counts / (2 * np.pi))
-    tpdo1 = last[TPDO1][0:2] + position.to_bytes(4, "little", signed=True)
-    sent = time.monotonic()
-    pr.monitor.send(can.Message(arbitration_id=TPDO1, data=tpdo1, is_extended_id=False))
-    pr.monitor.send(can.Message(arbitration_id=TPDO2, data=last[TPDO2], is_extended_id=False))
-    return sent
+    return last
+
+
+def with_old_sync_counter(tpdo: bytes, behind: int) -> bytes:
+    """A TPDO payload whose SYNC counter echo (its last byte, 0x2000) is
+    ``behind`` SYNCs older (counters run 1..240, docs/cia402.md)."""
+    return tpdo[:-1] + bytes([(tpdo[-1] - 1 - behind) % SYNC_COUNTER_OVERFLOW + 1])
 
 
 def scenario_forged_jump(tmp: Path, drive: str = "hi5") -> dict:
@@ -349,9 +365,10 @@ def scenario_forged_jump(tmp: Path, drive: str = "hi5") -> dict:
 # --- 3. degraded runs ---------------------------------------------------------
 
 
-def scenario_stale_flood(tmp: Path, flood_s: float = 5.0) -> dict:
+def scenario_stale_flood(tmp: Path, drive: str = "hi5", flood_s: float = 5.0) -> dict:
     """A bounded flood of stale feedback frames (plausible values, a
-    sequence 100 behind): ticks lose their fresh feedback; past
+    sequence 100 behind; CiA 402: the latest TPDO1 and TPDO2 replayed with a
+    SYNC counter echo 100 behind): ticks lose their fresh feedback; past
     rig.max_stale_feedback_ticks or rig.max_missing_feedback_fraction (at
     their defaults, 100 and 0.5) the run ramps down and ends as "degraded", exit 6, and says
     why."""
@@ -362,23 +379,33 @@ def scenario_stale_flood(tmp: Path, flood_s: float = 5.0) -> dict:
     # recoveries crossed it first in one CI run (the run still ended
     # "degraded", exit 6, but for the other reason).
     cfg.rig.max_stale_feedback_ticks, cfg.rig.max_missing_feedback_fraction = 100, 0.5
-    pr = rig_processes(tmp, cfg)
+    pr = rig_processes(tmp, cfg, drive)
     try:
         pr.start_controller()
-        wait_running(pr)
+        wait_running(pr, drive=drive)
         # Past the start of the gain phase: a flood right there once drove
         # the motor into the drive's OVERSPEED first (docs/safety.md).
         time.sleep(1.0)
         assert pr.controller.poll() is None, pr.controller.stderr.read()
         sent = 0
         start = time.monotonic()
-        fb = latest_feedback(pr)
+        if drive == "hi5":
+            fb = latest_feedback(pr)
+        else:
+            last = latest_tpdos(pr)
         while time.monotonic() - start < flood_s and pr.controller.poll() is None:
-            fb = latest_feedback(pr, fb)
-            stale = p.Feedback(fb.position_rad, fb.velocity_rad_s, (fb.sequence - 100) % 256, fb.state, False, False)
-            for _ in range(2):
-                pr.monitor.send(stale.encode(NODE))
-            sent += 2
+            if drive == "hi5":
+                fb = latest_feedback(pr, fb)
+                stale = p.Feedback(fb.position_rad, fb.velocity_rad_s, (fb.sequence - 100) % 256, fb.state,
+                                   False, False)
+                replay = [stale.encode(NODE)] * 2
+            else:
+                last = latest_tpdos(pr, last)
+                replay = [can.Message(arbitration_id=i, data=with_old_sync_counter(last[i], 100), is_extended_id=False)
+                          for i in (TPDO1, TPDO2)]
+            for msg in replay:
+                pr.monitor.send(msg)
+            sent += len(replay)
             time.sleep(0.0003)
         code, stats, err = end_of_run(pr)
         flood_to_stop_s = time.monotonic() - start
@@ -389,7 +416,8 @@ def scenario_stale_flood(tmp: Path, flood_s: float = 5.0) -> dict:
         assert "degraded" in err and stats["exit_code"] == EXIT_DEGRADED
         log = load_log(pr.log)
         assert log.complete and log.meta["end"]["stop_reason"] == stats["stop_reason"]
-        assert log["ramp"][-1] and drive_state(pr).state == State.DISABLED
+        assert log["ramp"][-1]
+        assert_drive_disabled(pr, drive)
         return {"stale_frames_sent": sent, "missing_feedback": stats["can"]["missing_feedback"],
                 "flood_to_exit_ms": 1e3 * flood_to_stop_s}
     finally:
@@ -415,16 +443,9 @@ def test_a_forged_feedback_jump_ramps_down_and_never_raises_the_torque(tmp_path,
           f"({figures['ramp_ticks']} ramp ticks from {figures['torque_before_nm']:.4f} N m)")
 
 
-@pytest.mark.parametrize("drive", [
-    "hi5",
-    pytest.param("cia402", marks=pytest.mark.skip(reason=(
-        "does not apply as written: CiA 402 TPDOs carry no sequence number, so a replayed TPDO cannot be told "
-        "from a fresh one; the master counts answers per SYNC, and a flood of replayed TPDOs is counted as "
-        "answers (fresh), not as stale (docs/safety.md, profile notes). Missing CiA 402 feedback is covered by "
-        "the feedback timeout and by the drive's heartbeat consumer."))),
-])
+@pytest.mark.parametrize("drive", PROFILES)
 def test_a_flood_of_stale_feedback_ends_the_run_as_degraded(tmp_path, drive):
-    figures = scenario_stale_flood(tmp_path)
+    figures = scenario_stale_flood(tmp_path, drive)
     print(f"\nstale flood: {figures}")
 
 

@@ -36,6 +36,8 @@ WATCHDOG_MARGIN_S = 1.0
 RATED_MNM = Cia402Config().rated_torque_mnm
 COUNTS = Cia402Config().encoder_counts_per_rev
 RAD_PER_COUNT = 2 * math.pi / COUNTS
+#: The Rust master's 0x1019 synchronous counter overflow value (od.rs SYNC_COUNTER_OVERFLOW).
+SYNC_COUNTER_OVERFLOW = 240
 
 
 # -- a raw-frame master ------------------------------------------------------------------
@@ -46,6 +48,8 @@ class Host:
         self.bus, self.node = bus, node
         #: Frames `expect` read past (EMCYs arrive between the TPDOs they explain).
         self.skipped: list[can.Message] = []
+        #: The last SYNC's counter (1..SYNC_COUNTER_OVERFLOW, as the Rust master counts).
+        self.sync_counter = 0
 
     def send(self, can_id: int, data: bytes) -> None:
         self.bus.send(can.Message(arbitration_id=can_id, data=data, is_extended_id=False))
@@ -86,11 +90,14 @@ class Host:
         self.send(0x700 + MASTER, bytes([0x05]))
 
     def cycle(self, controlword: int, torque_per_mille: int = 0) -> tuple[int, int, int, int]:
-        """RPDO1 + SYNC; the drive's TPDO1 and TPDO2: (statusword, position, velocity, torque)."""
+        """RPDO1 + SYNC with the next counter; the drive's TPDO1 and TPDO2, both
+        echoing that counter: (statusword, position, velocity, torque)."""
         self.send(0x200 + self.node, struct.pack("<Hh", controlword, torque_per_mille))
-        self.send(0x080, b"")
-        statusword, position = struct.unpack("<Hi", self.expect(0x180 + self.node))
-        velocity, torque = struct.unpack("<ih", self.expect(0x280 + self.node))
+        self.sync_counter = self.sync_counter % SYNC_COUNTER_OVERFLOW + 1
+        self.send(0x080, bytes([self.sync_counter]))
+        statusword, position, echo1 = struct.unpack("<HiB", self.expect(0x180 + self.node))
+        velocity, torque, echo2 = struct.unpack("<ihB", self.expect(0x280 + self.node))
+        assert echo1 == echo2 == self.sync_counter, (echo1, echo2, self.sync_counter)
         return statusword, position, velocity, torque
 
     def set_up(self, consumer_ms: int = 0) -> None:
@@ -183,7 +190,7 @@ def test_sdo_refusals_are_aborts(drive: Drive):
     assert resp[0] == 0x80 and struct.unpack_from("<I", resp, 4)[0] == 0x06010002
     resp = host.sdo_write(0x6060, 0, bytes([3]))  # profile torque mode: not supported
     assert resp[0] == 0x80 and struct.unpack_from("<I", resp, 4)[0] == 0x06090030
-    resp = host.sdo_read(0x2000)
+    resp = host.sdo_read(0x5FFF)  # no such object
     assert resp[0] == 0x80 and struct.unpack_from("<I", resp, 4)[0] == 0x06020000
     host.sdo_write(0x6060, 0, bytes([10]))
     assert host.sdo_read(0x6061)[4] == 10  # the mode display follows
@@ -219,6 +226,22 @@ def test_feedback_matches_plant_with_per_mille_torque(drive: Drive):
     assert drive.drive.steps == len(torques_nm) + 1
     # One TPDO pair per SYNC: nothing more arrives.
     assert not [m for m in host.frames_for(0.1) if m.arbitration_id in (0x180 + NODE, 0x280 + NODE)]
+
+
+def test_tpdos_echo_the_counter_of_the_sync_they_answer(drive: Drive):
+    """0x2000 in both TPDOs: the SYNC's counter byte (through the wrap from
+    the overflow value back to 1), 0 for a SYNC without a counter."""
+    host = drive.host
+    host.set_up()
+    host.enable()
+    host.sync_counter = SYNC_COUNTER_OVERFLOW - 2
+    for _ in range(4):  # 239, 240, 1, 2: cycle() asserts both echoes
+        host.cycle(0x0F)
+    assert host.sync_counter == 2
+    host.send(0x200 + NODE, struct.pack("<Hh", 0x0F, 0))
+    host.send(0x080, b"")
+    assert host.expect(0x180 + NODE)[6] == 0 and host.expect(0x280 + NODE)[6] == 0
+    assert struct.unpack_from("<B", host.sdo_read(0x2000), 4)[0] == 0
 
 
 def test_torque_beyond_max_rejected_and_counted_not_clamped(start_drive):

@@ -494,8 +494,8 @@ impl DriveLink for Cia402Link {
         }
     }
 
-    /// Fresh: every SYNC sent so far has been answered
-    /// ([`Master::all_answered`]), so the TPDOs are the last tick's.
+    /// Fresh: the last TPDO1 and TPDO2 both echo the counter of tick
+    /// `k - 1`'s SYNC ([`Master::last_sync_answered`]).
     fn sample(&mut self, k: u64) -> DriveSample {
         self.master.check_drive_heartbeat(Instant::now());
         let fb = self.master.feedback();
@@ -507,7 +507,7 @@ impl DriveLink for Cia402Link {
         DriveSample {
             position_rad: fb.position_rad,
             velocity_rad_s: fb.velocity_rad_s,
-            fresh: k == 0 || self.master.all_answered(),
+            fresh: k == 0 || self.master.last_sync_answered(),
             enabled: fb.state == Some(Cia402State::OperationEnabled),
             fault: fb.state == Some(Cia402State::Fault) || fb.drive_heartbeat_lost,
             state_code: fb.state.map_or(u8::MAX, |s| s as u8),

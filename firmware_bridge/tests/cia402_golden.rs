@@ -168,9 +168,21 @@ fn nmt_sync_and_heartbeats_match() {
         let node = u8::try_from(n(&c, "node")).unwrap();
         assert_frame(&frames::nmt(cmd, node), &c["frame"], &c);
     }
+    let mut counted = 0;
     for c in frames_of(&doc, "sync") {
-        assert_frame(&frames::sync(), &c["frame"], &c);
+        // The master always sends the counter; canopen's SYNC without one
+        // (counter null) is checked to be the empty frame the drive also takes.
+        match c["counter"].as_u64() {
+            Some(counter) => {
+                let counter = u8::try_from(counter).unwrap();
+                assert!((1..=od::SYNC_COUNTER_OVERFLOW).contains(&counter));
+                assert_frame(&frames::sync(counter), &c["frame"], &c);
+                counted += 1;
+            }
+            None => assert_eq!(golden(&c["frame"]), (od::SYNC_COB_ID, vec![])),
+        }
     }
+    assert!(counted > 0);
     for c in frames_of(&doc, "heartbeat") {
         let state = match n(&c, "state") {
             0x00 => NmtState::BootUp,
@@ -202,6 +214,7 @@ fn pdos_match_canopens_maps() {
         let t = frames::decode_tpdo1(&data).unwrap();
         assert_eq!(i64::from(t.statusword), n(&c, "statusword"), "{c}");
         assert_eq!(i64::from(t.position_increments), n(&c, "position"), "{c}");
+        assert_eq!(i64::from(t.sync_counter), n(&c, "sync_counter"), "{c}");
     }
     for c in frames_of(&doc, "tpdo2") {
         let (id, data) = golden(&c["frame"]);
@@ -209,6 +222,7 @@ fn pdos_match_canopens_maps() {
         let t = frames::decode_tpdo2(&data).unwrap();
         assert_eq!(i64::from(t.velocity_increments_s), n(&c, "velocity"), "{c}");
         assert_eq!(i64::from(t.torque_per_mille), n(&c, "torque"), "{c}");
+        assert_eq!(i64::from(t.sync_counter), n(&c, "sync_counter"), "{c}");
     }
 }
 
@@ -251,6 +265,7 @@ fn object_constants_and_defaults_match_the_eds() {
         (od::TPDO1_TRANSMISSION, "UNSIGNED8", false),
         (od::TPDO2_COB_ID, "UNSIGNED32", false),
         (od::TPDO2_TRANSMISSION, "UNSIGNED8", false),
+        (od::SYNC_COUNTER_ECHO, "UNSIGNED8", true),
         (od::CONTROLWORD, "UNSIGNED16", true),
         (od::STATUSWORD, "UNSIGNED16", true),
         (od::MODES_OF_OPERATION, "INTEGER8", false),

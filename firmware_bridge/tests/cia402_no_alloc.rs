@@ -23,27 +23,29 @@ fn frame(id: u32, payload: &[u8]) -> Frame {
 }
 
 /// One tick: the master sends, the scripted drive answers every SYNC with
-/// TPDO1 + TPDO2 (and a heartbeat and an EMCY now and then), the master drains.
+/// TPDO1 + TPDO2 echoing its counter (and a heartbeat and an EMCY now and
+/// then), the master drains.
 fn tick(master: &mut Master, host: &mut UdpBus, drive: &mut UdpBus, node: CanopenNode, i: i32) {
     master.tick(host, f64::from(i % 100) * 1e-3).unwrap();
-    let mut syncs = 0;
-    while syncs == 0 {
+    let counter = loop {
         let f = drive.recv(Duration::from_secs(1)).unwrap().unwrap();
-        syncs += i32::from(f.id == 0x080);
-    }
+        if f.id == 0x080 {
+            break f.payload()[0];
+        }
+    };
     let sw = 0x0237u16.to_le_bytes();
     let pos = (i * 1000).to_le_bytes();
     drive
         .send(&frame(
             node.tpdo1(),
-            &[sw[0], sw[1], pos[0], pos[1], pos[2], pos[3]],
+            &[sw[0], sw[1], pos[0], pos[1], pos[2], pos[3], counter],
         ))
         .unwrap();
     let vel = (-i).to_le_bytes();
     drive
         .send(&frame(
             node.tpdo2(),
-            &[vel[0], vel[1], vel[2], vel[3], 7, 0],
+            &[vel[0], vel[1], vel[2], vel[3], 7, 0, counter],
         ))
         .unwrap();
     if i % 10 == 0 {
@@ -59,6 +61,7 @@ fn tick(master: &mut Master, host: &mut UdpBus, drive: &mut UdpBus, node: Canope
     while master.feedback().tpdo2_received == before {
         master.drain(host).unwrap();
     }
+    assert!(master.last_sync_answered());
 }
 
 #[test]

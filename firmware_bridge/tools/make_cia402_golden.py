@@ -50,8 +50,8 @@ OBJECTS = [
     (0x1000, 0), (0x1016, 1), (0x1017, 0),
     (0x1400, 1), (0x1400, 2), (0x1800, 1), (0x1800, 2), (0x1801, 1), (0x1801, 2),
     (0x1600, 0), (0x1600, 1), (0x1600, 2),
-    (0x1A00, 0), (0x1A00, 1), (0x1A00, 2),
-    (0x1A01, 0), (0x1A01, 1), (0x1A01, 2),
+    (0x1A00, 0), (0x1A00, 1), (0x1A00, 2), (0x1A00, 3),
+    (0x1A01, 0), (0x1A01, 1), (0x1A01, 2), (0x1A01, 3), (0x2000, 0),
     (0x6040, 0), (0x6041, 0), (0x6060, 0), (0x6061, 0), (0x6064, 0), (0x606C, 0),
     (0x6071, 0), (0x6072, 0), (0x6076, 0), (0x6077, 0),
     (0x608F, 1), (0x608F, 2), (0x6091, 1), (0x6091, 2),
@@ -171,7 +171,7 @@ def sdo_cases(node_id: int) -> list[dict[str, Any]]:
     aborts = [
         ("download", 0x6041, 0, b"\x00\x00"),  # read-only
         ("download", 0x1000, 0, b"\x00\x00\x00\x00"),  # read-only
-        ("upload", 0x2000, 0, b""),  # no such object
+        ("upload", 0x5FFF, 0, b""),  # no such object
         ("upload", 0x608F, 3, b""),  # no such sub-index
         ("download", 0x6060, 0, b"\x0a\x00"),  # wrong length for INTEGER8
     ]
@@ -206,9 +206,14 @@ def nmt_sync_heartbeat_cases(node_id: int) -> list[dict[str, Any]]:
     net.nmt.send_command(0x01)  # broadcast start (node 0)
     (f,) = net.take()
     cases.append({"kind": "nmt", "command": 0x01, "node": 0, "frame": _frame(*f)})
+    # SYNC with the counter byte (CiA 301; the master's 0x1019 is 240), and without.
+    for count in (1, 2, 239, 240):
+        net.sync.transmit(count)
+        (f,) = net.take()
+        cases.append({"kind": "sync", "counter": count, "frame": _frame(*f)})
     net.sync.transmit()
     (f,) = net.take()
-    cases.append({"kind": "sync", "frame": _frame(*f)})
+    cases.append({"kind": "sync", "counter": None, "frame": _frame(*f)})
     # Heartbeats: a LocalNode's NMT slave (boot-up, then its periodic beat).
     slave = canopen.LocalNode(node_id, canopen.import_od(str(EDS_PATH), node_id))
     net.add_node(slave)
@@ -248,23 +253,28 @@ def pdo_cases(node_id: int, rng: random.Random) -> list[dict[str, Any]]:
                       "frame": _frame(*f)})
 
     tpdo1, tpdo2 = drive.tpdo[1], drive.tpdo[2]
-    t1_values = [(0x0240, 0), (0x0231, 1), (0x0233, -1), (0x0237, 2**31 - 1), (0x0A37, -(2**31)),
-                 (0x0217, 1048576), (0x0208, -524288), (0x021F, 12345)]
-    t1_values += [(rng.choice([0x0237, 0x0A37, 0x0208]), rng.randint(-(2**31), 2**31 - 1)) for _ in range(8)]
-    for sw, pos in t1_values:
+    t1_values = [(0x0240, 0, 0), (0x0231, 1, 1), (0x0233, -1, 2), (0x0237, 2**31 - 1, 240), (0x0A37, -(2**31), 255),
+                 (0x0217, 1048576, 17), (0x0208, -524288, 128), (0x021F, 12345, 239)]
+    t1_values += [(rng.choice([0x0237, 0x0A37, 0x0208]), rng.randint(-(2**31), 2**31 - 1), rng.randint(1, 240))
+                  for _ in range(8)]
+    for sw, pos, echo in t1_values:
         tpdo1["Statusword"].raw = sw
         tpdo1["Position actual value"].raw = pos
+        tpdo1["SYNC counter echo"].raw = echo
         tpdo1.transmit()
         (f,) = net.take()
-        cases.append({"kind": "tpdo1", "node": node_id, "statusword": sw, "position": pos, "frame": _frame(*f)})
-    t2_values = [(0, 0), (1, -1), (-(2**31), 32767), (2**31 - 1, -32768), (1398101, 3000)]
-    t2_values += [(rng.randint(-(2**31), 2**31 - 1), rng.randint(-32768, 32767)) for _ in range(8)]
-    for vel, torque in t2_values:
+        cases.append({"kind": "tpdo1", "node": node_id, "statusword": sw, "position": pos, "sync_counter": echo,
+                      "frame": _frame(*f)})
+    t2_values = [(0, 0, 0), (1, -1, 1), (-(2**31), 32767, 240), (2**31 - 1, -32768, 255), (1398101, 3000, 99)]
+    t2_values += [(rng.randint(-(2**31), 2**31 - 1), rng.randint(-32768, 32767), rng.randint(1, 240)) for _ in range(8)]
+    for vel, torque, echo in t2_values:
         tpdo2["Velocity actual value"].raw = vel
         tpdo2["Torque actual value"].raw = torque
+        tpdo2["SYNC counter echo"].raw = echo
         tpdo2.transmit()
         (f,) = net.take()
-        cases.append({"kind": "tpdo2", "node": node_id, "velocity": vel, "torque": torque, "frame": _frame(*f)})
+        cases.append({"kind": "tpdo2", "node": node_id, "velocity": vel, "torque": torque, "sync_counter": echo,
+                      "frame": _frame(*f)})
     return cases
 
 
@@ -312,6 +322,7 @@ UNITS = {
     0x6060: "10 = cyclic synchronous torque",
     0x6061: "10 = cyclic synchronous torque",
     0x6502: "bit 9: cyclic synchronous torque",
+    0x2000: "the counter of the SYNC answered (0: none); in TPDO1 and TPDO2",
     0x605A: "6: stay in quick stop active",
 }
 

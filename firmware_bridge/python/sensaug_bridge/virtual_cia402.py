@@ -15,7 +15,9 @@ virtual Hi5 drive (``virtual_hi5.new_plant``, ``encoder_counts``,
 * Every SYNC (in OPERATIONAL): apply RPDO1's controlword (state transitions;
   fault reset on the rising edge of bit 7) and, in OPERATION_ENABLED, its target
   torque (per-mille of 0x6076) for one plant step; then TPDO1 (statusword,
-  position in increments) and TPDO2 (velocity in increments/s, torque actual).
+  position in increments) and TPDO2 (velocity in increments/s, torque actual),
+  each ending with the SYNC's counter byte (0x2000 SYNC counter echo; 0 for a
+  SYNC without a counter), so the master can tell them from late or replayed ones.
   The plant's clock is the SYNC stream: one step per SYNC while enabled.
 * A target torque beyond max torque 0x6072 is rejected, never clamped: torque 0
   for that cycle, counted, statusword bit 11, EMCY 0x8611 on the first of a run.
@@ -193,6 +195,8 @@ class VirtualCia402:
         self._last_master_hb: Optional[float] = None
         self._t0 = 0.0
         self.syncs = 0
+        #: The counter of the SYNC being answered (0x2000; 0: the SYNC had none).
+        self.sync_counter = 0
         self.steps = 0
         self.range_errors = 0
         self.heartbeat_events = 0
@@ -419,6 +423,7 @@ class VirtualCia402:
             return
         t_rx = time.perf_counter()
         self.syncs += 1
+        self.sync_counter = data[0] if data else 0
         cmd = 0
         if self._rpdo.timestamp is not None:  # an RPDO1 has arrived
             self._apply_controlword(self._rpdo["Controlword"].raw)
@@ -466,7 +471,10 @@ class VirtualCia402:
         self._tpdo1["Position actual value"].raw = position
         self._tpdo2["Velocity actual value"].raw = velocity
         self._tpdo2["Torque actual value"].raw = self.torque_per_mille
-        for index, value in ((0x6064, position), (0x606C, velocity), (0x6077, self.torque_per_mille)):
+        for tpdo in (self._tpdo1, self._tpdo2):
+            tpdo["SYNC counter echo"].raw = self.sync_counter
+        for index, value in ((0x6064, position), (0x606C, velocity), (0x6077, self.torque_per_mille),
+                             (0x2000, self.sync_counter)):
             self._store(index, 0, value)
         self._tpdo1.transmit()
         self._tpdo2.transmit()

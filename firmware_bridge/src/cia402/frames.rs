@@ -29,9 +29,10 @@ pub fn nmt(command: NmtCommand, node: u8) -> Frame {
     frame(NMT_COB_ID, &[command as u8, node])
 }
 
-/// SYNC without a counter: COB-ID 0x80, no data.
-pub fn sync() -> Frame {
-    frame(SYNC_COB_ID, &[])
+/// SYNC with its counter (CiA 301 7.2.5.3.1): COB-ID 0x80, one byte,
+/// 1..=0x1019 ([`super::od::SYNC_COUNTER_OVERFLOW`]).
+pub fn sync(counter: u8) -> Frame {
+    frame(SYNC_COB_ID, &[counter])
 }
 
 /// The NMT state a heartbeat reports (CiA 301 7.2.8.3.2.2).
@@ -201,43 +202,50 @@ pub fn rpdo1(node: CanopenNode, controlword: u16, target_torque_per_mille: i16) 
     frame(node.rpdo1(), &[c0, c1, t0, t1])
 }
 
-/// TPDO1 (mapping 0x1A00): statusword and position actual (increments).
+/// TPDO1 (mapping 0x1A00): statusword, position actual (increments), SYNC
+/// counter echo.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Tpdo1 {
     /// 0x6041.
     pub statusword: u16,
     /// 0x6064, encoder increments.
     pub position_increments: i32,
+    /// 0x2000, the counter of the SYNC this TPDO answers.
+    pub sync_counter: u8,
 }
 
-/// TPDO2 (mapping 0x1A01): velocity actual and torque actual.
+/// TPDO2 (mapping 0x1A01): velocity actual, torque actual, SYNC counter echo.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Tpdo2 {
     /// 0x606C, increments per second.
     pub velocity_increments_s: i32,
     /// 0x6077, per-mille of rated torque.
     pub torque_per_mille: i16,
+    /// 0x2000, the counter of the SYNC this TPDO answers.
+    pub sync_counter: u8,
 }
 
-/// Decodes TPDO1's 6 bytes.
+/// Decodes TPDO1's 7 bytes.
 pub fn decode_tpdo1(payload: &[u8]) -> Result<Tpdo1, Cia402Error> {
-    let Ok(b) = <&[u8; 6]>::try_from(payload) else {
-        return Err(wrong_length("TPDO1", 6, payload));
+    let Ok(b) = <&[u8; 7]>::try_from(payload) else {
+        return Err(wrong_length("TPDO1", 7, payload));
     };
     Ok(Tpdo1 {
         statusword: u16::from_le_bytes([b[0], b[1]]),
         position_increments: i32::from_le_bytes([b[2], b[3], b[4], b[5]]),
+        sync_counter: b[6],
     })
 }
 
-/// Decodes TPDO2's 6 bytes.
+/// Decodes TPDO2's 7 bytes.
 pub fn decode_tpdo2(payload: &[u8]) -> Result<Tpdo2, Cia402Error> {
-    let Ok(b) = <&[u8; 6]>::try_from(payload) else {
-        return Err(wrong_length("TPDO2", 6, payload));
+    let Ok(b) = <&[u8; 7]>::try_from(payload) else {
+        return Err(wrong_length("TPDO2", 7, payload));
     };
     Ok(Tpdo2 {
         velocity_increments_s: i32::from_le_bytes([b[0], b[1], b[2], b[3]]),
         torque_per_mille: i16::from_le_bytes([b[4], b[5]]),
+        sync_counter: b[6],
     })
 }
 
@@ -342,7 +350,7 @@ mod tests {
         for len in 0..8 {
             let p = [0u8; 8];
             assert!(decode_emcy(&p[..len]).is_err());
-            if len != 6 {
+            if len != 7 {
                 assert!(decode_tpdo1(&p[..len]).is_err());
                 assert!(decode_tpdo2(&p[..len]).is_err());
             }

@@ -111,6 +111,10 @@ pub struct Feedback {
     pub tpdo1_received: u64,
     /// TPDO2 frames received.
     pub tpdo2_received: u64,
+    /// The SYNC counter the last TPDO1 echoed (0x2000).
+    pub tpdo1_sync_counter: u8,
+    /// The SYNC counter the last TPDO2 echoed (0x2000).
+    pub tpdo2_sync_counter: u8,
     /// The last EMCY (code 0: the drive's error reset).
     pub last_emcy: Option<Emcy>,
     /// EMCY frames received.
@@ -152,6 +156,8 @@ pub struct Master {
     next_heartbeat: Instant,
     last_drive_heartbeat: Option<Instant>,
     syncs_sent: u64,
+    /// The counter of the last SYNC sent (0 before the first).
+    sync_counter: u8,
 }
 
 impl Master {
@@ -167,6 +173,7 @@ impl Master {
             next_heartbeat: Instant::now(),
             last_drive_heartbeat: None,
             syncs_sent: 0,
+            sync_counter: 0,
         })
     }
 
@@ -192,9 +199,10 @@ impl Master {
 
     /// Set-up: wait for the drive's boot-up or heartbeat; check it is a
     /// CiA 402 device; set cyclic synchronous torque mode and check the
-    /// display; write the heartbeat times; read the units; check the PDO
-    /// communication and mapping parameters are the EDS defaults; start the
-    /// master's heartbeat; NMT start the drive.
+    /// display; write the heartbeat times; read the units; check the drive
+    /// has the SYNC counter echo 0x2000 and the PDO communication and
+    /// mapping parameters are the EDS defaults; start the master's
+    /// heartbeat; NMT start the drive.
     pub fn boot(&mut self, bus: &mut dyn Transport) -> Result<(), Cia402Error> {
         self.wait_for_drive(bus)?;
         self.configure(bus)
@@ -241,6 +249,7 @@ impl Master {
         self.send_heartbeat(bus, NmtState::PreOperational)?;
         self.sdo_write(bus, od::CONSUMER_HEARTBEAT, &consumer.to_le_bytes())?;
         self.read_units(bus)?;
+        self.check_sync_counter_echo(bus)?;
         self.check_pdos(bus)?;
         self.send_heartbeat(bus, NmtState::Operational)?;
         bus.send(&frames::nmt(NmtCommand::Start, s.node.get()))?;
@@ -268,6 +277,18 @@ impl Master {
         );
         self.units = Units::new(rated, max, enc, gear)?;
         Ok(())
+    }
+
+    /// The drive must have 0x2000 (the TPDOs' SYNC counter echo): without it
+    /// a late or replayed TPDO cannot be told from the answer to this tick's
+    /// SYNC. Refused with [`Cia402Error::NoSyncCounterEcho`].
+    fn check_sync_counter_echo(&mut self, bus: &mut dyn Transport) -> Result<(), Cia402Error> {
+        match self.sdo_read(bus, od::SYNC_COUNTER_ECHO) {
+            Err(Cia402Error::SdoAbort { code, .. }) if code == od::SDO_ABORT_NO_OBJECT => {
+                Err(Cia402Error::NoSyncCounterEcho)
+            }
+            other => other.map(|_| ()),
+        }
     }
 
     /// The drive must use the EDS's default PDO set: COB-IDs valid and the
@@ -334,14 +355,14 @@ impl Master {
     /// Brings the drive to OperationEnabled at zero torque: one RPDO + SYNC
     /// per `step`, each controlword chosen from the last statusword (a
     /// Fault is reset once, on a rising edge of bit 7).
-    /// Returns once every SYNC sent has been answered, so the feedback is
+    /// Returns once the last SYNC sent has been answered, so the feedback is
     /// the enabled drive's.
     pub fn enable(&mut self, bus: &mut dyn Transport, step: Duration) -> Result<(), Cia402Error> {
         self.drive_towards(bus, step, Goal::Enabled, "OperationEnabled", |s| {
             s == DriveState::OperationEnabled
         })?;
         let start = Instant::now();
-        while !self.all_answered() {
+        while !self.last_sync_answered() {
             if start.elapsed() > self.settings.response_timeout {
                 return Err(Cia402Error::Timeout {
                     what: "the TPDOs answering the enabling SYNCs",
@@ -353,11 +374,14 @@ impl Master {
         Ok(())
     }
 
-    /// Every SYNC sent has been answered by its TPDO1 and TPDO2 (the drive
-    /// sends one of each per SYNC while NMT OPERATIONAL; TPDOs carry no
-    /// counter, so a late answer is told from a fresh one by counting).
-    pub fn all_answered(&self) -> bool {
-        self.fb.tpdo1_received.min(self.fb.tpdo2_received) >= self.syncs_sent
+    /// The last TPDO1 and TPDO2 received both echo the counter of the last
+    /// SYNC sent: the feedback is the answer to it, not a late answer to an
+    /// earlier one or a replay (unless exactly a multiple of
+    /// [`od::SYNC_COUNTER_OVERFLOW`] SYNCs old).
+    pub fn last_sync_answered(&self) -> bool {
+        self.syncs_sent > 0
+            && self.fb.tpdo1_sync_counter == self.sync_counter
+            && self.fb.tpdo2_sync_counter == self.sync_counter
     }
 
     fn drive_towards(
@@ -412,7 +436,8 @@ impl Master {
     ) -> Result<(), Cia402Error> {
         self.controlword = cw;
         bus.send(&frames::rpdo1(self.settings.node, cw, per_mille))?;
-        bus.send(&frames::sync())?;
+        self.sync_counter = next_sync_counter(self.sync_counter);
+        bus.send(&frames::sync(self.sync_counter))?;
         self.syncs_sent += 1;
         let now = Instant::now();
         if now >= self.next_heartbeat {
@@ -487,6 +512,7 @@ impl Master {
             frames::decode_tpdo1(p).map(|t| {
                 self.fb.tpdo1_received += 1;
                 self.fb.statusword = t.statusword;
+                self.fb.tpdo1_sync_counter = t.sync_counter;
                 self.fb.state = decode_statusword(t.statusword).ok();
                 self.fb.position_rad = self.units.increments_to_rad(t.position_increments);
             })
@@ -497,6 +523,7 @@ impl Master {
                     .units
                     .increments_per_s_to_rad_s(t.velocity_increments_s);
                 self.fb.torque_nm = self.units.per_mille_to_torque_nm(t.torque_per_mille);
+                self.fb.tpdo2_sync_counter = t.sync_counter;
             })
         } else if f.id == n.emcy() {
             frames::decode_emcy(p).map(|e| {
@@ -627,5 +654,29 @@ impl Master {
             self.settings.node.get(),
         ))?;
         disabled
+    }
+}
+
+/// The SYNC counter after `counter`: 1, 2, ..., [`od::SYNC_COUNTER_OVERFLOW`],
+/// 1, ... (CiA 301 7.2.5.3.1; 0 is not sent).
+fn next_sync_counter(counter: u8) -> u8 {
+    counter % od::SYNC_COUNTER_OVERFLOW + 1
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sync_counter_runs_1_to_the_overflow_value_then_wraps() {
+        let mut c = 0;
+        let mut seen = Vec::new();
+        for _ in 0..2 * usize::from(od::SYNC_COUNTER_OVERFLOW) {
+            c = next_sync_counter(c);
+            seen.push(c);
+        }
+        let one_round: Vec<u8> = (1..=od::SYNC_COUNTER_OVERFLOW).collect();
+        assert_eq!(seen[..one_round.len()], one_round[..]);
+        assert_eq!(seen[one_round.len()..], one_round[..]);
     }
 }

@@ -85,6 +85,9 @@ pub enum Cia402Error {
         /// What the drive holds.
         got: u32,
     },
+    /// The drive has no SYNC counter echo 0x2000 (an off-the-shelf drive):
+    /// its TPDOs cannot be matched to the SYNC they answer.
+    NoSyncCounterEcho,
     /// A parameter outside its valid range.
     BadParameter {
         /// The parameter.
@@ -154,6 +157,13 @@ impl fmt::Display for Cia402Error {
                 f,
                 "{object} ({index:#06x}:{subindex}) is {got:#x}, this master needs {expected:#x}; \
                  configure the drive as cia402_drive.eds (remapping PDOs is not implemented)"
+            ),
+            Self::NoSyncCounterEcho => write!(
+                f,
+                "the drive has no object 0x2000 (SYNC counter echo, UNSIGNED8, mapped last in \
+                 TPDO1 and TPDO2): without it this master cannot tell fresh feedback from a \
+                 late or replayed TPDO, so it does not start; give the drive that object and \
+                 mapping (cia402_drive.eds; docs/cia402.md, \"Freshness\")"
             ),
             Self::BadParameter { field, value, why } => {
                 write!(f, "{field}: {why}, got {value}")

@@ -44,6 +44,11 @@ pub const TPDO1_TRANSMISSION: Object = obj(0x1800, 2, "Transmission type");
 pub const TPDO2_COB_ID: Object = obj(0x1801, 1, "COB-ID used by TPDO");
 /// 0x1801:02 TPDO2 transmission type (UNSIGNED8).
 pub const TPDO2_TRANSMISSION: Object = obj(0x1801, 2, "Transmission type");
+/// 0x2000 SYNC counter echo (UNSIGNED8, manufacturer-specific, read-only),
+/// TPDO1 and TPDO2: the counter of the SYNC the drive is answering (0 for a
+/// SYNC without one). This is what tells a fresh TPDO from a late or
+/// replayed one; the object is this project's (docs/cia402.md, "Freshness").
+pub const SYNC_COUNTER_ECHO: Object = obj(0x2000, 0, "SYNC counter echo");
 /// 0x6040 Controlword (UNSIGNED16), RPDO1.
 pub const CONTROLWORD: Object = obj(0x6040, 0, "Controlword");
 /// 0x6041 Statusword (UNSIGNED16), TPDO1.
@@ -79,6 +84,15 @@ pub const MODE_CYCLIC_SYNCHRONOUS_TORQUE: i8 = 10;
 pub const PROFILE_402: u32 = 402;
 /// Transmission type 1: synchronous, every SYNC.
 pub const TRANSMISSION_EVERY_SYNC: u8 = 1;
+/// The master's 0x1019 synchronous counter overflow value (CiA 301 7.5.2.22):
+/// every SYNC carries a counter byte, 1 to this value, then 1 again. 240 is
+/// the largest value the standard allows and a multiple of 1..6 PDO
+/// transmission types' periods.
+pub const SYNC_COUNTER_OVERFLOW: u8 = 240;
+
+/// SDO abort code "object does not exist in the object dictionary" (CiA 301
+/// table 22).
+pub const SDO_ABORT_NO_OBJECT: u32 = 0x0602_0000;
 
 /// A PDO mapping entry: `index << 16 | subindex << 8 | bit length`.
 pub const fn mapping_entry(o: Object, bits: u8) -> u32 {
@@ -101,20 +115,22 @@ pub const RPDO1_MAPPING: PdoMapping = PdoMapping {
         mapping_entry(TARGET_TORQUE, 16),
     ],
 };
-/// TPDO1: statusword, position actual (6 bytes).
+/// TPDO1: statusword, position actual, SYNC counter echo (7 bytes).
 pub const TPDO1_MAPPING: PdoMapping = PdoMapping {
     index: 0x1A00,
     entries: &[
         mapping_entry(STATUSWORD, 16),
         mapping_entry(POSITION_ACTUAL, 32),
+        mapping_entry(SYNC_COUNTER_ECHO, 8),
     ],
 };
-/// TPDO2: velocity actual, torque actual (6 bytes).
+/// TPDO2: velocity actual, torque actual, SYNC counter echo (7 bytes).
 pub const TPDO2_MAPPING: PdoMapping = PdoMapping {
     index: 0x1A01,
     entries: &[
         mapping_entry(VELOCITY_ACTUAL, 32),
         mapping_entry(TORQUE_ACTUAL, 16),
+        mapping_entry(SYNC_COUNTER_ECHO, 8),
     ],
 };
 
