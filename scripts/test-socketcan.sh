@@ -3,8 +3,9 @@
 # support, so the distribution kernel is booted under QEMU (TCG emulation:
 # KVM guests hang at boot here) with virtme-ng, the host's filesystem shared;
 # inside, vcan0 carries the whole experiment: sensaug-rt on socketcan:vcan0,
-# the virtual drive on python-can's socketcan interface, candump recording,
-# a cangen fuzz, and the Rust transport's kernel-bus tests
+# the virtual drive on python-can's socketcan interface (the Hi5 drive, then
+# the CiA 402 drive), candump recording, a cangen fuzz, and the Rust
+# transport's kernel-bus tests
 # (scripts/vcan/inner.sh). The results are checked here (scripts/vcan/check.py).
 # docs/socketcan.md has the measured numbers.
 #
@@ -42,7 +43,7 @@ KVER=${KERNEL#/boot/vmlinuz-}
 [ -x .venv/bin/vng ] || .venv/bin/python -m pip install -q "virtme-ng>=1.42,<2"
 export PATH="$REPO/.venv/bin:$PATH"  # vng runs virtme-run from the same venv
 
-# -- host-side builds: the Rust test binary, the short fuzz configuration -------
+# -- host-side builds: the Rust test binary, the fuzz and CiA 402 configurations -
 TESTBIN=$(cargo test -q -p sensaug-bridge --release --lib --no-run --message-format=json 2>/dev/null |
     .venv/bin/python -c 'import json, sys
 for line in sys.stdin:
@@ -56,11 +57,12 @@ OUT=$(realpath -m "${SENSAUG_VCAN_OUT:-out/socketcan}")
 rm -rf "$OUT"
 mkdir -p "$OUT"
 .venv/bin/python scripts/vcan/check.py --write-fuzz-config "$OUT/fuzz.toml"
+.venv/bin/python scripts/vcan/check.py --write-cia402-config "$OUT/cia402.toml"
 # The drive simulates the configuration's plant, one step of plant.dt_s per command.
 DRIVE_ARGS=$(.venv/bin/python scripts/vcan/check.py --drive-args configs/hi5_vcan.toml)
 
 # -- the VM ---------------------------------------------------------------------
-echo "test-socketcan: booting $KERNEL under QEMU/TCG (about 40 s), then two rig runs (~2-4 min)"
+echo "test-socketcan: booting $KERNEL under QEMU/TCG (about 40 s), then three rig runs (~3-5 min)"
 echo "host_start=$(date +%s.%N)" > "$OUT/host.env"
 set +e
 timeout "${SENSAUG_VCAN_TIMEOUT:-900}" vng --disable-kvm --force-9p \

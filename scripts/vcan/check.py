@@ -11,13 +11,20 @@ summary, the candump capture) and checks
   against ``firmware_bridge/hi5.dbc``, accounts for each command and feedback
   in the controller's log, the drive's log and the controller's counters;
 * the fuzz run: neither process crashed, no torque beyond the limit, no
-  record lost, every logged command on the bus.
+  record lost, every logged command on the bus;
+* the CiA 402 run (the clean run's configuration with ``[rig] drive =
+  "cia402"``): the clean run's outcomes, and, decoding every captured frame
+  by COB-ID (docs/cia402.md), one RPDO1 + SYNC per tick carrying the logged
+  torque in per-mille, one TPDO1 + TPDO2 per SYNC, the drive's log and
+  summary (no rejected torque, no fault, disabled at the end), and the
+  controller using the TPDOs answering the previous tick.
 
 Reading the capture and matching it against the logs is ``sensaug.capture``
 (shared with the loopback rig's capture test, tests/test_capture.py).
 Writes OUT/summary.json and prints the numbers; exit 1 on any failed check.
 ``check.py --write-fuzz-config PATH`` writes the fuzz run's short
-configuration (configs/hi5_vcan.toml with 3 + 1 + 1 s phases).
+configuration (configs/hi5_vcan.toml with 3 + 1 + 1 s phases);
+``--write-cia402-config PATH`` the CiA 402 run's.
 """
 
 from __future__ import annotations
@@ -26,7 +33,9 @@ import ast
 import json
 import math
 import re
+import struct
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
@@ -34,7 +43,7 @@ import cantools
 import numpy as np
 
 from sensaug import rig
-from sensaug.capture import Decoded, decode_all, match_commands, read_candump, subsequence
+from sensaug.capture import Decoded, Frame, decode_all, match_commands, read_candump, subsequence
 from sensaug.config import ScenarioConfig
 
 REPO = Path(__file__).resolve().parents[2]
@@ -60,6 +69,14 @@ def write_fuzz_config(path: Path) -> None:
     cfg.phases[1].duration_s = 1.0
     cfg.phases[2].duration_s = 1.0
     cfg.robot.gain_window_s = 0.5
+    cfg.to_toml(path)
+
+
+def write_cia402_config(path: Path) -> None:
+    """configs/hi5_vcan.toml on the CiA 402 drive profile (``[rig] drive``),
+    nothing else changed: the same run on the other protocol."""
+    cfg = ScenarioConfig.from_toml(CONFIG)
+    cfg.rig.drive = "cia402"
     cfg.to_toml(path)
 
 
@@ -101,8 +118,9 @@ def read_log(path: Path) -> Any:
 
 
 def drive_summary(stderr: Path) -> Optional[dict[str, Any]]:
+    """The summary the virtual drive (either profile) prints on stderr as it stops."""
     for line in reversed(stderr.read_text().splitlines()):
-        if line.startswith("sensaug-virtual-hi5: {"):
+        if re.match(r"sensaug-virtual-\w+: \{", line):
             return ast.literal_eval(line.split(": ", 1)[1])
     return None
 
@@ -111,22 +129,39 @@ def rad_per_unit(cfg: ScenarioConfig) -> float:
     return math.pi / 180.0 if cfg.rig.position_unit == "deg" else 1.0
 
 
-def check_run(name: str, out: Path, env: dict[str, str], cfg: ScenarioConfig, db: Any, c: Checks, *, fuzz: bool) -> dict[str, Any]:
+@dataclass
+class LoopRun:
+    """One run's outputs, read by :func:`check_loop`."""
+
+    dir: Path
+    summary: dict[str, Any]
+    stats: dict[str, Any]
+    log: Any
+    frames: list[Frame]
+
+    @property
+    def ticks(self) -> int:
+        return int(self.stats["ticks"])
+
+
+def check_loop(name: str, out: Path, env: dict[str, str], cfg: ScenarioConfig, c: Checks, *,
+               fuzz: bool) -> Optional[LoopRun]:
+    """What every run must show whatever the drive profile: the processes, the
+    controller's log and counters, the capture's error frames. None when there
+    is nothing further to check."""
     d = out / name
     print(f"{name} run:")
     summary: dict[str, Any] = {}
     rc = int(env.get(f"{name}_rt_rc", "-1"))
-    c.expect(env.get(f"{name}_drive_up_rc") == "0", "the drive came up (first Heartbeat seen)")
+    c.expect(env.get(f"{name}_drive_up_rc") == "0", "the drive came up (first heartbeat seen)")
     c.expect((d / "stats.json").exists(), f"sensaug-rt wrote its statistics (exit {rc}; {d / 'rt.stderr'})")
     if not (d / "stats.json").exists():
-        return summary
+        return None
     stats = json.loads((d / "stats.json").read_text())
     log = read_log(d / "log.csv")
     ticks = int(stats["ticks"])
     can = stats["can"]
-    node = cfg.rig.node_id
     limit = cfg.rig.torque_limit_nm
-    unit = rad_per_unit(cfg)
     summary.update(
         rt_rc=rc,
         stop_reason=stats["stop_reason"],
@@ -156,27 +191,59 @@ def check_run(name: str, out: Path, env: dict[str, str], cfg: ScenarioConfig, db
     if not fuzz:  # a fuzz run may stop before all were sent
         c.expect(can["bus_error_frames"] == INJECTED_ERROR_FRAMES,
                  f"the controller counted the {INJECTED_ERROR_FRAMES} injected error frames ({can['bus_error_frames']})")
-
-    # The capture, decoded against the DBC.
     dumps = sorted(d.glob("candump-*.log"))
     c.expect(len(dumps) == 1, "one candump -l capture")
     if not dumps:
-        return summary
+        return None
     frames = read_candump(dumps[0])
-    decoded, other = decode_all(frames, db, node)
+    c.expect(sum(f.err for f in frames) == INJECTED_ERROR_FRAMES, f"candump recorded the {INJECTED_ERROR_FRAMES} error frames")
+    return LoopRun(d, summary, stats, log, frames)
+
+
+def check_outcomes(name: str, cfg: ScenarioConfig, stats: dict[str, Any], log: Any, host: list[Frame],
+                   drive_frames: list[Frame], summary: dict[str, Any], c: Checks) -> None:
+    """A clean run of either profile: completed, the gains converged, the
+    controller's frame counters are the capture's; the metrics."""
+    rc, ticks, can = summary["rt_rc"], summary["ticks"], stats["can"]
+    c.expect(rc == 0 and stats["stop_reason"] == "completed", "the protocol completed")
+    total = round(cfg.duration_s / cfg.plant.dt_s)
+    c.expect(ticks == total, f"all {total} ticks ran")
+    est = np.array(stats["partner_gains_estimate"])
+    true = np.array(stats["partner_gains_true"])
+    c.expect(bool(np.all(np.abs(est - true) < GAIN_TOL)), f"partner gains {np.round(est, 4).tolist()} within {GAIN_TOL} of {true.tolist()}")
+    c.expect(can["decode_errors"] == 0 and can["bus_malformed_dropped"] == 0, "the kernel filter let only the drive's frames through (no decode errors)")
+    c.expect(can["bus_sent"] == len(host), f"frames the controller sent = host frames captured ({can['bus_sent']} / {len(host)})")
+    first = min(f.t for f in host)
+    last = max(f.t for f in host)
+    inside = sum(first <= f.t <= last for f in drive_frames)
+    c.expect(inside <= can["bus_received"] <= len(drive_frames),
+             f"frames the controller received within the drive's frames captured ({inside} <= {can['bus_received']} <= {len(drive_frames)})")
+    summary["gains"] = est.tolist()
+    if ticks == total:  # the metrics need every phase
+        run = rig.RigRun(config=cfg, log=log, stats=stats, returncode=rc, drive_returncode=0, stderr="")
+        summary["partner_target_rmse"] = run.partner_target_rmse()
+        summary["integration_rmse"] = run.integration_rmse()
+
+
+def check_hi5_run(name: str, out: Path, env: dict[str, str], cfg: ScenarioConfig, db: Any, c: Checks, *, fuzz: bool) -> dict[str, Any]:
+    """A run on the virtual Hi5 drive: the capture decoded against ``hi5.dbc``."""
+    run = check_loop(name, out, env, cfg, c, fuzz=fuzz)
+    if run is None:
+        return {}
+    summary, stats, log, frames, d, ticks = run.summary, run.stats, run.log, run.frames, run.dir, run.ticks
+    can, unit = stats["can"], rad_per_unit(cfg)
+    decoded, other = decode_all(frames, db, cfg.rig.node_id)
     by_name: dict[str, list[Decoded]] = {}
     for m in decoded:
         by_name.setdefault(m.name, []).append(m)
     summary["capture"] = {"frames": len(frames), "decoded": len(decoded), **other,
                           **{n: len(v) for n, v in sorted(by_name.items())}}
-    c.expect(other["error"] == INJECTED_ERROR_FRAMES, f"candump recorded the {INJECTED_ERROR_FRAMES} error frames")
     commands = by_name.get("TorqueCommand", [])
     scale = db.get_message_by_name("TorqueCommand").get_signal_by_name("torque").scale
     matched = match_commands(commands, log, scale)
     c.expect(len(matched) == ticks, f"every tick's command is on the bus, in order, torque within half a raw step ({len(matched)}/{ticks})")
-    bus_torque = np.array([m.signals["torque"] for m in commands])
     drive = np.load(d / "drive.npz")
-    c.expect(bool(np.all(np.abs(drive["torque_nm"]) <= limit + 1e-12)), "the drive never applied more than the limit")
+    c.expect(bool(np.all(np.abs(drive["torque_nm"]) <= cfg.rig.torque_limit_nm + 1e-12)), "the drive never applied more than the limit")
     summary["drive"] = drive_summary(d / "drive.stderr")
     if fuzz:
         sent = int(env.get(f"{name}_cangen_sent") or 0)
@@ -190,15 +257,8 @@ def check_run(name: str, out: Path, env: dict[str, str], cfg: ScenarioConfig, db
 
     # Clean run: nothing but the two nodes and the injected error frames.
     c.expect(len(decoded) == len(frames) - other["error"], f"every data frame decodes with hi5.dbc ({len(decoded)}/{len(frames) - other['error']})")
-    c.expect(rc == 0 and stats["stop_reason"] == "completed", "the protocol completed")
-    total = round(cfg.duration_s / cfg.plant.dt_s)
-    c.expect(ticks == total, f"all {total} ticks ran")
-    est = np.array(stats["partner_gains_estimate"])
-    true = np.array(stats["partner_gains_true"])
-    c.expect(bool(np.all(np.abs(est - true) < GAIN_TOL)), f"partner gains {np.round(est, 4).tolist()} within {GAIN_TOL} of {true.tolist()}")
-    c.expect(can["decode_errors"] == 0 and can["bus_malformed_dropped"] == 0, "the kernel filter let only the drive's frames through (no decode errors)")
-    host = [m for m in decoded if m.sender == "HOST"]
-    c.expect(can["bus_sent"] == len(host), f"frames the controller sent = host frames captured ({can['bus_sent']} / {len(host)})")
+    check_outcomes(name, cfg, stats, log, [m.frame for m in decoded if m.sender == "HOST"],
+                   [m.frame for m in decoded if m.sender == "HI5"], summary, c)
     # Each accepted command got one Feedback echoing its sequence, in order;
     # the drive's own log has one row per accepted command; the commands it
     # did not accept are the ones it counted as rejected.
@@ -223,20 +283,147 @@ def check_run(name: str, out: Path, env: dict[str, str], cfg: ScenarioConfig, db
         return summary
     fb_of = {cmd: i for i, cmd in enumerate(accepted)}
     idx = np.array([fb_of[j] for j in matched[:-1]])  # command of tick k-1 -> its Feedback
-    used = (np.abs(log["x"][1:] * unit - pos[idx]) <= 1e-9) & (np.abs(log["xdot"][1:] * unit - vel[idx]) <= 1e-9)
-    c.expect(int(used.sum()) >= ticks - 1 - can["missing_feedback"],
-             f"ticks using the previous command's Feedback: {int(used.sum())} of {ticks - 1} ({can['missing_feedback']} missing)")
-    drive_frames = [m for m in decoded if m.sender == "HI5"]
-    first = min(m.frame.t for m in host)
-    last = max(m.frame.t for m in host)
-    inside = sum(first <= m.frame.t <= last for m in drive_frames)
-    c.expect(inside <= can["bus_received"] <= len(drive_frames),
-             f"frames the controller received within the drive's frames captured ({inside} <= {can['bus_received']} <= {len(drive_frames)})")
-    summary["gains"] = est.tolist()
-    if ticks == total:  # the metrics need every phase
-        run = rig.RigRun(config=cfg, log=log, stats=stats, returncode=rc, drive_returncode=0, stderr="")
-        summary["partner_target_rmse"] = run.partner_target_rmse()
-        summary["integration_rmse"] = run.integration_rmse()
+    check_feedback_used(log, unit, pos[idx], vel[idx], can["missing_feedback"], "Feedback", c)
+    return summary
+
+
+def check_feedback_used(log: Any, unit: float, pos: np.ndarray, vel: np.ndarray, missing: int, what: str, c: Checks) -> None:
+    """Tick k's logged state is the drive's answer to tick k-1 (``pos``, ``vel``:
+    those answers, rad and rad/s, for ticks 1..n-1) unless it was missing (counted)."""
+    ticks = len(log)
+    used = (np.abs(log["x"][1:] * unit - pos) <= 1e-9) & (np.abs(log["xdot"][1:] * unit - vel) <= 1e-9)
+    c.expect(int(used.sum()) >= ticks - 1 - missing,
+             f"ticks using the previous tick's {what}: {int(used.sum())} of {ticks - 1} ({missing} missing)")
+
+
+# -- the CiA 402 run ----------------------------------------------------------------------
+
+#: The master's node-ID (``MasterSettings::new``; its heartbeat is 0x700 + this).
+MASTER_NODE = 127
+#: The master's 0x1019 synchronous counter overflow value (od.rs SYNC_COUNTER_OVERFLOW):
+#: SYNC counters run 1..this.
+SYNC_COUNTER_OVERFLOW = 240
+#: Controlword "enable operation" (every tick's RPDO1) and the statusword
+#: pattern of OperationEnabled (CiA 402 table 30; docs/cia402.md).
+ENABLE_OPERATION = 0x000F
+OPERATION_ENABLED_MASK, OPERATION_ENABLED = 0x6F, 0x27
+
+
+def cia402_kinds(node: int) -> dict[int, tuple[str, str, int]]:
+    """COB-ID -> (frame kind, sender, payload length) for the drive at ``node``
+    and the master (docs/cia402.md, "COB-IDs and frames")."""
+    return {
+        0x000: ("NMT", "master", 2),
+        0x080: ("SYNC", "master", 1),
+        0x200 + node: ("RPDO1", "master", 4),
+        0x600 + node: ("SDO request", "master", 8),
+        0x700 + MASTER_NODE: ("master heartbeat", "master", 1),
+        0x080 + node: ("EMCY", "drive", 8),
+        0x180 + node: ("TPDO1", "drive", 7),
+        0x280 + node: ("TPDO2", "drive", 7),
+        0x580 + node: ("SDO response", "drive", 8),
+        0x700 + node: ("drive heartbeat", "drive", 1),
+    }
+
+
+def decode_cia402(frames: list[Frame], node: int) -> tuple[dict[str, list[Frame]], int]:
+    """The capture's data frames by kind (COB-ID and length); the number of
+    data frames that are none of them."""
+    kinds = cia402_kinds(node)
+    by_kind: dict[str, list[Frame]] = {k: [] for k, _, _ in kinds.values()}
+    by_kind.update(master=[], drive=[])
+    unknown = 0
+    for f in frames:
+        if f.err:
+            continue
+        kind = kinds.get(f.can_id)
+        if f.eff or f.fd or f.rtr or kind is None or len(f.data) != kind[2]:
+            unknown += 1
+            continue
+        by_kind[kind[0]].append(f)
+        by_kind[kind[1]].append(f)
+    return by_kind, unknown
+
+
+def check_cia402_run(name: str, out: Path, env: dict[str, str], cfg: ScenarioConfig, c: Checks) -> dict[str, Any]:
+    """The clean run on the virtual CiA 402 drive: the capture decoded by
+    COB-ID; each tick's RPDO1 + SYNC, the drive's TPDO1 + TPDO2 answering
+    it (echoing its counter), and both logs matched against them."""
+    from sensaug_bridge.virtual_cia402 import Cia402Config
+
+    run = check_loop(name, out, env, cfg, c, fuzz=False)
+    if run is None:
+        return {}
+    summary, stats, log, ticks, node = run.summary, run.stats, run.log, run.ticks, cfg.rig.node_id
+    # The drive runs with its defaults for these (inner.sh passes only the plant's options).
+    drive_cfg = Cia402Config()
+    nm_per_step = drive_cfg.rated_torque_mnm * 1e-6  # one per-mille of 0x6076
+    rad_per_increment = 2.0 * math.pi / drive_cfg.encoder_counts_per_rev
+    by_kind, unknown = decode_cia402(run.frames, node)
+    summary["capture"] = {"frames": len(run.frames), **{k: len(v) for k, v in by_kind.items()}, "unknown": unknown}
+    c.expect(unknown == 0, f"every data frame is a CiA 402 frame of node {node} or the master ({unknown} others)")
+    check_outcomes(name, cfg, stats, log, by_kind["master"], by_kind["drive"], summary, c)
+    drive = np.load(run.dir / "drive.npz")
+    ds = drive_summary(run.dir / "drive.stderr") or {}
+    summary["drive"] = ds
+
+    # The master's cycles: RPDO1 then SYNC, alternating.
+    cycle = [f for f in by_kind["master"] if f.can_id in (0x080, 0x200 + node)]
+    c.expect([f.can_id for f in cycle] == [0x200 + node, 0x080] * (len(cycle) // 2),
+             f"the master's cycles alternate RPDO1, SYNC ({len(by_kind['RPDO1'])} RPDO1, {len(by_kind['SYNC'])} SYNC)")
+    rpdo = np.array([struct.unpack("<Hh", f.data) for f in by_kind["RPDO1"]], dtype=np.int64).reshape(-1, 2)
+    enabling = np.flatnonzero(rpdo[:, 0] == ENABLE_OPERATION)
+    if len(enabling) < ticks or len(by_kind["SYNC"]) != len(rpdo):
+        c.expect(False, f"{ticks} enable-operation cycles on the bus ({len(enabling)})")
+        return summary
+    # The ticks' cycles are the last `ticks` "enable operation" ones (after
+    # them only the shut-down's "shutdown" cycles).
+    block = np.arange(enabling[-1] - ticks + 1, enabling[-1] + 1)
+    per_mille = rpdo[block, 1]
+    c.expect(bool(np.all(rpdo[block, 0] == ENABLE_OPERATION)) and bool(np.all(rpdo[enabling[-1] + 1:, 0] != ENABLE_OPERATION)),
+             "one enable-operation RPDO1 per tick, in a row, then only the shut-down's")
+    err = np.abs(per_mille * nm_per_step - log["torque_nm"])
+    c.expect(bool(np.all(err <= 0.5 * nm_per_step + 1e-12)),
+             f"every tick's RPDO1 carries the logged torque rounded to {nm_per_step * 1e3:g} mN m "
+             f"(max difference {err.max(initial=0.0) * 1e3:.3f} mN m)")
+
+    # The drive: one SYNC handled per SYNC on the bus, a TPDO1 and TPDO2 for
+    # each (and one more of each as it stops); one log row per stepped SYNC.
+    syncs = len(by_kind["SYNC"])
+    c.expect(ds.get("syncs") == syncs and len(by_kind["TPDO1"]) == len(by_kind["TPDO2"]) == syncs + 1,
+             f"one TPDO1 + TPDO2 per SYNC, and the stop's ({ds.get('syncs')} handled, {len(by_kind['TPDO1'])} TPDO1, "
+             f"{len(by_kind['TPDO2'])} TPDO2, {syncs} SYNC)")
+    # (per-mille x 0x6076 x 1e-6: the drive's own conversion, so equal to the bit)
+    c.expect(len(drive["torque_cmd_nm"]) >= ticks
+             and bool(np.array_equal(drive["torque_cmd_nm"][-ticks:], per_mille * drive_cfg.rated_torque_mnm * 1e-6)),
+             f"the drive's last {ticks} steps applied the ticks' RPDO1 torques ({len(drive['torque_cmd_nm'])} steps logged)")
+    c.expect(bool(np.all(np.abs(drive["torque_nm"]) <= cfg.rig.torque_limit_nm + 1e-12)) and ds.get("range_errors") == 0,
+             "the drive never applied more than the limit and rejected nothing")
+    c.expect(ds.get("state") == "SWITCH_ON_DISABLED" and ds.get("faults") == 0 and ds.get("heartbeat_events") == 0,
+             f"the drive ended disabled without a fault or a heartbeat event ({ds.get('state')}, faults {ds.get('faults')}, "
+             f"heartbeat events {ds.get('heartbeat_events')})")
+    nmt = [f.data for f in by_kind["NMT"]]
+    c.expect(nmt == [bytes([0x01, node]), bytes([0x80, node])],
+             f"NMT: start, then pre-operational at shut-down ({[x.hex() for x in nmt]})")
+    c.expect(bool(by_kind["drive heartbeat"]) and by_kind["drive heartbeat"][-1].data == b"\x04",
+             "the drive's last heartbeat says STOPPED")
+
+    # SYNC counters 1, 2, ..., 240, 1, ...; the i-th TPDO1 and TPDO2 echo the i-th SYNC's.
+    counters = np.array([f.data[0] for f in by_kind["SYNC"]], dtype=np.int64)
+    c.expect(bool(np.array_equal(counters, np.arange(syncs) % SYNC_COUNTER_OVERFLOW + 1)),
+             f"the SYNCs count 1..{SYNC_COUNTER_OVERFLOW} and wrap")
+    if syncs + 1 != len(by_kind["TPDO1"]) or ticks < 2:
+        return summary
+    tpdo1 = np.array([struct.unpack("<HiB", f.data) for f in by_kind["TPDO1"][:syncs]], dtype=np.int64)
+    tpdo2 = np.array([struct.unpack("<ihB", f.data) for f in by_kind["TPDO2"][:syncs]], dtype=np.int64)
+    c.expect(bool(np.array_equal(tpdo1[:, 2], counters) and np.array_equal(tpdo2[:, 2], counters)),
+             "every TPDO1 and TPDO2 echoes the counter of the SYNC it answers (0x2000)")
+    # The controller used the TPDOs answering tick k-1's SYNC at tick k.
+    answers = block[:-1]
+    c.expect(bool(np.all(tpdo1[block, 0] & OPERATION_ENABLED_MASK == OPERATION_ENABLED)),
+             "the drive answered every tick's SYNC in OperationEnabled")
+    check_feedback_used(log, rad_per_unit(cfg), tpdo1[answers, 1] * rad_per_increment,
+                        tpdo2[answers, 0] * rad_per_increment, stats["can"]["missing_feedback"], "TPDOs", c)
     return summary
 
 
@@ -255,16 +442,22 @@ def main(out: Path) -> int:
     db = cantools.database.load_file(DBC)
     clean_cfg = ScenarioConfig.from_toml(CONFIG)
     fuzz_cfg = ScenarioConfig.from_toml(out / "fuzz.toml")
-    for name, cfg, fuzz in (("clean", clean_cfg, False), ("fuzz", fuzz_cfg, True)):
+    cia402_cfg = ScenarioConfig.from_toml(out / "cia402.toml")
+    runs = {
+        "clean": lambda: check_hi5_run("clean", out, env, clean_cfg, db, c, fuzz=False),
+        "fuzz": lambda: check_hi5_run("fuzz", out, env, fuzz_cfg, db, c, fuzz=True),
+        "cia402": lambda: check_cia402_run("cia402", out, env, cia402_cfg, c),
+    }
+    for name, check in runs.items():
         if f"{name}_loop_start" not in env:
             c.expect(False, f"{name} run happened (see {out / 'inner.log'})")
             continue
-        summary[name] = check_run(name, out, env, cfg, db, c, fuzz=fuzz)
+        summary[name] = check()
     c.expect(env.get("done") == "1", "the guest script ran to the end")
     summary["failed"] = c.failed
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
-    print(json.dumps({k: v for k, v in summary.items() if k not in ("clean", "fuzz")}, default=float))
-    for name in ("clean", "fuzz"):
+    print(json.dumps({k: v for k, v in summary.items() if k not in runs}, default=float))
+    for name in runs:
         s = summary.get(name, {})
         print(f"{name}: {s.get('stop_reason')}, {s.get('ticks')} ticks in {s.get('loop_s', float('nan')):.1f} s, "
               f"capture {s.get('capture')}, gains {s.get('gains')}, integration {s.get('integration_rmse')}, drive {s.get('drive')}")
@@ -280,6 +473,9 @@ if __name__ == "__main__":
         sys.exit(0)
     if len(sys.argv) == 3 and sys.argv[1] == "--write-fuzz-config":
         write_fuzz_config(Path(sys.argv[2]))
+        sys.exit(0)
+    if len(sys.argv) == 3 and sys.argv[1] == "--write-cia402-config":
+        write_cia402_config(Path(sys.argv[2]))
         sys.exit(0)
     if len(sys.argv) != 2:
         sys.exit(__doc__)

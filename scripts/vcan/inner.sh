@@ -1,10 +1,12 @@
 #!/usr/bin/env bash
 # Runs INSIDE the QEMU guest that scripts/test-socketcan.sh boots (virtme-ng:
 # the host's filesystem read-only, OUT writable). Brings up vcan0 (and vcan1
-# behind a slow qdisc), runs the Rust SocketCAN tests, then two rig runs of
-# sensaug-rt against the virtual drive on python-can's socketcan interface,
+# behind a slow qdisc), runs the Rust SocketCAN tests, then three rig runs of
+# sensaug-rt against a virtual drive on python-can's socketcan interface,
 # each recorded with candump: a clean three-phase run and a short run under a
-# cangen fuzz. Only collects; every check is made on the host (check.py).
+# cangen fuzz on the Hi5 drive, and the clean run on the CiA 402 drive
+# (OUT/cia402.toml: the same configuration with [rig] drive = "cia402").
+# Only collects; every check is made on the host (check.py).
 # Usage: inner.sh REPO OUT RUST_TEST_BINARY 'DRIVE_ARGS' (the virtual drive's
 # plant options from the configuration: --dt, --mass, ...)
 set -u
@@ -32,9 +34,16 @@ note rust_tests_rc $?
 note rust_tests_done "$(stamp)"
 
 # -- 2. rig runs -----------------------------------------------------------------
-# run NAME CONFIG FUZZ(0|1)
+# run NAME CONFIG FUZZ(0|1) PROFILE(hi5|cia402)
 run() {
-    local name=$1 config=$2 fuzz=$3
+    local name=$1 config=$2 fuzz=$3 profile=$4
+    # The controller's first frame to node 1 once its socket is open: the Hi5
+    # SetState, the CiA 402 master's first SDO request.
+    local first_cmd
+    case $profile in
+        hi5) first_cmd=301 ;;
+        cia402) first_cmd=601 ;;
+    esac
     local dir=$OUT/$name
     mkdir -p "$dir"
     # Every frame on the bus, error frames too (#FFFFFFFF: all error classes).
@@ -42,18 +51,18 @@ run() {
     local dump=$!
     # The drive starts well before the loop: under emulation importing numpy,
     # python-can and cantools takes ~15 s.
-    "$PY" -m sensaug_bridge.virtual_hi5 -i socketcan -c vcan0 $DRIVE_ARGS --duration 600 \
+    "$PY" -m "sensaug_bridge.virtual_$profile" -i socketcan -c vcan0 $DRIVE_ARGS --duration 600 \
         --log "$dir/drive.npz" 2> "$dir/drive.stderr" &
     local drive=$!
     note "${name}_drive_started" "$(stamp)"
-    # Its first Heartbeat says it is up.
+    # Its first heartbeat (both profiles: 0x701) says it is up.
     timeout 180 candump -n 1 vcan0,701:7FF > /dev/null
     note "${name}_drive_up_rc" $?
     note "${name}_drive_up" "$(stamp)"
     # Error frames during the run: the controller must count them, not stall.
-    # Sent once its SetState (node 1: 0x301) shows its socket is open: under
-    # emulation on a loaded host it starts seconds after the drive is up.
-    (timeout 180 candump -n 1 vcan0,301:7FF > /dev/null
+    # Sent once its first command shows its socket is open: under emulation
+    # on a loaded host it starts seconds after the drive is up.
+    (timeout 180 candump -n 1 "vcan0,$first_cmd:7FF" > /dev/null
      for i in 1 2 3 4 5; do sleep 0.2; cansend vcan0 20000004#0000000000000000; done) &
     local errs=$!
     local fz=
@@ -81,7 +90,8 @@ run() {
     note "${name}_cangen_sent" "${fz:+500}"
 }
 
-run clean "$REPO/configs/hi5_vcan.toml" 0
-run fuzz "$OUT/fuzz.toml" 1
+run clean "$REPO/configs/hi5_vcan.toml" 0 hi5
+run fuzz "$OUT/fuzz.toml" 1 hi5
+run cia402 "$OUT/cia402.toml" 0 cia402
 note guest_end "$(stamp)"
 note done 1
