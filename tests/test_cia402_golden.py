@@ -83,7 +83,7 @@ def test_golden_frames_cover_every_kind() -> None:
     kinds = {f["kind"] for f in doc["frames"]}
     assert kinds == {
         "download", "upload", "abort_download", "abort_upload", "nmt", "sync",
-        "heartbeat", "rpdo1", "tpdo1", "tpdo2", "emcy",
+        "heartbeat", "rpdo1", "tpdo1", "tpdo2", "emcy", "pdo_remap",
     }
     assert {f.get("node") for f in doc["frames"] if "node" in f} == {0, 1, 42}
 

@@ -244,6 +244,26 @@ def test_tpdos_echo_the_counter_of_the_sync_they_answer(drive: Drive):
     assert struct.unpack_from("<B", host.sdo_read(0x2000), 4)[0] == 0
 
 
+def test_a_pdo_mapping_written_over_sdo_is_what_the_tpdo_then_carries(drive: Drive):
+    """CiA 301's remapping sequence (COB-ID invalid, count 0, entries, count,
+    COB-ID valid) on TPDO2: torque actual first, then velocity actual, no
+    echo; the next SYNC's TPDO2 has that layout (6 bytes)."""
+    host = drive.host
+    ok = 0x60
+    assert host.sdo_write(0x1801, 1, struct.pack("<I", 0x80000000 | 0x280 + NODE))[0] == ok
+    assert host.sdo_write(0x1A01, 0, bytes([0]))[0] == ok
+    assert host.sdo_write(0x1A01, 1, struct.pack("<I", 0x60770010))[0] == ok
+    assert host.sdo_write(0x1A01, 2, struct.pack("<I", 0x606C0020))[0] == ok
+    assert host.sdo_write(0x1A01, 0, bytes([2]))[0] == ok
+    assert host.sdo_write(0x1801, 1, struct.pack("<I", 0x280 + NODE))[0] == ok
+    host.set_up()
+    host.send(0x200 + NODE, struct.pack("<Hh", 0x06, 0))
+    host.send(0x080, bytes([1]))
+    assert host.expect(0x180 + NODE)[6] == 1
+    torque, velocity = struct.unpack("<hi", host.expect(0x280 + NODE))
+    assert (torque, velocity) == (0, 0)
+
+
 def test_torque_beyond_max_rejected_and_counted_not_clamped(start_drive):
     d = start_drive(torque_limit_nm=0.5, max_velocity_rad_s=1000.0)
     host = d.host

@@ -227,6 +227,29 @@ fn pdos_match_canopens_maps() {
 }
 
 #[test]
+fn pdo_remap_writes_are_canopens_pdo_save() {
+    let doc = load();
+    let cases = frames_of(&doc, "pdo_remap");
+    assert!(!cases.is_empty());
+    for c in cases {
+        let pdo = match c["pdo"].as_str().unwrap() {
+            "rpdo1" => od::PDOS[0],
+            "tpdo1" => od::PDOS[1],
+            "tpdo2" => od::PDOS[2],
+            other => panic!("pdo {other}"),
+        };
+        let cob_id = u32::try_from(n(&c, "cob_id")).unwrap();
+        let writes = od::remap_writes(&pdo, cob_id);
+        let requests = c["requests"].as_array().unwrap();
+        assert_eq!(writes.len(), requests.len(), "{c}");
+        for (w, theirs) in writes.iter().zip(requests) {
+            let ours = frames::sdo_download(node_of(&c), w.object, &w.bytes()).unwrap();
+            assert_frame(&ours, theirs, &c);
+        }
+    }
+}
+
+#[test]
 fn emcy_decodes() {
     let doc = load();
     for c in frames_of(&doc, "emcy") {

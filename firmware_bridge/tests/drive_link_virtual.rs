@@ -21,7 +21,8 @@ use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use sensaug_bridge::cia402::{CanopenNode, MasterSettings};
+use sensaug_bridge::cia402::od::{self, Pdo, PdoMapping};
+use sensaug_bridge::cia402::{CanopenNode, Master, MasterSettings};
 use sensaug_bridge::drive_link::{Cia402Link, DriveLink, Hi5Link};
 use sensaug_bridge::protocol::NodeId;
 use sensaug_bridge::transport::UdpBus;
@@ -87,11 +88,10 @@ struct Profile {
     velocity_tol_rad_s: f64,
 }
 
-/// Opens the bus on a fresh port, starts the drive on it, enables it
-/// through `link`.
-fn start(module: &str, link: &mut dyn DriveLink, log: bool) -> (UdpBus, Child) {
+/// Opens the bus on a fresh port and starts the drive `module` on it.
+fn spawn_drive(module: &str, log: bool) -> (UdpBus, Child) {
     let port = common::free_port();
-    let mut bus = UdpBus::open(port).unwrap();
+    let bus = UdpBus::open(port).unwrap();
     let mut args = vec![
         "-m".to_string(),
         module.to_string(),
@@ -110,6 +110,13 @@ fn start(module: &str, link: &mut dyn DriveLink, log: bool) -> (UdpBus, Child) {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
+    (bus, child)
+}
+
+/// Opens the bus on a fresh port, starts the drive on it, enables it
+/// through `link`.
+fn start(module: &str, link: &mut dyn DriveLink, log: bool) -> (UdpBus, Child) {
+    let (mut bus, child) = spawn_drive(module, log);
     let started = Instant::now();
     if let Err(e) = link.bring_up(&mut bus) {
         let err = stop(child);
@@ -291,4 +298,53 @@ fn watchdog_fault_and_reenable_on_both_profiles() {
     let mut hi5 = Hi5Link::new(NodeId::new(1).unwrap(), 200, Duration::from_secs(15));
     let (bus, child) = trip_watchdog(module, &mut hi5, wd);
     reenable(module, &mut hi5, bus, child);
+}
+
+/// A drive whose TPDO2 maps torque actual before velocity actual and no SYNC
+/// counter echo (written over SDO as a drive tool would): the link's set-up
+/// finds the difference, writes the EDS's mapping (CiA 301's sequence,
+/// `od::remap_writes`) and runs with fresh feedback.
+#[test]
+fn cia402_set_up_rewrites_a_tpdo_mapping_that_is_not_the_edss() {
+    const CIA402: &str = "sensaug_bridge.virtual_cia402";
+    let node = CanopenNode::new(1).unwrap();
+    let mut settings = MasterSettings::new(node);
+    settings.drive_consumer_ms = 200;
+    settings.response_timeout = Duration::from_secs(15);
+    let (mut bus, child) = spawn_drive(CIA402, false);
+    let mut tool = Master::new(settings).unwrap();
+    tool.wait_for_drive(&mut bus).unwrap();
+    const SWAPPED: [u32; 2] = [
+        od::mapping_entry(od::TORQUE_ACTUAL, 16),
+        od::mapping_entry(od::VELOCITY_ACTUAL, 32),
+    ];
+    let other = Pdo {
+        mapping: PdoMapping {
+            index: 0x1A01,
+            entries: &SWAPPED,
+        },
+        ..od::PDOS[2]
+    };
+    for w in od::remap_writes(&other, node.tpdo2()) {
+        tool.sdo_write(&mut bus, w.object, &w.bytes()).unwrap();
+    }
+
+    let mut link = Cia402Link::new(settings, Duration::from_millis(1)).unwrap();
+    if let Err(e) = link.bring_up(&mut bus) {
+        let err = stop(child);
+        panic!("enable failed: {e}; drive: {err}");
+    }
+    assert_eq!(link.master().pdos_rewritten(), 1);
+    idle_ticks(CIA402, &mut link, &mut bus, 0, 50);
+    let wait = Instant::now();
+    while !link.drain(&mut bus, 50).unwrap().fresh {
+        assert!(
+            wait.elapsed() < Duration::from_secs(10),
+            "no fresh feedback after the remap"
+        );
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    assert_eq!(link.master().feedback().decode_errors, 0);
+    link.shut_down(&mut bus, 50).unwrap();
+    stop(child);
 }

@@ -128,13 +128,21 @@ def _sdo_variable(node: canopen.RemoteNode, index: int, sub: int) -> Any:
     return node.sdo[index][sub]
 
 
-def sdo_cases(node_id: int) -> list[dict[str, Any]]:
-    """canopen's SDO client against its SDO server: writes, reads, aborts."""
+def master_and_drive(node_id: int) -> tuple[CaptureNetwork, canopen.LocalNode, canopen.RemoteNode]:
+    """canopen's view of the drive from the EDS (a RemoteNode: SDO client, NMT
+    master, PDO maps) and the drive itself (a LocalNode: SDO server), both on
+    one capture network."""
     net = CaptureNetwork()
     drive = canopen.LocalNode(node_id, canopen.import_od(str(EDS_PATH), node_id))
     master = canopen.RemoteNode(node_id, canopen.import_od(str(EDS_PATH), node_id))
     net.add_node(drive)
     master.associate_network(net)
+    return net, drive, master
+
+
+def sdo_cases(node_id: int) -> list[dict[str, Any]]:
+    """canopen's SDO client against its SDO server: writes, reads, aborts."""
+    net, _, master = master_and_drive(node_id)
     cases: list[dict[str, Any]] = []
 
     writes = [
@@ -231,11 +239,7 @@ def nmt_sync_heartbeat_cases(node_id: int) -> list[dict[str, Any]]:
 
 def pdo_cases(node_id: int, rng: random.Random) -> list[dict[str, Any]]:
     """PDO payloads from maps read out of the EDS (canopen's PdoVariable encoding)."""
-    net = CaptureNetwork()
-    drive = canopen.LocalNode(node_id, canopen.import_od(str(EDS_PATH), node_id))
-    master = canopen.RemoteNode(node_id, canopen.import_od(str(EDS_PATH), node_id))
-    net.add_node(drive)
-    master.associate_network(net)
+    net, drive, master = master_and_drive(node_id)
     master.rpdo.read(from_od=True)
     drive.tpdo.read(from_od=True)
     cases: list[dict[str, Any]] = []
@@ -278,6 +282,25 @@ def pdo_cases(node_id: int, rng: random.Random) -> list[dict[str, Any]]:
     return cases
 
 
+def pdo_remap_cases(node_id: int) -> list[dict[str, Any]]:
+    """canopen's SDO requests writing each PDO's configuration (``PdoMap.save``:
+    COB-ID invalid, transmission type, mapping count 0, entries, count, COB-ID
+    valid), with RTR allowed (COB-ID bit 30 clear) and not."""
+    net, _, master = master_and_drive(node_id)
+    master.rpdo.read(from_od=True)
+    master.tpdo.read(from_od=True)
+    cases: list[dict[str, Any]] = []
+    for name, pdo in (("rpdo1", master.rpdo[1]), ("tpdo1", master.tpdo[1]), ("tpdo2", master.tpdo[2])):
+        for rtr_allowed in (True, False):
+            pdo.rtr_allowed = rtr_allowed
+            pdo.save()
+            requests = net.take(0x600 + node_id)
+            cob_id = pdo.cob_id | (0 if rtr_allowed else 0x40000000)
+            cases.append({"kind": "pdo_remap", "node": node_id, "pdo": name, "cob_id": cob_id,
+                          "requests": [_frame(*f) for f in requests]})
+    return cases
+
+
 def emcy_cases(node_id: int) -> list[dict[str, Any]]:
     net = CaptureNetwork()
     drive = canopen.LocalNode(node_id, canopen.import_od(str(EDS_PATH), node_id))
@@ -299,6 +322,7 @@ def build() -> dict[str, Any]:
         frames += sdo_cases(node)
         frames += nmt_sync_heartbeat_cases(node)
         frames += pdo_cases(node, rng)
+        frames += pdo_remap_cases(node)
         frames += emcy_cases(node)
     return {
         "about": "CiA 402 golden CANopen frames produced by python-canopen "

@@ -180,6 +180,9 @@ class VirtualCia402:
         self.node.tpdo.read(from_od=True)
         self._rpdo = self.node.rpdo[1]
         self._tpdo1, self._tpdo2 = self.node.tpdo[1], self.node.tpdo[2]
+        #: Set by an SDO write to a PDO parameter: the maps are re-read from
+        #: the dictionary once canopen has stored the write.
+        self._pdo_written = False
         self.network.subscribe(SYNC_COB_ID, self._on_sync)
         self.network.subscribe(0, self._after_nmt)  # after the NMT slave's own handler
         self.state = Cia402State.NOT_READY_TO_SWITCH_ON
@@ -238,6 +241,16 @@ class VirtualCia402:
             self._max_per_mille = value
         elif index == 0x6040:
             self._apply_controlword(value)
+        elif index in (0x1400, 0x1600, 0x1800, 0x1801, 0x1A00, 0x1A01):
+            self._pdo_written = True
+
+    def _reread_pdo_maps(self) -> None:
+        """The PDO maps as the dictionary now holds them (after a master wrote
+        a PDO's configuration over SDO, CiA 301's remapping sequence)."""
+        self._pdo_written = False
+        self.node.rpdo.read(from_od=False)
+        self.node.tpdo.read(from_od=False)
+        self._lengths[0x200 + self.config.node] = (self._rpdo.length // 8,)
 
     def _set_consumer(self, value: int) -> None:
         if self._consumer_id is not None:
@@ -318,6 +331,8 @@ class VirtualCia402:
             self.length_errors += 1
             return
         self.network.notify(msg.arbitration_id, data, now)
+        if self._pdo_written:
+            self._reread_pdo_maps()
 
     # -- NMT, heartbeat consumer -------------------------------------------------------
 
@@ -467,15 +482,15 @@ class VirtualCia402:
         x, v = self.plant.x, self.plant.v
         position = _saturate(encoder_counts(x, self.config.encoder_counts_per_rev), _I32)
         velocity = _saturate(round(v / self._rad_per_count), _I32)
-        self._tpdo1["Statusword"].raw = self.statusword()
-        self._tpdo1["Position actual value"].raw = position
-        self._tpdo2["Velocity actual value"].raw = velocity
-        self._tpdo2["Torque actual value"].raw = self.torque_per_mille
-        for tpdo in (self._tpdo1, self._tpdo2):
-            tpdo["SYNC counter echo"].raw = self.sync_counter
-        for index, value in ((0x6064, position), (0x606C, velocity), (0x6077, self.torque_per_mille),
-                             (0x2000, self.sync_counter)):
+        values = {0x6041: self.statusword(), 0x6064: position, 0x606C: velocity,
+                  0x6077: self.torque_per_mille, 0x2000: self.sync_counter}
+        for index, value in values.items():
             self._store(index, 0, value)
+        # Whatever the maps hold (a master may have written them): each mapped
+        # object's current value.
+        for tpdo in (self._tpdo1, self._tpdo2):
+            for var in tpdo:
+                var.raw = values.get(var.index, 0)
         self._tpdo1.transmit()
         self._tpdo2.transmit()
 

@@ -158,6 +158,8 @@ pub struct Master {
     syncs_sent: u64,
     /// The counter of the last SYNC sent (0 before the first).
     sync_counter: u8,
+    /// PDOs whose configuration set-up wrote (they differed from the EDS's).
+    pdos_rewritten: u32,
 }
 
 impl Master {
@@ -174,6 +176,7 @@ impl Master {
             last_drive_heartbeat: None,
             syncs_sent: 0,
             sync_counter: 0,
+            pdos_rewritten: 0,
         })
     }
 
@@ -192,6 +195,12 @@ impl Master {
         &self.fb
     }
 
+    /// PDOs whose transmission type or mapping set-up wrote because the
+    /// drive's differed from the EDS's.
+    pub fn pdos_rewritten(&self) -> u32 {
+        self.pdos_rewritten
+    }
+
     /// SYNCs sent so far (one per tick and per set-up step).
     pub fn syncs_sent(&self) -> u64 {
         self.syncs_sent
@@ -200,9 +209,9 @@ impl Master {
     /// Set-up: wait for the drive's boot-up or heartbeat; check it is a
     /// CiA 402 device; set cyclic synchronous torque mode and check the
     /// display; write the heartbeat times; read the units; check the drive
-    /// has the SYNC counter echo 0x2000 and the PDO communication and
-    /// mapping parameters are the EDS defaults; start the master's
-    /// heartbeat; NMT start the drive.
+    /// has the SYNC counter echo 0x2000; check the PDO communication and
+    /// mapping parameters, writing those that differ from the EDS's; start
+    /// the master's heartbeat; NMT start the drive.
     pub fn boot(&mut self, bus: &mut dyn Transport) -> Result<(), Cia402Error> {
         self.wait_for_drive(bus)?;
         self.configure(bus)
@@ -291,25 +300,34 @@ impl Master {
         }
     }
 
-    /// The drive must use the EDS's default PDO set: COB-IDs valid and the
-    /// predefined ones, transmission type 1 (every SYNC), the mapping of
-    /// [`od::RPDO1_MAPPING`], [`od::TPDO1_MAPPING`], [`od::TPDO2_MAPPING`].
+    /// The drive must use the EDS's PDO set ([`od::PDOS`]): the predefined
+    /// COB-IDs (another COB-ID is a `Mismatch`: this master does not move
+    /// PDOs), valid, transmission type 1 (every SYNC), the EDS's mappings. A
+    /// PDO that is not valid or differs in transmission type or mapping is
+    /// written with [`od::remap_writes`], then read back.
     fn check_pdos(&mut self, bus: &mut dyn Transport) -> Result<(), Cia402Error> {
         let n = self.settings.node;
-        let cob_ids = [
-            (od::RPDO1_COB_ID, n.rpdo1(), od::RPDO1_TRANSMISSION),
-            (od::TPDO1_COB_ID, n.tpdo1(), od::TPDO1_TRANSMISSION),
-            (od::TPDO2_COB_ID, n.tpdo2(), od::TPDO2_TRANSMISSION),
-        ];
-        for (cob, id, trans) in cob_ids {
-            let got = self.sdo_read_u32(bus, cob)?;
-            // Bit 31 set: PDO not valid; bit 30: RTR not allowed (ignored).
-            self.expect(cob, id, got & !(1 << 30))?;
-            let t = self.sdo_read_u32(bus, trans)?;
-            self.expect(trans, u32::from(od::TRANSMISSION_EVERY_SYNC), t)?;
-        }
-        for m in [od::RPDO1_MAPPING, od::TPDO1_MAPPING, od::TPDO2_MAPPING] {
-            self.check_mapping(bus, &m)?;
+        for pdo in od::PDOS {
+            let cob_id = self.sdo_read_u32(bus, pdo.cob_id)?;
+            let flags = od::PDO_NOT_VALID | od::PDO_NO_RTR;
+            self.expect(pdo.cob_id, (pdo.predefined_cob_id)(n), cob_id & !flags)?;
+            let every_sync = u32::from(od::TRANSMISSION_EVERY_SYNC);
+            let transmission = self.sdo_read_u32(bus, pdo.transmission)?;
+            let mapped = match self.check_mapping(bus, &pdo.mapping) {
+                Ok(()) => true,
+                Err(Cia402Error::Mismatch { .. }) => false,
+                Err(e) => return Err(e),
+            };
+            if cob_id & od::PDO_NOT_VALID == 0 && transmission == every_sync && mapped {
+                continue;
+            }
+            for w in od::remap_writes(&pdo, cob_id) {
+                self.sdo_write(bus, w.object, &w.bytes())?;
+            }
+            self.pdos_rewritten += 1;
+            let transmission = self.sdo_read_u32(bus, pdo.transmission)?;
+            self.expect(pdo.transmission, every_sync, transmission)?;
+            self.check_mapping(bus, &pdo.mapping)?;
         }
         Ok(())
     }
@@ -327,11 +345,7 @@ impl Master {
         let got = self.sdo_read_u32(bus, count)?;
         self.expect(count, m.entries.len() as u32, got)?;
         for (i, &entry) in m.entries.iter().enumerate() {
-            let o = Object {
-                index: m.index,
-                subindex: i as u8 + 1,
-                name: "Mapped object",
-            };
+            let o = od::mapping_entry_object(m.index, i);
             let got = self.sdo_read_u32(bus, o)?;
             self.expect(o, entry, got)?;
         }

@@ -72,7 +72,8 @@ pub enum Cia402Error {
         code: u32,
     },
     /// The drive holds another value than this master needs (device type,
-    /// mode display, a PDO's COB-ID, transmission type or mapping).
+    /// mode display, a PDO's COB-ID, or a PDO's transmission type or
+    /// mapping that the master's write did not change).
     Mismatch {
         /// The object's name.
         object: &'static str,
@@ -156,7 +157,7 @@ impl fmt::Display for Cia402Error {
             } => write!(
                 f,
                 "{object} ({index:#06x}:{subindex}) is {got:#x}, this master needs {expected:#x}; \
-                 configure the drive as cia402_drive.eds (remapping PDOs is not implemented)"
+                 configure the drive as cia402_drive.eds"
             ),
             Self::NoSyncCounterEcho => write!(
                 f,

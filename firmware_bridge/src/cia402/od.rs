@@ -100,6 +100,7 @@ pub const fn mapping_entry(o: Object, bits: u8) -> u32 {
 }
 
 /// One PDO's mapping (0x16xx / 0x1Axx) as the master encodes it.
+#[derive(Clone, Copy, Debug)]
 pub struct PdoMapping {
     /// The mapping parameter's index (0x1600, 0x1A00, 0x1A01).
     pub index: u16,
@@ -133,6 +134,121 @@ pub const TPDO2_MAPPING: PdoMapping = PdoMapping {
         mapping_entry(SYNC_COUNTER_ECHO, 8),
     ],
 };
+
+/// One PDO as the master configures it: its communication parameter's COB-ID
+/// and transmission type, and its mapping.
+#[derive(Clone, Copy, Debug)]
+pub struct Pdo {
+    /// 0x14xx:01 / 0x18xx:01.
+    pub cob_id: Object,
+    /// 0x14xx:02 / 0x18xx:02.
+    pub transmission: Object,
+    /// The mapping the master needs (the EDS default).
+    pub mapping: PdoMapping,
+    /// The predefined COB-ID for a node (CiA 301 7.3.5).
+    pub predefined_cob_id: fn(CanopenNode) -> u32,
+}
+
+/// RPDO1, TPDO1, TPDO2: the PDO set the master needs.
+pub const PDOS: [Pdo; 3] = [
+    Pdo {
+        cob_id: RPDO1_COB_ID,
+        transmission: RPDO1_TRANSMISSION,
+        mapping: RPDO1_MAPPING,
+        predefined_cob_id: CanopenNode::rpdo1,
+    },
+    Pdo {
+        cob_id: TPDO1_COB_ID,
+        transmission: TPDO1_TRANSMISSION,
+        mapping: TPDO1_MAPPING,
+        predefined_cob_id: CanopenNode::tpdo1,
+    },
+    Pdo {
+        cob_id: TPDO2_COB_ID,
+        transmission: TPDO2_TRANSMISSION,
+        mapping: TPDO2_MAPPING,
+        predefined_cob_id: CanopenNode::tpdo2,
+    },
+];
+
+/// COB-ID bit 31: the PDO is not valid (disabled).
+pub const PDO_NOT_VALID: u32 = 1 << 31;
+/// COB-ID bit 30: no RTR allowed on this PDO (not used by this master).
+pub const PDO_NO_RTR: u32 = 1 << 30;
+
+/// One expedited SDO write of the set-up: `size` bytes of `value`, little-endian.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SdoWrite {
+    /// The object written.
+    pub object: Object,
+    /// The value (its low `size` bytes are sent).
+    pub value: u32,
+    /// 1 to 4 bytes.
+    pub size: usize,
+}
+
+impl SdoWrite {
+    /// The value's bytes as sent.
+    pub fn bytes(&self) -> Vec<u8> {
+        self.value.to_le_bytes()[..self.size].to_vec()
+    }
+}
+
+/// CiA 301's sequence (7.5.2.35/36) to write `pdo`'s transmission type and
+/// mapping into a drive, the order python-canopen's `PdoMap.save` uses:
+/// COB-ID with [`PDO_NOT_VALID`] set (`cob_id` is the drive's COB-ID as
+/// read, so bit 30 is kept), transmission type, number of entries 0, each
+/// entry, number of entries n, the COB-ID valid again.
+pub fn remap_writes(pdo: &Pdo, cob_id: u32) -> Vec<SdoWrite> {
+    let m = pdo.mapping;
+    let count = Object {
+        index: m.index,
+        subindex: 0,
+        name: "Number of mapped objects",
+    };
+    let mut out = vec![
+        SdoWrite {
+            object: pdo.cob_id,
+            value: cob_id | PDO_NOT_VALID,
+            size: 4,
+        },
+        SdoWrite {
+            object: pdo.transmission,
+            value: u32::from(TRANSMISSION_EVERY_SYNC),
+            size: 1,
+        },
+        SdoWrite {
+            object: count,
+            value: 0,
+            size: 1,
+        },
+    ];
+    out.extend(m.entries.iter().enumerate().map(|(i, &entry)| SdoWrite {
+        object: mapping_entry_object(m.index, i),
+        value: entry,
+        size: 4,
+    }));
+    out.push(SdoWrite {
+        object: count,
+        value: m.entries.len() as u32,
+        size: 1,
+    });
+    out.push(SdoWrite {
+        object: pdo.cob_id,
+        value: cob_id & !PDO_NOT_VALID,
+        size: 4,
+    });
+    out
+}
+
+/// The mapping parameter's sub-index `i + 1` (entry `i`).
+pub fn mapping_entry_object(index: u16, i: usize) -> Object {
+    Object {
+        index,
+        subindex: i as u8 + 1,
+        name: "Mapped object",
+    }
+}
 
 /// COB-ID of the NMT command (from the master to all nodes).
 pub const NMT_COB_ID: u32 = 0x000;
