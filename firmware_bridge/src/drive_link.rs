@@ -461,7 +461,7 @@ impl DriveLink for Cia402Link {
     /// [`Master::configure`] (SDO set-up, heartbeats, NMT start), then
     /// [`Master::enable`]: controlword steps (one RPDO + SYNC each, a fault
     /// reset first if needed) until OperationEnabled at zero torque, and
-    /// every SYNC answered. Every step is a zero-torque command the drive's
+    /// the last SYNC answered. Every step is a zero-torque command the drive's
     /// heartbeat consumer is fed by.
     fn enable(&mut self, bus: &mut dyn Transport) -> Result<EnableTimes, LinkError> {
         self.master.configure(bus)?;

@@ -29,7 +29,7 @@ pub fn nmt(command: NmtCommand, node: u8) -> Frame {
     frame(NMT_COB_ID, &[command as u8, node])
 }
 
-/// SYNC with its counter (CiA 301 7.2.5.3.1): COB-ID 0x80, one byte,
+/// SYNC with its counter (CiA 301 SYNC object): COB-ID 0x80, one byte,
 /// 1..=0x1019 ([`super::od::SYNC_COUNTER_OVERFLOW`]).
 pub fn sync(counter: u8) -> Frame {
     frame(SYNC_COB_ID, &[counter])

@@ -337,11 +337,7 @@ impl Master {
         bus: &mut dyn Transport,
         m: &PdoMapping,
     ) -> Result<(), Cia402Error> {
-        let count = Object {
-            index: m.index,
-            subindex: 0,
-            name: "Number of mapped objects",
-        };
+        let count = od::mapping_count_object(m.index);
         let got = self.sdo_read_u32(bus, count)?;
         self.expect(count, m.entries.len() as u32, got)?;
         for (i, &entry) in m.entries.iter().enumerate() {
@@ -672,7 +668,7 @@ impl Master {
 }
 
 /// The SYNC counter after `counter`: 1, 2, ..., [`od::SYNC_COUNTER_OVERFLOW`],
-/// 1, ... (CiA 301 7.2.5.3.1; 0 is not sent).
+/// 1, ... (CiA 301: a SYNC counter is never 0).
 fn next_sync_counter(counter: u8) -> u8 {
     counter % od::SYNC_COUNTER_OVERFLOW + 1
 }

@@ -84,10 +84,9 @@ pub const MODE_CYCLIC_SYNCHRONOUS_TORQUE: i8 = 10;
 pub const PROFILE_402: u32 = 402;
 /// Transmission type 1: synchronous, every SYNC.
 pub const TRANSMISSION_EVERY_SYNC: u8 = 1;
-/// The master's 0x1019 synchronous counter overflow value (CiA 301 7.5.2.22):
-/// every SYNC carries a counter byte, 1 to this value, then 1 again. 240 is
-/// the largest value the standard allows and a multiple of 1..6 PDO
-/// transmission types' periods.
+/// The master's 0x1019 synchronous counter overflow value (CiA 301): every
+/// SYNC carries a counter byte, 1 to this value, then 1 again. 240 is the
+/// largest value CiA 301 allows, the longest run before a counter repeats.
 pub const SYNC_COUNTER_OVERFLOW: u8 = 240;
 
 /// SDO abort code "object does not exist in the object dictionary" (CiA 301
@@ -145,7 +144,7 @@ pub struct Pdo {
     pub transmission: Object,
     /// The mapping the master needs (the EDS default).
     pub mapping: PdoMapping,
-    /// The predefined COB-ID for a node (CiA 301 7.3.5).
+    /// The COB-ID of CiA 301's predefined connection set for a node.
     pub predefined_cob_id: fn(CanopenNode) -> u32,
 }
 
@@ -194,18 +193,14 @@ impl SdoWrite {
     }
 }
 
-/// CiA 301's sequence (7.5.2.35/36) to write `pdo`'s transmission type and
-/// mapping into a drive, the order python-canopen's `PdoMap.save` uses:
+/// CiA 301's procedure to write `pdo`'s transmission type and mapping into
+/// a drive, in the order python-canopen's `PdoMap.save` uses:
 /// COB-ID with [`PDO_NOT_VALID`] set (`cob_id` is the drive's COB-ID as
 /// read, so bit 30 is kept), transmission type, number of entries 0, each
 /// entry, number of entries n, the COB-ID valid again.
 pub fn remap_writes(pdo: &Pdo, cob_id: u32) -> Vec<SdoWrite> {
     let m = pdo.mapping;
-    let count = Object {
-        index: m.index,
-        subindex: 0,
-        name: "Number of mapped objects",
-    };
+    let count = mapping_count_object(m.index);
     let mut out = vec![
         SdoWrite {
             object: pdo.cob_id,
@@ -239,6 +234,15 @@ pub fn remap_writes(pdo: &Pdo, cob_id: u32) -> Vec<SdoWrite> {
         size: 4,
     });
     out
+}
+
+/// The mapping parameter's sub-index 0: the number of mapped objects.
+pub fn mapping_count_object(index: u16) -> Object {
+    Object {
+        index,
+        subindex: 0,
+        name: "Number of mapped objects",
+    }
 }
 
 /// The mapping parameter's sub-index `i + 1` (entry `i`).
