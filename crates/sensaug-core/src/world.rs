@@ -299,14 +299,27 @@ impl<'a> Scenario<'a> {
                 got: out.len(),
             });
         };
+        let mut slots = out.iter_mut();
+        Ok(self.run_with(|rec| {
+            if let Some(slot) = slots.next() {
+                *slot = *rec;
+            }
+        }))
+    }
+
+    /// Runs the whole trial, handing each tick's record to `each` in tick
+    /// order ([`Scenario::ticks`] calls): a caller that converts records
+    /// (the log rows of the Python binding) needs no buffer of the whole
+    /// trial's records.
+    pub fn run_with(&mut self, mut each: impl FnMut(&TickRecord)) -> RunSummary {
         let mut summary = RunSummary {
-            ticks: n,
+            ticks: self.ticks(),
             ..RunSummary::default()
         };
         // A copy, so the samples do not borrow the robot the ticks change.
         let protocol = *self.robot.protocol();
-        for (rec, sample) in out.iter_mut().zip(protocol.samples()) {
-            *rec = self.tick(&sample, &mut summary);
+        for sample in protocol.samples() {
+            each(&self.tick(&sample, &mut summary));
         }
         summary.robot = self.robot.counters();
         summary.mirror_errors = match &self.partner {
@@ -317,7 +330,7 @@ impl<'a> Scenario<'a> {
             let c = p.counters();
             summary.partner_guarded = c.clamped + c.non_finite;
         }
-        Ok(summary)
+        summary
     }
 
     /// One tick of the world: sense, robot, partner, plant.

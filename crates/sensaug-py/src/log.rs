@@ -2,7 +2,7 @@
 //! metadata of a simulated trial, rows <-> numpy columns, and the writer of
 //! a log file. Conversion only; the format lives in `sensaug-log`.
 
-use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1};
+use numpy::{IntoPyArray, PyReadonlyArray1};
 use pyo3::exceptions::{PyOSError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -106,33 +106,42 @@ pub fn rows_to_columns<'py>(py: Python<'py>, rows: &[Row]) -> PyResult<Bound<'py
     Ok(d)
 }
 
-/// Rows as the bytes of one packed record per row, the columns in schema
-/// order (native-endian int64 / float64, bool as one byte: the layout of
-/// `sensaug.logs.DTYPE`), for `ndarray.view(DTYPE)`. One pass and one
-/// buffer, handed to numpy without a copy (no per-column arrays to
-/// re-interleave in Python, no intermediate `Vec<Row>`).
-pub fn rows_to_records<'py>(
-    py: Python<'py>,
-    rows: impl ExactSizeIterator<Item = Row>,
-) -> Bound<'py, PyArray1<u8>> {
-    let width: usize = COLUMNS
-        .iter()
-        .map(|c| match c.kind {
+/// Bytes of one packed record: the columns in schema order, native-endian
+/// int64 / float64, bool as one byte (the layout of `sensaug.logs.DTYPE`).
+pub const RECORD_BYTES: usize = record_bytes();
+
+const fn record_bytes() -> usize {
+    let mut bytes = 0;
+    let mut i = 0;
+    while i < COLUMNS.len() {
+        bytes += match COLUMNS[i].kind {
             Kind::Bool => 1,
             Kind::Int | Kind::Float => 8,
-        })
-        .sum();
-    let mut buf = Vec::with_capacity(rows.len() * width);
-    for r in rows {
-        for v in r.values() {
-            match v {
-                Value::Int(x) => buf.extend_from_slice(&x.to_ne_bytes()),
-                Value::Float(x) => buf.extend_from_slice(&x.to_ne_bytes()),
-                Value::Bool(x) => buf.push(u8::from(x)),
-            }
-        }
+        };
+        i += 1;
     }
-    buf.into_pyarray(py)
+    bytes
+}
+
+/// Appends `row` to `out` as one packed record ([`RECORD_BYTES`]), for
+/// `ndarray.view(DTYPE)`: records appended to one buffer are the log, with
+/// no per-column arrays to re-interleave in Python.
+pub fn pack_record(row: &Row, out: &mut Vec<u8>) {
+    // Every value is written as 8 bytes and the cursor advances by the
+    // column's width (a bool's next column overwrites its 7 spare bytes):
+    // one store per value and no branch on the kind for the bytes.
+    let mut record = [0u8; RECORD_BYTES + 7];
+    let mut at = 0;
+    for v in row.values() {
+        let (bits, width) = match v {
+            Value::Int(x) => (x as u64, 8),
+            Value::Float(x) => (x.to_bits(), 8),
+            Value::Bool(x) => (u64::from(x), 1),
+        };
+        record[at..at + 8].copy_from_slice(&bits.to_ne_bytes());
+        at += width;
+    }
+    out.extend_from_slice(&record[..RECORD_BYTES]);
 }
 
 /// Rows from `data[name]` for every column (a numpy structured array or a
