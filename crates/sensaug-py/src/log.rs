@@ -108,38 +108,41 @@ pub fn rows_to_columns<'py>(py: Python<'py>, rows: &[Row]) -> PyResult<Bound<'py
 
 /// Bytes of one packed record: the columns in schema order, native-endian
 /// int64 / float64, bool as one byte (the layout of `sensaug.logs.DTYPE`).
-pub const RECORD_BYTES: usize = record_bytes();
+pub const RECORD_BYTES: usize = RECORD_OFFSETS[COLUMNS.len()];
 
-const fn record_bytes() -> usize {
-    let mut bytes = 0;
+/// Where each column starts in a packed record; the last entry is the
+/// record's size.
+const RECORD_OFFSETS: [usize; COLUMNS.len() + 1] = record_offsets();
+
+const fn record_offsets() -> [usize; COLUMNS.len() + 1] {
+    let mut offsets = [0; COLUMNS.len() + 1];
     let mut i = 0;
     while i < COLUMNS.len() {
-        bytes += match COLUMNS[i].kind {
-            Kind::Bool => 1,
-            Kind::Int | Kind::Float => 8,
-        };
+        offsets[i + 1] = offsets[i]
+            + match COLUMNS[i].kind {
+                Kind::Bool => 1,
+                Kind::Int | Kind::Float => 8,
+            };
         i += 1;
     }
-    bytes
+    offsets
 }
 
 /// Appends `row` to `out` as one packed record ([`RECORD_BYTES`]), for
 /// `ndarray.view(DTYPE)`: records appended to one buffer are the log, with
 /// no per-column arrays to re-interleave in Python.
 pub fn pack_record(row: &Row, out: &mut Vec<u8>) {
-    // Every value is written as 8 bytes and the cursor advances by the
-    // column's width (a bool's next column overwrites its 7 spare bytes):
-    // one store per value and no branch on the kind for the bytes.
+    // Every value is written as 8 bytes at its column's constant offset (a
+    // bool's 7 spare bytes are overwritten by the next column): with the
+    // offsets known at compile time the loop unrolls into plain stores.
     let mut record = [0u8; RECORD_BYTES + 7];
-    let mut at = 0;
-    for v in row.values() {
-        let (bits, width) = match v {
-            Value::Int(x) => (x as u64, 8),
-            Value::Float(x) => (x.to_bits(), 8),
-            Value::Bool(x) => (u64::from(x), 1),
+    for (v, at) in row.values().into_iter().zip(RECORD_OFFSETS) {
+        let bits = match v {
+            Value::Int(x) => x as u64,
+            Value::Float(x) => x.to_bits(),
+            Value::Bool(x) => u64::from(x),
         };
         record[at..at + 8].copy_from_slice(&bits.to_ne_bytes());
-        at += width;
     }
     out.extend_from_slice(&record[..RECORD_BYTES]);
 }
