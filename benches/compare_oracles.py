@@ -101,8 +101,10 @@ def sensaug_step_python(dim_z: int) -> Callable[[], None]:
 
 def sensaug_trial_per_tick_ns(phase_s: float = 20.0, repeats: int = 5) -> dict[str, float]:
     """A whole simulated Hi5 trial from Python (``sensaug.run`` on
-    ``presets.hi5_experiment``: three phases, robot with its estimators,
-    virtual human estimating the robot, plant, noise), per tick: the median
+    ``presets.hi5_experiment``: three phases, robot with its estimators, a
+    virtual human that does not identify the robot, plant, noise, the log as
+    a numpy structured array; ``perf_harness trial`` runs the same trial in
+    Rust alone), per tick: the median
     over ``repeats`` trials of wall time / ticks (after one warm-up trial)."""
     from sensaug import presets
 
