@@ -132,9 +132,9 @@ const fn record_offsets() -> [usize; COLUMNS.len() + 1] {
 /// `ndarray.view(DTYPE)`: records appended to one buffer are the log, with
 /// no per-column arrays to re-interleave in Python.
 pub fn pack_record(row: &Row, out: &mut Vec<u8>) {
-    // Every value is written as 8 bytes at its column's constant offset (a
-    // bool's 7 spare bytes are overwritten by the next column): with the
-    // offsets known at compile time the loop unrolls into plain stores.
+    // Every value is written as 8 bytes at its column's offset (a bool's 7
+    // spare bytes are overwritten by the next column): one store per value,
+    // no branch on the kind for the bytes.
     let mut record = [0u8; RECORD_BYTES + 7];
     for (v, at) in row.values().into_iter().zip(RECORD_OFFSETS) {
         let bits = match v {
