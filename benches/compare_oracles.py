@@ -8,14 +8,21 @@ measured side by side. Run alone, this prints the medians and tails.
 """
 from __future__ import annotations
 
+import os
 import time
 from typing import Callable
 
-import numpy as np
-import scipy.linalg
-from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+# Measurement hygiene, set before numpy loads OpenBLAS: after a BLAS call its
+# idle worker threads busy-wait for a while, on CPUs the timed code needs
+# (callgrind shows them running during a trial). Every problem here is 6 x 6
+# at most, which OpenBLAS computes on one thread anyway.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import sensaug
+import numpy as np  # noqa: E402
+import scipy.linalg  # noqa: E402
+from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter  # noqa: E402
+
+import sensaug  # noqa: E402
 
 M, DT = 0.0035, 1e-3
 

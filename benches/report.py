@@ -264,7 +264,9 @@ def main() -> None:
         "tick: callgrind totals of "
         f"{TRIAL_COUNTS[0]} and {TRIAL_COUNTS[1]} trials, their difference over the difference of "
         "ticks (`perf_harness trial count <trials>`; from Python the script `TRIAL_PY` of "
-        "`benches/report.py` with `PYTHONHASHSEED=0 OPENBLAS_NUM_THREADS=1`). Peer: an independent "
+        "`benches/report.py` with `PYTHONHASHSEED=0 OPENBLAS_NUM_THREADS=1`). numpy's OpenBLAS runs "
+        "on one thread in the bench process (`compare_oracles.py` sets `OPENBLAS_NUM_THREADS=1` "
+        "unless it is set): its idle threads otherwise busy-wait while the trial runs. Peer: an independent "
         "numpy + filterpy loop of the gain phase (plant, LQR robot, virtual human, noise, filterpy's "
         f"stage-1 update and predict), median of {trial_peer['ticks']} individually timed ticks "
         "(`numpy_filterpy_trial_per_tick_ns`).",
