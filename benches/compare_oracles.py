@@ -8,14 +8,21 @@ measured side by side. Run alone, this prints the medians and tails.
 """
 from __future__ import annotations
 
+import os
 import time
 from typing import Callable
 
-import numpy as np
-import scipy.linalg
-from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+# Measurement hygiene, set before numpy loads OpenBLAS: after a BLAS call its
+# idle worker threads busy-wait for a while, on CPUs the timed code needs
+# (callgrind shows them running during a trial). Every problem here is 6 x 6
+# at most, which OpenBLAS computes on one thread anyway.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import sensaug
+import numpy as np  # noqa: E402
+import scipy.linalg  # noqa: E402
+from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter  # noqa: E402
+
+import sensaug  # noqa: E402
 
 M, DT = 0.0035, 1e-3
 
@@ -101,8 +108,10 @@ def sensaug_step_python(dim_z: int) -> Callable[[], None]:
 
 def sensaug_trial_per_tick_ns(phase_s: float = 20.0, repeats: int = 5) -> dict[str, float]:
     """A whole simulated Hi5 trial from Python (``sensaug.run`` on
-    ``presets.hi5_experiment``: three phases, robot with its estimators,
-    virtual human estimating the robot, plant, noise), per tick: the median
+    ``presets.hi5_experiment``: three phases, robot with its estimators, a
+    virtual human that does not identify the robot, plant, noise, the log as
+    a numpy structured array; ``perf_harness trial`` runs the same trial in
+    Rust alone), per tick: the median
     over ``repeats`` trials of wall time / ticks (after one warm-up trial)."""
     from sensaug import presets
 

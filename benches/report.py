@@ -12,7 +12,9 @@ run on one machine it
 3. counts instructions per call with callgrind (``valgrind --tool=callgrind``;
    the difference of two runs with different call counts, so set-up and
    warm-up cancel): stable where timings are not,
-4. records the machine (``lscpu``), the date, the load average and the commit.
+4. times and counts the whole simulated Hi5 trial, from Python (``sensaug.run``)
+   and through the core alone (``perf_harness trial``), per tick,
+5. records the machine (``lscpu``), the date, the load average and the commit.
 """
 from __future__ import annotations
 
@@ -85,19 +87,48 @@ def rust_timing(name: str) -> dict:
     return json.loads(out)
 
 
-def instructions(name: str) -> float | None:
-    """Instructions per call: (I(n2) - I(n1)) / (n2 - n1) under callgrind."""
+def callgrind_total(cmd: list[str], env: dict[str, str] | None = None) -> int | None:
+    res = run(["valgrind", "--tool=callgrind", "--callgrind-out-file=/dev/null", *cmd],
+              env=None if env is None else {**os.environ, **env})
+    m = re.search(r"Collected\s*:\s*(\d+)", res.stderr)
+    return None if m is None else int(m.group(1))
+
+
+def instructions_per(cmd: list[str], counts: tuple[int, int], per_count: int = 1,
+                     env: dict[str, str] | None = None) -> float | None:
+    """Instructions per unit: (I(n2) - I(n1)) / ((n2 - n1) per_count) under
+    callgrind, for `cmd + [n]` with n in `counts` (set-up and warm-up cancel)."""
     if shutil.which("valgrind") is None:
         return None
-    totals = []
-    for n in COUNT_CALLS:
-        res = run(["valgrind", "--tool=callgrind", "--callgrind-out-file=/dev/null",
-                   str(HARNESS), "count", name, str(n)])
-        m = re.search(r"Collected\s*:\s*(\d+)", res.stderr)
-        if m is None:
-            return None
-        totals.append(int(m.group(1)))
-    return (totals[1] - totals[0]) / (COUNT_CALLS[1] - COUNT_CALLS[0])
+    totals = [callgrind_total(cmd + [str(n)], env) for n in counts]
+    if None in totals:
+        return None
+    return (totals[1] - totals[0]) / ((counts[1] - counts[0]) * per_count)
+
+
+def instructions(name: str) -> float | None:
+    """Instructions per call of a workload."""
+    return instructions_per([str(HARNESS), "count", name], COUNT_CALLS)
+
+
+# The whole trial of compare_oracles.sensaug_trial_per_tick_ns through the core
+# alone (workloads::trial): timed over TRIAL_REPEATS trials, and counted under
+# callgrind with TRIAL_COUNTS trials (the difference over the difference of
+# ticks is the instructions of one trial tick), as is the same trial from
+# Python (sensaug.run; hash seed fixed and numpy's BLAS on one thread so the
+# interpreter's and the idle BLAS threads' instructions do not vary).
+TRIAL_REPEATS = 7
+TRIAL_COUNTS = (1, 3)
+TRIAL_PY = ("import sys, sensaug; from sensaug import presets; "
+            "cfg = presets.hi5_experiment(phase_s=20.0); "
+            "[sensaug.run(cfg) for _ in range(int(sys.argv[1]))]")
+TRIAL_PY_ENV = {"PYTHONHASHSEED": "0", "OPENBLAS_NUM_THREADS": "1"}
+
+
+def rust_trial() -> dict:
+    out = json.loads(run([str(HARNESS), "trial", "time", str(TRIAL_REPEATS)]).stdout)
+    out["instructions"] = instructions_per([str(HARNESS), "trial", "count"], TRIAL_COUNTS, out["ticks"])
+    return out
 
 
 def tick_tail() -> list[dict]:
@@ -112,6 +143,10 @@ def rig_tick() -> dict:
 
 def us(ns: float) -> str:
     return f"{ns / 1e3:.2f}"
+
+
+def count_text(count: float | None) -> str:
+    return "n/a (no valgrind)" if count is None else f"{count:.0f}"
 
 
 def main() -> None:
@@ -136,6 +171,9 @@ def main() -> None:
                 rows.append((name, impl, compare_oracles.per_call_ns(fn, args.peer_calls), None))
     tails = tick_tail()
     trial = compare_oracles.sensaug_trial_per_tick_ns()
+    trial["instructions"] = instructions_per([sys.executable, "-c", TRIAL_PY], TRIAL_COUNTS,
+                                             trial["ticks"], TRIAL_PY_ENV)
+    trial_rust = rust_trial()
     trial_peer = compare_oracles.numpy_filterpy_trial_per_tick_ns()
     rig = rig_tick()
     jitter = loop_jitter.compare(JITTER_S)
@@ -188,7 +226,7 @@ def main() -> None:
     ]
     for name, impl, _, count in rows:
         if impl == "sensaug (Rust)":
-            lines.append(f"| {name} | {count:.0f} |" if count is not None else f"| {name} | n/a (no valgrind) |")
+            lines.append(f"| {name} | {count_text(count)} |")
     lines += [
         "",
         "## Robot tick: the tail",
@@ -217,17 +255,28 @@ def main() -> None:
         "## Whole simulated trial from Python",
         "",
         f"`sensaug.run(presets.hi5_experiment(phase_s=20.0))`: a {trial['ticks']}-tick Hi5 trial (robot "
-        "with its estimators, virtual human estimating the robot, plant, noise, the log as numpy "
-        f"arrays), wall time per tick, median of {trial['repeats']} trials after a warm-up "
-        "(`benches/compare_oracles.py`, `sensaug_trial_per_tick_ns`). Peer: an independent numpy + "
-        "filterpy loop of the gain phase (plant, LQR robot, virtual human, noise, filterpy's stage-1 "
-        f"update and predict), median of {trial_peer['ticks']} individually timed ticks "
+        "with its estimators, a virtual human that does not identify the robot, plant, noise, the "
+        f"log as numpy arrays), wall time per tick, median of {trial['repeats']} trials after a warm-up "
+        "(`benches/compare_oracles.py`, `sensaug_trial_per_tick_ns`). The same trial through the "
+        "core alone, without Python and its log arrays: `target/release/examples/perf_harness trial "
+        f"time {TRIAL_REPEATS}` (median of {TRIAL_REPEATS} trials after a warm-up; the bench profile, "
+        "thin LTO, while the extension is built in the release profile). Instructions per "
+        "tick: callgrind totals of "
+        f"{TRIAL_COUNTS[0]} and {TRIAL_COUNTS[1]} trials, their difference over the difference of "
+        "ticks (`perf_harness trial count <trials>`; from Python the script `TRIAL_PY` of "
+        "`benches/report.py` with `PYTHONHASHSEED=0 OPENBLAS_NUM_THREADS=1`). numpy's OpenBLAS runs "
+        "on one thread in the bench process (`compare_oracles.py` sets `OPENBLAS_NUM_THREADS=1` "
+        "unless it is set): its idle threads otherwise busy-wait while the trial runs. Peer: an independent "
+        "numpy + filterpy loop of the gain phase (plant, LQR robot, virtual human, noise, filterpy's "
+        f"stage-1 update and predict), median of {trial_peer['ticks']} individually timed ticks "
         "(`numpy_filterpy_trial_per_tick_ns`).",
         "",
-        "| implementation | per tick (us) | peer / sensaug |",
-        "|---|---:|---:|",
-        f"| sensaug.run | {us(trial['median_ns'])} | 1.0 |",
-        f"| numpy + filterpy loop (stage 1 only) | {us(trial_peer['median_ns'])} | "
+        "| implementation | per tick (us) | instructions per tick | peer / sensaug |",
+        "|---|---:|---:|---:|",
+        f"| sensaug.run | {us(trial['median_ns'])} | {count_text(trial['instructions'])} | 1.0 |",
+        f"| the same trial in Rust (`perf_harness trial`) | {us(trial_rust['median_ns_per_tick'])} | "
+        f"{count_text(trial_rust['instructions'])} | |",
+        f"| numpy + filterpy loop (stage 1 only) | {us(trial_peer['median_ns'])} | | "
         f"{trial_peer['median_ns'] / trial['median_ns']:.0f} |",
         "",
         "## Rig tick on the loopback UDP bus",

@@ -8,6 +8,12 @@
 //!   untimed; run under `valgrind --tool=callgrind` with two call counts, the
 //!   difference of the totals over the difference of the counts is the
 //!   instruction count of one call (set-up and warm-up cancel).
+//! * `perf_harness trial (time|count) <trials>`: the whole simulated Hi5
+//!   trial (`workloads::trial`), one trial per call after one warm-up trial;
+//!   `time` prints the median and maximum wall time per tick over the
+//!   trials, `count` runs them untimed (under callgrind with two trial
+//!   counts, the difference over the difference of ticks is the
+//!   instruction count of one trial tick).
 //! * `perf_harness list`: the workload names.
 #![allow(non_snake_case)]
 
@@ -38,12 +44,19 @@ fn timed(f: &mut dyn FnMut(), calls: usize) -> Vec<u64> {
 
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().collect();
-    let usage = "usage: perf_harness (time|count) <workload> <calls> | list";
+    let usage =
+        "usage: perf_harness (time|count) <workload> <calls> | trial (time|count) <trials> | list";
     if args.get(1).map(String::as_str) == Some("list") {
         for (name, _) in workloads::all() {
             println!("{name}");
         }
         return ExitCode::SUCCESS;
+    }
+    if args.get(1).map(String::as_str) == Some("trial") {
+        return trial(
+            args.get(2).map(String::as_str),
+            args.get(3).map(String::as_str),
+        );
     }
     let (Some(mode), Some(name), Some(calls)) = (args.get(1), args.get(2), args.get(3)) else {
         eprintln!("{usage}");
@@ -82,6 +95,38 @@ fn main() -> ExitCode {
         }
         _ => {
             eprintln!("{usage}");
+            return ExitCode::FAILURE;
+        }
+    }
+    ExitCode::SUCCESS
+}
+
+/// `perf_harness trial (time|count) <trials>`.
+fn trial(mode: Option<&str>, trials: Option<&str>) -> ExitCode {
+    let Some(Ok(trials)) = trials.map(str::parse::<usize>) else {
+        eprintln!("trials: expected a positive integer after `trial (time|count)`");
+        return ExitCode::FAILURE;
+    };
+    let (mut call, ticks) = workloads::trial();
+    call();
+    match mode {
+        Some("count") => {
+            for _ in 0..trials {
+                call();
+            }
+        }
+        Some("time") if trials > 0 => {
+            let samples = timed(&mut *call, trials);
+            let per_tick = |ns: u64| ns as f64 / ticks as f64;
+            println!(
+                "{{\"name\": \"trial/hi5\", \"trials\": {trials}, \"ticks\": {ticks}, \
+                 \"median_ns_per_tick\": {:.1}, \"max_ns_per_tick\": {:.1}}}",
+                per_tick(percentile(&samples, 0.5)),
+                per_tick(samples[samples.len() - 1]),
+            );
+        }
+        _ => {
+            eprintln!("usage: perf_harness trial (time|count) <trials>");
             return ExitCode::FAILURE;
         }
     }

@@ -247,12 +247,6 @@ impl<'a> Target<'a> {
         self.parts.iter().map(|p| p.at(t)).sum()
     }
 
-    /// The increment over one step, `tau(t + dt) - tau(t)`: what the
-    /// estimators' process model subtracts (docs/model.md).
-    pub fn increment(&self, t: f64, dt: f64) -> f64 {
-        self.at(t + dt) - self.at(t)
-    }
-
     /// Checks every part; the error names the part and the field.
     pub fn validate(&self) -> Result<(), TargetError> {
         for (part, shape) in self.parts.iter().enumerate() {

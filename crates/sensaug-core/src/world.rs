@@ -299,12 +299,27 @@ impl<'a> Scenario<'a> {
                 got: out.len(),
             });
         };
+        let mut slots = out.iter_mut();
+        Ok(self.run_with(|rec| {
+            if let Some(slot) = slots.next() {
+                *slot = *rec;
+            }
+        }))
+    }
+
+    /// Runs the whole trial, handing each tick's record to `each` in tick
+    /// order ([`Scenario::ticks`] calls): a caller that converts records
+    /// (the log rows of the Python binding) needs no buffer of the whole
+    /// trial's records.
+    pub fn run_with(&mut self, mut each: impl FnMut(&TickRecord)) -> RunSummary {
         let mut summary = RunSummary {
-            ticks: n,
+            ticks: self.ticks(),
             ..RunSummary::default()
         };
-        for (k, rec) in out.iter_mut().enumerate() {
-            *rec = self.tick(k as u64, &mut summary);
+        // A copy, so the samples do not borrow the robot the ticks change.
+        let protocol = *self.robot.protocol();
+        for sample in protocol.samples() {
+            each(&self.tick(&sample, &mut summary));
         }
         summary.robot = self.robot.counters();
         summary.mirror_errors = match &self.partner {
@@ -315,18 +330,16 @@ impl<'a> Scenario<'a> {
             let c = p.counters();
             summary.partner_guarded = c.clamped + c.non_finite;
         }
-        Ok(summary)
+        summary
     }
 
     /// One tick of the world: sense, robot, partner, plant.
-    fn tick(&mut self, k: u64, summary: &mut RunSummary) -> TickRecord {
+    fn tick(&mut self, sample: &Sample<'_>, summary: &mut RunSummary) -> TickRecord {
+        let k = sample.k;
         let s = self.plant.state();
         let x_meas = s.x + self.noise.normal(self.world.position_noise_std);
         let v_meas = s.v + self.noise.normal(self.world.velocity_noise_std);
-        let Some(sample) = self.robot.protocol().sample(k) else {
-            return TickRecord::default();
-        };
-        let robot = self.robot.tick_at(&sample, Some((x_meas, v_meas)));
+        let robot = self.robot.tick_at(sample, Some((x_meas, v_meas)));
 
         let (u_h, mirror, partner) = match &mut self.partner {
             Partner::Virtual {
@@ -343,7 +356,7 @@ impl<'a> Scenario<'a> {
                     summary.partner_guarded += 1;
                 }
                 let est = match mirror.as_mut() {
-                    Some(m) => mirror_tick(m, &sample, (x_meas, v_meas), u_h),
+                    Some(m) => mirror_tick(m, sample, (x_meas, v_meas), u_h),
                     None => PartnerEstimate::NONE,
                 };
                 (u_h, est, RobotTick::NONE)

@@ -1,4 +1,8 @@
-//! Targets against their closed forms.
+//! Targets against their closed forms, and the protocol's samples of them.
+#![allow(non_snake_case)]
+mod common;
+
+use sensaug_core::protocol::Protocol;
 use sensaug_core::target::{Shape, Target};
 use std::f64::consts::PI;
 
@@ -79,7 +83,7 @@ fn sampled_interpolates_and_holds_ends() {
 }
 
 #[test]
-fn sum_and_increment() {
+fn sum_of_parts() {
     let base = Shape::RoundedSquare {
         amplitude: 8.0,
         period_s: 4.0,
@@ -88,7 +92,6 @@ fn sum_and_increment() {
         .plus(Shape::Constant { value: 1.0 })
         .unwrap();
     assert!((t.at(1.0) - 9.0).abs() < 1e-12);
-    assert!((t.increment(0.5, 1e-3) - (base.at(0.501) - base.at(0.5))).abs() < 1e-12);
     let full = t
         .plus(Shape::Constant { value: 2.0 })
         .unwrap()
@@ -116,4 +119,29 @@ fn validation_names_part_and_field() {
     .validate()
     .unwrap_err();
     assert_eq!(e.field, "samples");
+}
+
+/// The protocol's samples carry both targets at `t = k dt` and their
+/// increments to `(k + 1) dt` exactly as `Target::at` gives them (shared
+/// shapes evaluated once, the next tick's values kept), and the in-order
+/// samples equal the random-access ones, phase changes included.
+#[test]
+fn samples_are_the_targets_and_their_increments() {
+    let phases = common::phases(0.5, 1.0);
+    let dt = common::DT;
+    let protocol = Protocol::new(&phases, dt).unwrap();
+    let mut ticks = 0;
+    for (k, s) in protocol.samples().enumerate() {
+        let k = k as u64;
+        assert_eq!(Some(s), protocol.sample(k), "tick {k}");
+        let p = &phases[s.index];
+        let (t, t1) = (k as f64 * dt, (k + 1) as f64 * dt);
+        assert_eq!(s.tau, p.robot_target.at(t), "tick {k}");
+        assert_eq!(s.tau_h, p.partner_target.at(t), "tick {k}");
+        assert_eq!(s.dtau, p.robot_target.at(t1) - s.tau, "tick {k}");
+        assert_eq!(s.dtau_h, p.partner_target.at(t1) - s.tau_h, "tick {k}");
+        ticks += 1;
+    }
+    assert_eq!(ticks, protocol.total_ticks());
+    assert_eq!(protocol.sample(protocol.total_ticks()), None);
 }

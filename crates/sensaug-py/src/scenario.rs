@@ -2,12 +2,14 @@
 //! (`sensaug-config`) reads, checks and resolves the text; the core runs the
 //! whole trial in one call. Conversion only.
 
+use crate::log::{pack_record, RECORD_BYTES};
+use numpy::IntoPyArray;
 use pyo3::create_exception;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use sensaug_config::{Format, ScenarioSpec};
-use sensaug_core::world::{Scenario, TickRecord};
+use sensaug_core::world::Scenario;
 use sensaug_log::Row;
 use std::path::Path;
 
@@ -98,15 +100,18 @@ fn run_scenario<'py>(
             "(config): the core rejected a validated configuration; please report this",
         )
     })?;
-    let mut records = vec![TickRecord::default(); scenario.ticks()];
-    let summary = py.detach(|| scenario.run(&mut records)).map_err(|_| {
-        PyValueError::new_err("internal: the output buffer is shorter than the trial")
-    })?;
-    let rows = records
-        .iter()
-        .enumerate()
-        .map(|(k, r)| Row::from_tick_record(k as u64, r));
-    let out = crate::log::rows_to_records(py, rows);
+    // Each tick's log row is packed as the tick ends, straight into the
+    // buffer numpy takes over without a copy: no buffer of the whole
+    // trial's records in between.
+    let mut records = Vec::with_capacity(scenario.ticks() * RECORD_BYTES);
+    let summary = py.detach(|| {
+        let mut k = 0u64;
+        scenario.run_with(|rec| {
+            pack_record(&Row::from_tick_record(k, rec), &mut records);
+            k += 1;
+        })
+    });
+    let out = records.into_pyarray(py);
     let d = PyDict::new(py);
     d.set_item("ticks", summary.ticks)?;
     d.set_item("robot_clamped", summary.robot.clamped)?;

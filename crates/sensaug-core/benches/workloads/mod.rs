@@ -215,6 +215,37 @@ pub const TICK_WORKLOADS: [Workload; 3] = [
     ("robot_tick/integration_phase", robot_tick_integration),
 ];
 
+/// Phase length of the whole-trial workload (s), as
+/// `presets.hi5_experiment(phase_s=20.0)` timed from Python by
+/// `benches/compare_oracles.py` (`sensaug_trial_per_tick_ns`).
+pub const TRIAL_PHASE_S: f64 = 20.0;
+
+/// The whole simulated trial of `presets.hi5_experiment(phase_s=20.0)` (seed
+/// 0: world seed 0, robot seed 1_000_003; a virtual human that does not
+/// identify the robot) through the core's runner, without Python: one call
+/// is one whole trial into a buffer allocated at set-up. Returns the call
+/// and the ticks per call.
+pub fn trial() -> (Call, usize) {
+    let phases = common::phases(TRIAL_PHASE_S, 1.0);
+    let robot = sensaug_core::controller::RobotConfig {
+        seed: 1_000_003,
+        ..common::robot()
+    };
+    let partner = sensaug_core::world::PartnerConfig {
+        estimates_robot: false,
+        ..common::partner(2.0)
+    };
+    let make = move || Scenario::new(&phases, robot, partner, common::world(0));
+    let ticks = make().expect("valid scenario").ticks();
+    let mut records = vec![TickRecord::default(); ticks];
+    let call = Box::new(move || {
+        let mut scenario = make().expect("valid scenario");
+        let summary = scenario.run(black_box(&mut records)).expect("whole trial");
+        black_box(summary);
+    });
+    (call, ticks)
+}
+
 /// Every workload by name (the names of the criterion benches and of the
 /// rows of `BENCHMARKS.md`).
 pub fn all() -> [Workload; 9] {
