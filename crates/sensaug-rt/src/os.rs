@@ -126,6 +126,18 @@ pub fn prefault_stack() {
     std::hint::black_box(&mut block);
 }
 
+/// Page faults (minor + major) the calling thread has taken so far
+/// (`getrusage(RUSAGE_THREAD)`); 0 if the kernel does not say.
+pub fn thread_page_faults() -> u64 {
+    // SAFETY: an all-zero rusage is a valid value; the call only writes it.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: `usage` is a valid, writable rusage for the call.
+    if unsafe { libc::getrusage(libc::RUSAGE_THREAD, &mut usage) } != 0 {
+        return 0;
+    }
+    (usage.ru_minflt + usage.ru_majflt) as u64
+}
+
 /// A system call's return code (0 = success) as a `Result` with `errno`.
 fn os_result(rc: libc::c_int) -> io::Result<()> {
     if rc == 0 {
