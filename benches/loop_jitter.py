@@ -16,8 +16,10 @@ What makes the comparison fair (the machines are shared and noisy):
   into one histogram and gives the spread of the per-round figures.
 - The same settings: 1 ms period, memory locked, pinned to the same CPU
   (`CPU`), either the default scheduler or SCHED_FIFO at `FIFO_PRIORITY`;
-  the loop's timer slack is 1 ns and cyclictest's SCHED_OTHER thread has the
-  kernel's default (cyclictest sets none), noted in the table.
+  the loop's timer slack is 1 ns and under SCHED_OTHER it asks for a short
+  fair-scheduler slice (its `realtime` notes, quoted); cyclictest's
+  SCHED_OTHER median ~50 us above its SCHED_FIFO one suggests it keeps a
+  normal thread's default 50 us slack.
 - The same background: the loop's rounds have the virtual drive, the bus
   capture and the loop's log writer on the other CPUs; cyclictest's rounds
   have a whole virtual rig there (drive, capture, a loop not pinned, its
