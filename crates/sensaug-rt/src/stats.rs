@@ -258,7 +258,28 @@ pub struct LoopReport {
 
 #[cfg(test)]
 mod tests {
-    use super::Histogram;
+    use super::{ComputeParts, Histogram};
+
+    #[test]
+    fn compute_parts_are_the_gaps_between_the_clock_readings() {
+        let mut parts = ComputeParts::new(100);
+        // Woke at 1 us, drained at 3.5, decided at 6, sent at 20.
+        parts.record_compute(1_000, 3_500, 6_000, 20_000);
+        let s = parts.summary();
+        assert_eq!((s.sense.count, s.sense.max_us), (1, 2.5));
+        assert_eq!(s.decide.max_us, 2.5);
+        assert_eq!(s.actuate.max_us, 14.0);
+        assert_eq!(s.record.count, 0, "the log push is recorded on its own");
+        // A clock reading earlier than the one before it (it cannot happen
+        // on CLOCK_MONOTONIC) is a zero part, not an overflow.
+        parts.record_compute(5_000, 4_000, 4_000, 4_000);
+        assert_eq!(parts.sense.summary().count, 2);
+        assert_eq!(
+            parts.sense.quantile_us(0.5),
+            1.0,
+            "the 0 us bin (upper edge 1 us)"
+        );
+    }
 
     #[test]
     fn quantiles_are_bin_upper_edges() {
