@@ -39,8 +39,10 @@ What makes the comparison fair (the machines are shared and noisy):
 
 Per round it also reads `/proc/interrupts` on `CPU`: the interrupts the
 measured thread's CPU took (local timer, reschedule and function-call
-IPIs, TLB shootdowns...), a cause of wake-up delay that differs between a
-single-threaded cyclictest and the loop's process.
+IPIs, TLB shootdowns, device completions...), a cause of wake-up delay. The
+window is not quite the same: a loop round's includes its set-up and its
+end (the outputs' final `fsync`, whose block-device completions may land on
+`CPU`), a cyclictest round's only cyclictest's run.
 """
 from __future__ import annotations
 

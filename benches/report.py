@@ -218,7 +218,8 @@ def jitter_lines(jitter: dict) -> list[str]:
             f"misses {r['deadline_misses']}; catch-up ticks (not wake-ups) {r['catch_up_ticks']}; page faults per round {r['loop_page_faults']}; settings "
             f"granted: {'; '.join(r['granted'])}; background rigs stopped: "
             f"{', '.join(r['background_stop_reasons'])}. Interrupts per second on cpu {jitter['cpu']}, "
-            f"cyclictest rounds: {irq(r['irq_cyclictest'])}; loop rounds: {irq(r['irq_loop'])}."
+            f"cyclictest rounds: {irq(r['irq_cyclictest'])}; loop rounds (set-up and the outputs' final "
+            f"fsync included): {irq(r['irq_loop'])}."
         )
     return lines + [""]
 
