@@ -6,4 +6,5 @@ bash scripts/setup.sh
 if ! command -v cyclictest >/dev/null; then
     apt-get update -qq && apt-get install -y -qq rt-tests
 fi
-.venv/bin/python benches/loop_jitter.py "${1:-10}"
+# [seconds per round] [rounds per policy]: defaults 2 and 5.
+.venv/bin/python benches/loop_jitter.py "$@"

@@ -46,11 +46,17 @@ COUNT_CALLS = (200, 1200)
 TAIL = ["cargo", "bench", "-q", "-p", "sensaug-core", "--bench", "tick_tail", "--"]
 TAIL_TICKS = 1_000_000
 # The rig tick (drain the feedback, tick, send, log) on the loopback UDP bus:
-# the real loop against an in-process drive, 3 s per phase.
+# the real loop against an in-process drive, 3 s per phase; once where the
+# scheduler puts it, once pinned with the drive thread off its CPU.
 RIG = ["cargo", "bench", "-q", "-p", "sensaug-rt", "--bench", "rig_tick", "--"]
 RIG_PHASE_S = 3.0
-# Seconds of cyclictest and of the loop, per scheduling policy.
-JITTER_S = 10.0
+RIG_MODES = {"not pinned": [], "pinned": ["pinned"]}
+# The bus calls alone, each timed: the kernel's floor under the rig tick.
+FLOOR = ["cargo", "bench", "-q", "-p", "sensaug-rt", "--bench", "bus_floor", "--"]
+FLOOR_CALLS = 5000
+# Interleaved rounds of cyclictest and of the loop, per scheduling policy.
+JITTER_ROUND_S = 2.0
+JITTER_ROUNDS = 5
 
 
 def run(cmd: list[str], **kw) -> subprocess.CompletedProcess:
@@ -136,9 +142,117 @@ def tick_tail() -> list[dict]:
     return [json.loads(line) for line in out.splitlines() if line.startswith("{")]
 
 
-def rig_tick() -> dict:
-    out = run(RIG + [str(RIG_PHASE_S)]).stdout
+def json_line(cmd: list[str]) -> dict:
+    """The JSON line a bench binary prints."""
+    out = run(cmd).stdout
     return json.loads(next(line for line in out.splitlines() if line.startswith("{")))
+
+
+def rig_tick() -> dict[str, dict]:
+    return {mode: json_line(RIG + [str(RIG_PHASE_S), *extra]) for mode, extra in RIG_MODES.items()}
+
+
+def bus_floor() -> dict:
+    return json_line(FLOOR + [str(FLOOR_CALLS)])
+
+
+def rig_lines(rigs: dict[str, dict], floor: dict) -> list[str]:
+    """The rig tick's section: compute and its parts per mode, then the
+    bus calls' floor."""
+    lines = [
+        "## Rig tick on the loopback UDP bus",
+        "",
+        "The real loop (`Rig::run`: wake, drain the received frames, the robot's tick and the "
+        "virtual human, one torque command, the log record) against the minimal in-process drive "
+        f"of the tests, through the Hi5 rig protocol with {RIG_PHASE_S:g} s phases; ordinary "
+        "thread (SCHED_OTHER, timer slack 1 ns, no mlockall), either where the scheduler puts "
+        "it or pinned to the last cpu with the drive and log writer threads off it. The loop's "
+        "own 1 us-bin histograms (bin upper edges): `compute` = wake-up to the command sent = "
+        "sense (drain the bus: one `recvmmsg` per tick) + decide (safety checks, the robot's tick, "
+        "the virtual human) + actuate (one `send`); `record` (the log push) follows. Page faults: "
+        "the loop thread's during the run.",
+        "",
+        f"Command: `{' '.join(RIG)} {RIG_PHASE_S:g} [pinned]`.",
+        "",
+        "| loop | ticks | compute p50 / p99 / p99.9 / max (us) | sense p50 / p99 | decide p50 / p99 | "
+        "actuate p50 / p99 | record p50 / p99 | page faults | feedback missing | deadline misses |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for mode, rig in rigs.items():
+        c, parts = rig["compute"], rig["compute_parts"]
+        pair = " | ".join(f"{parts[p]['p50_us']:.0f} / {parts[p]['p99_us']:.0f}"
+                          for p in ("sense", "decide", "actuate", "record"))
+        lines.append(f"| {mode} | {rig['ticks']} | {c['p50_us']:.0f} / {c['p99_us']:.0f} / {c['p999_us']:.0f} / "
+                     f"{c['max_us']:.0f} | {pair} | {rig['loop_page_faults']} | "
+                     f"{rig['can']['missing_feedback']} | {rig['deadline_misses']} |")
+    lines += [
+        "",
+        "The floor: the bus calls alone, each call timed on its own, the caller pinned to cpu "
+        f"{floor['caller_cpu']} (`benches/bus_floor.rs`). The send of the virtual bus delivers to "
+        "every peer's socket and wakes the peers sleeping on it (the virtual drive, the bus "
+        "capture); on another cpu that wake is an inter-processor interrupt, paid inside the "
+        "loop's `send` (its `actuate`). A real CAN adapter has no peer process to wake.",
+        "",
+        f"Command: `{' '.join(FLOOR)} {FLOOR_CALLS}`.",
+        "",
+        "| call | calls | p50 (us) | p99 (us) | p99.9 (us) | max (us) |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
+    for case in floor["cases"]:
+        lines.append(f"| {case['what']} | {case['calls']} | {case['p50_us']:.2f} | {case['p99_us']:.2f} | "
+                     f"{case['p999_us']:.2f} | {case['max_us']:.1f} |")
+    return lines + [""]
+
+
+def jitter_lines(jitter: dict) -> list[str]:
+    """The wake-up latency section: cyclictest and the loop per policy,
+    pooled over interleaved rounds, with the per-round spread."""
+    rounds, round_s = jitter["rounds"], jitter["round_s"]
+    lines = [
+        "## Loop wake-up latency against cyclictest",
+        "",
+        f"1 ms period; per policy {rounds} rounds of {round_s:g} s of each, interleaved (cyclictest, "
+        "loop, loop, cyclictest, ...), pooled into one histogram each; the per-round range of p99 "
+        "and p99.9 shows the spread (`benches/loop_jitter.py`, `compare`). Both pinned to cpu "
+        f"{jitter['cpu']} with memory locked; SCHED_FIFO at priority {loop_jitter.FIFO_PRIORITY} "
+        "for both, or the default scheduler for both. The same background for both: the loop's "
+        "rounds have the virtual drive, the bus capture and the loop's log writer on the other "
+        "cpus; cyclictest's rounds have a whole virtual rig there. `/dev/cpu_dma_latency` (the "
+        f"power-management request cyclictest makes): {jitter['cpu_dma_latency']} through all "
+        "rounds of both. Latency in us, 1 us bins, lower edges (cyclictest's convention; the "
+        "loop's per-tick values from its log), nearest-rank percentiles; one sample per wake-up "
+        "for both (the ticks the loop runs at once to catch up after a stall never slept: "
+        "counted apart, as cyclictest skips those periods).",
+        "",
+        "| policy | what | p50 | p99 | p99.9 | max | per-round p99 | per-round p99.9 | "
+        "loop / cyclictest at p99, p99.9 |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in jitter["rows"]:
+        b, w, cpt = r["cyclictest"], r["wake"], r["compute"]
+        rng = lambda s, p: f"{s[p][0]:.0f}-{s[p][1]:.0f}"  # noqa: E731
+        ratio = f"{loop_jitter.ratio(w['p99'], b['p99']):.2f}, {loop_jitter.ratio(w['p99.9'], b['p99.9']):.2f}"
+        lines.append(f"| {r['policy']} | cyclictest wake-up | {b['p50']:.0f} | {b['p99']:.0f} | "
+                     f"{b['p99.9']:.0f} | {b['max']:.0f} | {rng(r['cyclictest_spread'], 'p99')} | "
+                     f"{rng(r['cyclictest_spread'], 'p99.9')} | |")
+        lines.append(f"| {r['policy']} | sensaug-rt wake-up | {w['p50']:.0f} | {w['p99']:.0f} | "
+                     f"{w['p99.9']:.0f} | {w['max']:.0f} | {rng(r['wake_spread'], 'p99')} | "
+                     f"{rng(r['wake_spread'], 'p99.9')} | {ratio} |")
+        lines.append(f"| {r['policy']} | sensaug-rt tick compute | {cpt['p50']:.0f} | {cpt['p99']:.0f} | "
+                     f"{cpt['p99.9']:.0f} | {cpt['max']:.0f} | | | |")
+    lines.append("")
+    for r in jitter["rows"]:
+        irq = lambda d: ", ".join(f"{k} {v:.0f}" for k, v in d.items())  # noqa: E731
+        lines.append(
+            f"* {r['policy']}: `{r['cyclictest_command']}` ({r['cyclictest_samples']} samples); "
+            f"sensaug-rt ({r['wake_samples']} wake-ups) stopped: {', '.join(r['stop_reasons'])}; deadline "
+            f"misses {r['deadline_misses']}; catch-up ticks (not wake-ups) {r['catch_up_ticks']}; page faults per round {r['loop_page_faults']}; settings "
+            f"granted: {'; '.join(r['granted'])}; background rigs stopped: "
+            f"{', '.join(r['background_stop_reasons'])}. Interrupts per second on cpu {jitter['cpu']}, "
+            f"cyclictest rounds: {irq(r['irq_cyclictest'])}; loop rounds (set-up and the outputs' final "
+            f"fsync included): {irq(r['irq_loop'])}."
+        )
+    return lines + [""]
 
 
 def us(ns: float) -> str:
@@ -176,7 +290,8 @@ def main() -> None:
     trial_rust = rust_trial()
     trial_peer = compare_oracles.numpy_filterpy_trial_per_tick_ns()
     rig = rig_tick()
-    jitter = loop_jitter.compare(JITTER_S)
+    floor = bus_floor()
+    jitter = loop_jitter.compare(JITTER_ROUND_S, JITTER_ROUNDS)
     load_after = load_average()
     m = machine()
 
@@ -249,7 +364,6 @@ def main() -> None:
             f"| {t['name']} | {t['ticks']} | {us(t['p50_ns'])} | {us(t['p99_ns'])} | "
             f"{us(t['p999_ns'])} | {us(t['max_ns'])} | {t['allocations']} |"
         )
-    c = rig["compute"]
     lines += [
         "",
         "## Whole simulated trial from Python",
@@ -279,51 +393,8 @@ def main() -> None:
         f"| numpy + filterpy loop (stage 1 only) | {us(trial_peer['median_ns'])} | | "
         f"{trial_peer['median_ns'] / trial['median_ns']:.0f} |",
         "",
-        "## Rig tick on the loopback UDP bus",
-        "",
-        "The real loop (`Rig::run`: wake, drain the received frames, the robot's tick and the "
-        "virtual human, one torque command, the log record) against the minimal in-process drive "
-        f"of the tests, through the Hi5 rig protocol with {RIG_PHASE_S:g} s phases; ordinary "
-        "thread (SCHED_OTHER, not pinned). `compute` = wake-up to the log push, the loop's own "
-        "1 us-bin histogram (bin upper edges). The bus costs at least three system calls per "
-        "tick (a `recvmmsg` that takes the feedback and the own command's echo, one that finds "
-        "the socket empty, one `send`).",
-        "",
-        f"Command: `{' '.join(RIG)} {RIG_PHASE_S:g}`.",
-        "",
-        "| ticks | compute p50 (us) | p99 (us) | p99.9 (us) | max (us) | feedback missing | deadline misses |",
-        "|---:|---:|---:|---:|---:|---:|---:|",
-        f"| {rig['ticks']} | {c['p50_us']:.0f} | {c['p99_us']:.0f} | {c['p999_us']:.0f} | "
-        f"{c['max_us']:.0f} | {rig['can']['missing_feedback']} | {rig['deadline_misses']} |",
-        "",
-        "## Loop wake-up latency against cyclictest",
-        "",
-        f"1 ms period, {JITTER_S:g} s each, one after the other in this run, per policy: cyclictest, "
-        "then `sensaug-rt` on the virtual rig (`benches/loop_jitter.py`, `compare`), both "
-        f"pinned to cpu {loop_jitter.CPU} with memory locked (the virtual drive and the loop's log "
-        "writer kept off that cpu); SCHED_FIFO at priority "
-        f"{loop_jitter.FIFO_PRIORITY} for both, or the default scheduler for both. The loop's "
-        "settings as the OS granted them (its `realtime` notes) are quoted. Latency in us "
-        "(cyclictest's histogram has 1 us bins, the loop's too).",
-        "",
-        "| policy | what | p50 | p99 | p99.9 | max | loop / cyclictest at p99, p99.9 |",
-        "|---|---|---:|---:|---:|---:|---:|",
     ]
-    for r in jitter:
-        b, w, cpt = r["cyclictest"], r["wake"], r["compute"]
-        lines.append(f"| {r['policy']} | cyclictest wake-up | {b['p50']:.0f} | {b['p99']:.0f} | "
-                     f"{b['p99.9']:.0f} | {b['max']:.0f} | |")
-        ratio = f"{w['p99'] / max(b['p99'], 1):.2f}, {w['p99.9'] / max(b['p99.9'], 1):.2f}"
-        lines.append(f"| {r['policy']} | sensaug-rt wake-up | {w['p50']:.0f} | {w['p99']:.0f} | "
-                     f"{w['p99.9']:.0f} | {w['max']:.0f} | {ratio} |")
-        lines.append(f"| {r['policy']} | sensaug-rt tick compute | {cpt['p50']:.0f} | {cpt['p99']:.0f} | "
-                     f"{cpt['p99.9']:.0f} | {cpt['max']:.0f} | |")
-    lines.append("")
-    for r in jitter:
-        lines.append(f"* {r['policy']}: `{r['cyclictest_command']}`; sensaug-rt stopped: "
-                     f"{r['stop_reason']} after {r['ticks']} ticks, deadline misses {r['deadline_misses']}; "
-                     f"settings granted: {'; '.join(r['granted'])}")
-    lines.append("")
+    lines += rig_lines(rig, floor) + jitter_lines(jitter)
     Path(args.out).write_text("\n".join(lines))
     print(f"wrote {args.out}")
 

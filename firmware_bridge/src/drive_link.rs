@@ -191,7 +191,7 @@ pub trait DriveLink {
     /// Sense tick `k`: [`DriveLink::absorb`] every frame received so far,
     /// then [`DriveLink::sample`]. No wait, no allocation.
     fn drain(&mut self, bus: &mut dyn Transport, k: u64) -> Result<DriveSample, LinkError> {
-        while let Some(f) = bus.recv(Duration::ZERO)? {
+        while let Some(f) = bus.recv_ready()? {
             self.absorb(&f);
         }
         Ok(self.sample(k))

@@ -278,3 +278,42 @@ fn bus_address_is_loopback() {
     assert_eq!(UDP_BUS_ADDR, Ipv4Addr::new(127, 255, 255, 255));
     assert!(UDP_BUS_ADDR.is_loopback());
 }
+
+/// Everything `b` can drain now with `recv_ready` (until `None`).
+fn drain_ready(b: &mut UdpBus) -> Vec<Frame> {
+    std::iter::from_fn(|| b.recv_ready().unwrap()).collect()
+}
+
+#[test]
+fn recv_ready_drains_every_waiting_frame_and_sees_later_ones() {
+    let port = common::free_port();
+    let mut a = UdpBus::open(port).unwrap();
+    let mut b = UdpBus::open(port).unwrap();
+    assert!(
+        drain_ready(&mut b).is_empty(),
+        "an empty bus drains to nothing"
+    );
+
+    // Two full batches and a short one, and b's own frame among them.
+    let sent: Vec<Frame> = (0..40u8).map(|i| frame(0x200 + u32::from(i), i)).collect();
+    for (i, f) in sent.iter().enumerate() {
+        a.send(f).unwrap();
+        if i == 20 {
+            b.send(&frame(0x7FF, 0xAA)).unwrap();
+        }
+    }
+    // Loopback delivery ends within the send calls; the pause only makes
+    // the test independent of the scheduler.
+    thread::sleep(SHORT);
+    assert_eq!(drain_ready(&mut b), sent);
+    assert_eq!(b.stats().own_dropped, 1);
+
+    // The short batch that ended the last drain does not end the next one
+    // before it has read the socket again.
+    a.send(&frame(0x301, 1)).unwrap();
+    a.send(&frame(0x302, 2)).unwrap();
+    thread::sleep(SHORT);
+    assert_eq!(drain_ready(&mut b), [frame(0x301, 1), frame(0x302, 2)]);
+    assert!(drain_ready(&mut b).is_empty());
+    assert_eq!(b.stats().received, 42);
+}

@@ -2,14 +2,21 @@
 //! (`Rig::run`: drain the feedback, decide, send the command, log) against
 //! the minimal in-process drive of the tests, through the Hi5 rig protocol
 //! (`configs/hi5_rig.toml`, each phase shortened to `<phase_s>`). Prints
-//! the loop's own histograms, as JSON: `compute` (wake-up to the log push:
-//! drain + tick + send) and `wake_latency`, 1 us bins (bin upper edges),
-//! and the bus counters. Nothing is asserted (a bench, not a test).
+//! the loop's own histograms, as JSON: `compute` (wake-up to the command
+//! sent) and its parts `compute_parts` (sense: drain the bus; decide: the
+//! safety checks, the robot's tick and the virtual human; actuate: the
+//! send; record: the log push after it), `wake_latency`, 1 us bins (bin
+//! upper edges), the loop thread's page faults and the bus counters.
+//! Nothing is asserted (a bench, not a test).
 //!
-//! `cargo bench -p sensaug-rt --bench rig_tick [-- <phase_s>]` (default 3 s
-//! per phase: 9000 ticks). The loop runs as an ordinary thread
-//! (SCHED_OTHER, not pinned, timer slack 1 ns): `sensaug-rt` with its
-//! default real-time settings off.
+//! `cargo bench -p sensaug-rt --bench rig_tick [-- <phase_s> [pinned]]`
+//! (default 3 s per phase: 9000 ticks). The loop runs as an ordinary thread
+//! (SCHED_OTHER, timer slack 1 ns, no mlockall), anywhere the scheduler
+//! puts it; with `pinned`, on the last CPU with the drive and log writer
+//! threads kept off it (as `sensaug-rt` with `rig.realtime.cpu` set). The
+//! send wakes the drive thread, sleeping in `recv`: on the loop's CPU the
+//! drive may run before the send returns; on another CPU the wake is an
+//! inter-processor interrupt (`benches/bus_floor.rs` times both).
 
 #[path = "../tests/common/drive.rs"]
 mod drive;
@@ -26,10 +33,12 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
 fn main() {
-    let phase_s = std::env::args()
-        .skip(1)
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let phase_s = args
+        .iter()
         .find_map(|a| a.parse::<f64>().ok())
         .unwrap_or(3.0);
+    let pin = args.iter().any(|a| a == "pinned");
     let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/hi5_rig.toml");
     let spec = load_file(&config).expect("configs/hi5_rig.toml loads");
     let resolved = resolve(&spec).expect("configs/hi5_rig.toml resolves");
@@ -43,6 +52,10 @@ fn main() {
     if let Err(e) = sensaug_rt::os::minimal_timer_slack() {
         eprintln!("timer slack 1 ns not applied: {e}");
     }
+    // The drive and log writer threads spawned below inherit this affinity
+    // (every CPU but the loop's); the loop pins itself after them.
+    let loop_cpu = std::thread::available_parallelism().map_or(1, |n| n.get()) - 1;
+    let others_free = pin && loop_cpu > 0 && sensaug_rt::os::avoid_cpu(loop_cpu).is_ok();
     let port = drive::free_port();
     let drive_stop = Arc::new(AtomicBool::new(false));
     let handle = drive::drive(port, Arc::clone(&drive_stop), u64::MAX);
@@ -52,6 +65,7 @@ fn main() {
     let dir = std::env::temp_dir().join(format!("sensaug-rig-tick-{port}"));
     let meta = serde_json::json!({"source": "rig"});
     let (mut sink, writer) = log::start(&dir.join("log.csv"), 1 << 14, &meta).expect("log");
+    let pinned = others_free && sensaug_rt::os::pin_to_cpu(loop_cpu).is_ok();
     let reason = rig.run(&mut sink, &AtomicBool::new(false));
     drop(sink);
     let written = writer.finish(serde_json::Map::new());
@@ -63,7 +77,10 @@ fn main() {
         "stop_reason": report.stop_reason,
         "ticks": report.ticks,
         "records_written": written.records_written,
+        "loop_cpu": pinned.then_some(loop_cpu),
         "compute": report.compute,
+        "compute_parts": report.compute_parts,
+        "loop_page_faults": report.loop_page_faults,
         "wake_latency": report.wake_latency,
         "deadline_misses": report.deadline_misses,
         "can": report.can,

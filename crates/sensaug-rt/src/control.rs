@@ -13,7 +13,7 @@
 
 use crate::log::{LogRecord, LogSink};
 use crate::os;
-use crate::stats::{CanCounters, Histogram, LoopReport, StartGap};
+use crate::stats::{CanCounters, ComputeParts, Histogram, LoopReport, StartGap};
 use sensaug_bridge::drive_link::{Absorbed, DriveLink, DriveSample};
 use sensaug_bridge::protocol::NodeId;
 use sensaug_bridge::{Frame, Transport};
@@ -243,6 +243,9 @@ pub struct Rig<'a> {
     drive: DriveView,
     wake: Histogram,
     compute: Histogram,
+    parts: ComputeParts,
+    /// Page faults of the loop's thread during [`Rig::run`].
+    page_faults: u64,
     can: CanCounters,
     deadline_misses: u64,
     torque_clamped: u64,
@@ -289,6 +292,8 @@ impl<'a> Rig<'a> {
             },
             wake: Histogram::new(50_000),
             compute: Histogram::new(50_000),
+            parts: ComputeParts::new(10_000),
+            page_faults: 0,
             can: CanCounters::default(),
             deadline_misses: 0,
             torque_clamped: 0,
@@ -383,10 +388,11 @@ impl<'a> Rig<'a> {
         }
     }
 
-    /// Drains every frame already received, without waiting.
+    /// Drains every frame already received, without waiting
+    /// ([`Transport::recv_ready`]: one system call on the UDP bus).
     fn drain(&mut self, tick: u64) {
         loop {
-            match self.transport.recv(Duration::ZERO) {
+            match self.transport.recv_ready() {
                 Ok(Some(f)) => self.absorb(&f, tick),
                 Ok(None) => return,
                 Err(_) => {
@@ -409,9 +415,11 @@ impl<'a> Rig<'a> {
         let mut safety = Safety::Running;
         let mut last_torque_nm = 0.0;
         let mut k = 0u64;
+        let faults_before = os::thread_page_faults();
         let reason = loop {
             let wake = self.wait_for_tick(&timing, k);
             let sensed = self.sense(k, wake);
+            let sensed_ns = os::now_ns();
             let checks = self.checks(&timing, k, &sensed, stop, log.failed(), last_torque_nm);
             safety = safety.next(&checks);
             let command = match safety {
@@ -427,14 +435,22 @@ impl<'a> Rig<'a> {
                     ..
                 } => Command::ramp(from_torque_nm, k - from_tick, timing.ramp_ticks),
             };
+            let decided_ns = os::now_ns();
             self.actuate(k, command.torque_nm);
+            let sent_ns = os::now_ns();
             if k == 0 {
-                self.times.first_tick_ns = os::now_ns();
+                self.times.first_tick_ns = sent_ns;
             }
             last_torque_nm = command.torque_nm;
-            self.record(log, k, &sensed, &command, safety);
+            self.parts
+                .record_compute(wake.woke_ns, sensed_ns, decided_ns, sent_ns);
+            self.record(log, k, &sensed, &command, safety, sent_ns);
+            self.parts
+                .record
+                .record(os::now_ns().saturating_sub(sent_ns));
             k += 1;
         };
+        self.page_faults = os::thread_page_faults().saturating_sub(faults_before);
         self.ticks_run = k;
         self.shut_down(reason);
         reason
@@ -552,7 +568,8 @@ impl<'a> Rig<'a> {
         }
     }
 
-    /// Record: the tick's compute time and its log record.
+    /// Record: the tick's compute time (wake-up to `sent_ns`, the command
+    /// sent) and its log record.
     fn record(
         &mut self,
         log: &mut LogSink,
@@ -560,12 +577,13 @@ impl<'a> Rig<'a> {
         sensed: &Sensed,
         command: &Command,
         safety: Safety,
+        sent_ns: u64,
     ) {
         let Wake {
             deadline_ns,
             woke_ns,
         } = sensed.wake;
-        let compute_ns = os::now_ns().saturating_sub(woke_ns);
+        let compute_ns = sent_ns.saturating_sub(woke_ns);
         self.compute.record(compute_ns);
         log.push(LogRecord {
             tick: k,
@@ -621,6 +639,8 @@ impl<'a> Rig<'a> {
             stop_reason: reason.to_string(),
             wake_latency: self.wake.summary(),
             compute: self.compute.summary(),
+            compute_parts: self.parts.summary(),
+            loop_page_faults: self.page_faults,
             deadline_misses: self.deadline_misses,
             can,
             ring_overflows: 0,

@@ -250,7 +250,8 @@ pub fn start(
     let mut head = Vec::new();
     write_header(&mut head, meta)?;
     file.write_all(&head)?;
-    let (producer, consumer) = RingBuffer::new(capacity);
+    let (mut producer, mut consumer) = RingBuffer::new(capacity);
+    touch_every_slot(&mut producer, &mut consumer);
     let done = Arc::new(AtomicBool::new(false));
     let failed = Arc::new(AtomicBool::new(false));
     let (flag, failed_flag) = (Arc::clone(&done), Arc::clone(&failed));
@@ -269,6 +270,33 @@ pub fn start(
         },
         LogWriter { done, handle },
     ))
+}
+
+/// Writes and takes back one record in every slot of the (empty) ring, so
+/// its pages are resident before the loop's first pushes: without
+/// `mlockall`, or before it, the loop would take a page fault every few
+/// dozen ticks until the ring had wrapped once.
+fn touch_every_slot(producer: &mut Producer<LogRecord>, consumer: &mut Consumer<LogRecord>) {
+    let blank = LogRecord {
+        tick: 0,
+        t: 0.0,
+        x: 0.0,
+        v: 0.0,
+        fresh: false,
+        tau: 0.0,
+        tau_h: 0.0,
+        u_h: 0.0,
+        torque_nm: 0.0,
+        robot: RobotTick::NONE,
+        wake_latency_us: 0.0,
+        compute_us: 0.0,
+        feedback_age_ticks: 0,
+        drive_state: 0,
+        guard: None,
+        ramp: false,
+    };
+    while producer.push(blank).is_ok() {}
+    while consumer.pop().is_ok() {}
 }
 
 /// The writer thread: every [`WRITE_PERIOD`], drain the ring into complete

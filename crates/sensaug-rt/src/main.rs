@@ -228,12 +228,17 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, RunError> {
             &mut realtime,
         );
     }
-    if let Some(p) = rig.realtime.fifo_priority {
-        note(
+    match rig.realtime.fifo_priority {
+        Some(p) => note(
             &format!("SCHED_FIFO {p}"),
             os::set_fifo(p as i32),
             &mut realtime,
-        );
+        ),
+        None => note(
+            &format!("SCHED_OTHER slice {} us", os::FAIR_SLICE_NS / 1000),
+            os::short_fair_slice(),
+            &mut realtime,
+        ),
     }
 
     let mut rig_loop = match Rig::start(settings, link, transport, robot) {

@@ -49,6 +49,33 @@ pub fn set_fifo(priority: i32) -> io::Result<()> {
     os_result(rc)
 }
 
+/// The time slice the loop asks for under SCHED_OTHER:
+/// [`short_fair_slice`].
+pub const FAIR_SLICE_NS: u64 = 100_000;
+
+/// Asks the fair scheduler (EEVDF, Linux 6.12+) for a [`FAIR_SLICE_NS`]
+/// slice for the calling SCHED_OTHER thread (`sched_setattr` with
+/// `sched_runtime`): a thread with a shorter slice gets an earlier virtual
+/// deadline, so its wake-up preempts a running thread of the default 3 ms
+/// slice instead of waiting for that slice to end. An error on older
+/// kernels (they take `sched_runtime` as 0 only).
+pub fn short_fair_slice() -> io::Result<()> {
+    let attr = libc::sched_attr {
+        size: std::mem::size_of::<libc::sched_attr>() as u32,
+        sched_policy: libc::SCHED_OTHER as u32,
+        sched_flags: 0,
+        sched_nice: 0,
+        sched_priority: 0,
+        sched_runtime: FAIR_SLICE_NS,
+        sched_deadline: 0,
+        sched_period: 0,
+    };
+    // SAFETY: pid 0 is the calling thread; `attr` is a valid sched_attr of
+    // the size it states, only read by the kernel; flags 0.
+    let rc = unsafe { libc::syscall(libc::SYS_sched_setattr, 0, &attr, 0) };
+    os_result(rc as libc::c_int)
+}
+
 /// Pins the calling thread to `cpu`.
 pub fn pin_to_cpu(cpu: usize) -> io::Result<()> {
     check_cpu(cpu)?;
@@ -124,6 +151,18 @@ pub fn prefault_stack() {
         *b = 1;
     }
     std::hint::black_box(&mut block);
+}
+
+/// Page faults (minor + major) the calling thread has taken so far
+/// (`getrusage(RUSAGE_THREAD)`); 0 if the kernel does not say.
+pub fn thread_page_faults() -> u64 {
+    // SAFETY: an all-zero rusage is a valid value; the call only writes it.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: `usage` is a valid, writable rusage for the call.
+    if unsafe { libc::getrusage(libc::RUSAGE_THREAD, &mut usage) } != 0 {
+        return 0;
+    }
+    (usage.ru_minflt + usage.ru_majflt) as u64
 }
 
 /// A system call's return code (0 = success) as a `Result` with `errno`.

@@ -37,6 +37,17 @@ pub trait Transport {
     /// returned as an error.
     fn recv(&mut self, timeout: Duration) -> Result<Option<Frame>, TransportError>;
 
+    /// The next frame from another node that has already arrived, without
+    /// waiting; `Ok(None)` once none is left. Calling it until `None` drains
+    /// the bus (the control loop's sense step). The default is
+    /// `recv(Duration::ZERO)`, whose last call finds the queue empty; the
+    /// UDP bus spares that call: a `recvmmsg` that returns fewer datagrams
+    /// than asked for has emptied the socket, so the drain ends there (one
+    /// system call per tick).
+    fn recv_ready(&mut self) -> Result<Option<Frame>, TransportError> {
+        self.recv(Duration::ZERO)
+    }
+
     /// Counters since opening.
     fn stats(&self) -> BusStats;
 

@@ -71,6 +71,10 @@ struct Batch {
     filled: usize,
     /// The next one to look at.
     next: usize,
+    /// The `recvmmsg` of a [`Transport::recv_ready`] drain that filled the
+    /// batch returned fewer than [`RECV_BATCH`]: the socket was empty then,
+    /// so that drain ends when the batch is used up, without another call.
+    emptied_socket: bool,
 }
 
 impl Batch {
@@ -82,6 +86,7 @@ impl Batch {
             src: [nowhere; RECV_BATCH],
             filled: 0,
             next: 0,
+            emptied_socket: false,
         }
     }
 }
@@ -338,6 +343,8 @@ impl Transport for UdpBus {
     /// standard or extended, data, remote or error.
     fn recv(&mut self, timeout: Duration) -> Result<Option<Frame>, TransportError> {
         let deadline = deadline_after(timeout);
+        // Frames may have arrived since a drain's short batch.
+        self.batch.emptied_socket = false;
         loop {
             if let Some(frame) = self.next_batched() {
                 return Ok(Some(frame));
@@ -351,6 +358,27 @@ impl Transport for UdpBus {
                         return Ok(None);
                     }
                 }
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                Err(source) => return Err(TransportError::Io { op: "recv", source }),
+            }
+        }
+    }
+
+    /// The batched datagrams first; when they are used up, one `recvmmsg`
+    /// unless the one that filled them came back short (it emptied the
+    /// socket: this drain is over, and the next drain's first call reads
+    /// the socket again). A tick's drain is one system call.
+    fn recv_ready(&mut self) -> Result<Option<Frame>, TransportError> {
+        loop {
+            if let Some(frame) = self.next_batched() {
+                return Ok(Some(frame));
+            }
+            if std::mem::take(&mut self.batch.emptied_socket) {
+                return Ok(None);
+            }
+            match self.refill() {
+                Ok(n) => self.batch.emptied_socket = n < RECV_BATCH,
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => return Ok(None),
                 Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
                 Err(source) => return Err(TransportError::Io { op: "recv", source }),
             }
