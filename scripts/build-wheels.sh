@@ -13,7 +13,7 @@ cd "$(dirname "$0")/.."
 [ "${SENSAUG_SKIP_SETUP:-0}" = 1 ] || bash scripts/setup.sh
 OUT=$(realpath -m "${1:-dist}")
 mkdir -p "$OUT"
-.venv/bin/maturin build --release -q -o "$OUT"
+.venv/bin/maturin build -q -o "$OUT"  # profile: pyproject.toml
 .venv/bin/maturin build --release -q -m crates/sensaug-rt/Cargo.toml -o "$OUT"
 # setuptools builds in firmware_bridge/build and keeps files there between
 # builds: start clean so a removed data file cannot reach the wheel.

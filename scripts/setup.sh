@@ -13,7 +13,8 @@ fi
 # First: sensaug depends on it, and it is not on PyPI.
 .venv/bin/python -m pip install -q -e firmware_bridge
 # maturin develop installs the package in editable mode with the compiled
-# module built in release mode (the estimators are too slow unoptimised).
-VIRTUAL_ENV="$PWD/.venv" .venv/bin/maturin develop --release -q
+# module built optimised: the profile is pyproject.toml's `extension`
+# (release + thin LTO; the estimators are too slow unoptimised).
+VIRTUAL_ENV="$PWD/.venv" .venv/bin/maturin develop -q
 # The real-time binary used by the rig experiment and its tests.
 cargo build --release -q -p sensaug-rt

@@ -469,7 +469,7 @@ impl Master {
     /// frames read. Does not allocate.
     pub fn drain(&mut self, bus: &mut dyn Transport) -> Result<usize, Cia402Error> {
         let mut n = 0;
-        while let Some(f) = bus.recv(Duration::ZERO)? {
+        while let Some(f) = bus.recv_ready()? {
             self.absorb(&f);
             n += 1;
         }
