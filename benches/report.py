@@ -14,7 +14,14 @@ run on one machine it
    warm-up cancel): stable where timings are not,
 4. times and counts the whole simulated Hi5 trial, from Python (``sensaug.run``)
    and through the core alone (``perf_harness trial``), per tick,
-5. records the machine (``lscpu``), the date, the load average and the commit.
+5. runs the robot tick's tail bench (``cargo bench --bench tick_tail``: 1e6
+   individually timed ticks per phase, allocations counted),
+6. runs the rig tick on the loopback UDP bus (``cargo bench -p sensaug-rt
+   --bench rig_tick``, compute split by part) and the bus's floor (``--bench
+   bus_floor``: the cost of the system calls alone),
+7. compares the loop's wake-up latency with cyclictest in interleaved rounds
+   under SCHED_OTHER and SCHED_FIFO (``benches/loop_jitter.py``),
+8. records the machine (``lscpu``), the date, the load average and the commit.
 """
 from __future__ import annotations
 

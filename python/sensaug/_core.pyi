@@ -246,8 +246,9 @@ class GoalIntegrator:
 
 # --- scenario ---
 
-def run_scenario(config: dict) -> tuple[NDArray[np.uint8], dict[str, int]]:
-    """One whole simulated trial from the resolved dict of ``sensaug.experiment.resolve``.
+def run_scenario(text: str, /, *, format: str = "toml") -> tuple[NDArray[np.uint8], dict[str, int]]:
+    """One whole simulated trial from configuration text (``format``:
+    ``"toml"`` or ``"json"``; the one schema, ``sensaug.config``).
 
     Returns ``(records, summary)``: the log's rows as the bytes of packed
     records in the log schema's column order (``log_schema()``; int64 and
