@@ -20,10 +20,18 @@ pub enum DriveWait {
     /// an inter-processor interrupt when it sleeps on another CPU. The
     /// virtual rig of the tests and the demo.
     Sleeping,
-    /// Spinning on the non-blocking `recv_ready`, never asleep: a command
-    /// wakes no one, as on a CAN adapter (hardware always listening).
+    /// Spinning, never asleep: a non-blocking `recv_ready`, then
+    /// [`POLL_GAP`] of busy-waiting before the next look when it found
+    /// nothing. A command wakes no one, as on a CAN adapter (hardware
+    /// always listening).
     Polling,
 }
+
+/// The polling drive's busy-wait between two looks at an empty bus: the
+/// feedback is at most this late, and the loop's sends do not meet a
+/// receive system call on the drive's socket every few hundred ns (an
+/// adapter's hardware listens without the host's socket locks).
+pub const POLL_GAP: Duration = Duration::from_micros(20);
 
 /// A drive that does just what the loop needs: heartbeats, enable, one
 /// feedback per torque command from the exact plant. It stops answering
@@ -67,7 +75,10 @@ pub fn drive_waiting(
             };
             let Ok(Some(f)) = received else {
                 if wait == DriveWait::Polling {
-                    std::hint::spin_loop();
+                    let looked = Instant::now();
+                    while looked.elapsed() < POLL_GAP {
+                        std::hint::spin_loop();
+                    }
                 }
                 continue;
             };
