@@ -20,9 +20,10 @@
 //! on the loop's CPU the drive may run before the send returns; on another
 //! CPU the wake is an inter-processor interrupt (`benches/bus_floor.rs`
 //! times both). With `polling` (implies `pinned`) the drive thread spins on
-//! the non-blocking `recv_ready` on another CPU, never asleep: the send
-//! wakes no one, the closer model of a CAN adapter, whose hardware is
-//! always listening. The polling drive keeps that CPU busy for the run.
+//! another CPU, never asleep (the non-blocking `recv_ready`, then 20 us of
+//! busy-waiting when the bus was empty): the send wakes no one, the closer
+//! model of a CAN adapter, whose hardware is always listening. The polling
+//! drive keeps that CPU busy for the run.
 
 #[path = "../tests/common/drive.rs"]
 mod drive;
