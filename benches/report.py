@@ -54,10 +54,13 @@ TAIL = ["cargo", "bench", "-q", "-p", "sensaug-core", "--bench", "tick_tail", "-
 TAIL_TICKS = 1_000_000
 # The rig tick (drain the feedback, tick, send, log) on the loopback UDP bus:
 # the real loop against an in-process drive, 3 s per phase; once where the
-# scheduler puts it, once pinned with the drive thread off its CPU.
+# scheduler puts it, once pinned with the drive thread off its CPU, both with
+# the drive asleep in `recv` (the demo's virtual rig: each command wakes it);
+# once pinned with the drive polling on the other CPU (nothing to wake: the
+# closer model of a CAN adapter).
 RIG = ["cargo", "bench", "-q", "-p", "sensaug-rt", "--bench", "rig_tick", "--"]
 RIG_PHASE_S = 3.0
-RIG_MODES = {"not pinned": [], "pinned": ["pinned"]}
+RIG_MODES = {"not pinned": [], "pinned": ["pinned"], "pinned, drive polling": ["polling"]}
 # The bus calls alone, each timed: the kernel's floor under the rig tick.
 FLOOR = ["cargo", "bench", "-q", "-p", "sensaug-rt", "--bench", "bus_floor", "--"]
 FLOOR_CALLS = 5000
@@ -173,23 +176,31 @@ def rig_lines(rigs: dict[str, dict], floor: dict) -> list[str]:
         "virtual human, one torque command, the log record) against the minimal in-process drive "
         f"of the tests, through the Hi5 rig protocol with {RIG_PHASE_S:g} s phases; ordinary "
         "thread (SCHED_OTHER, timer slack 1 ns, no mlockall), either where the scheduler puts "
-        "it or pinned to the last cpu with the drive and log writer threads off it. The loop's "
+        "it or pinned to the last cpu with the drive and log writer threads off it. The drive "
+        "column says how the drive thread waits: `sleeping` in a blocking `recv`, as the demo's "
+        "virtual rig does, so every command's send wakes it (on another cpu an inter-processor "
+        "interrupt, paid in `actuate`); `polling` spins on the other cpu (the non-blocking "
+        "`recv_ready`, then 20 us of busy-waiting when the bus was empty), so the send wakes "
+        "no one: the closer model of a CAN adapter, whose hardware "
+        "is always listening. The loop's "
         "own 1 us-bin histograms (bin upper edges): `compute` = wake-up to the command sent = "
         "sense (drain the bus: one `recvmmsg` per tick) + decide (safety checks, the robot's tick, "
         "the virtual human) + actuate (one `send`); `record` (the log push) follows. Page faults: "
         "the loop thread's during the run.",
         "",
-        f"Command: `{' '.join(RIG)} {RIG_PHASE_S:g} [pinned]`.",
+        f"Command: `{' '.join(RIG)} {RIG_PHASE_S:g} [pinned | polling]` (`polling` implies "
+        "`pinned`).",
         "",
-        "| loop | ticks | compute p50 / p99 / p99.9 / max (us) | sense p50 / p99 | decide p50 / p99 | "
+        "| loop | drive | ticks | compute p50 / p99 / p99.9 / max (us) | sense p50 / p99 | decide p50 / p99 | "
         "actuate p50 / p99 | record p50 / p99 | page faults | feedback missing | deadline misses |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
-    for mode, rig in rigs.items():
+    for rig in rigs.values():
         c, parts = rig["compute"], rig["compute_parts"]
         pair = " | ".join(f"{parts[p]['p50_us']:.0f} / {parts[p]['p99_us']:.0f}"
                           for p in ("sense", "decide", "actuate", "record"))
-        lines.append(f"| {mode} | {rig['ticks']} | {c['p50_us']:.0f} / {c['p99_us']:.0f} / {c['p999_us']:.0f} / "
+        loop = "pinned" if rig["loop_cpu"] is not None else "not pinned"
+        lines.append(f"| {loop} | {rig['drive_wait']} | {rig['ticks']} | {c['p50_us']:.0f} / {c['p99_us']:.0f} / {c['p999_us']:.0f} / "
                      f"{c['max_us']:.0f} | {pair} | {rig['loop_page_faults']} | "
                      f"{rig['can']['missing_feedback']} | {rig['deadline_misses']} |")
     lines += [

@@ -6,17 +6,24 @@
 //! sent) and its parts `compute_parts` (sense: drain the bus; decide: the
 //! safety checks, the robot's tick and the virtual human; actuate: the
 //! send; record: the log push after it), `wake_latency`, 1 us bins (bin
-//! upper edges), the loop thread's page faults and the bus counters.
-//! Nothing is asserted (a bench, not a test).
+//! upper edges), the loop thread's page faults, the bus counters and the
+//! drive model (`drive_wait`). Nothing is asserted (a bench, not a test).
 //!
-//! `cargo bench -p sensaug-rt --bench rig_tick [-- <phase_s> [pinned]]`
+//! `cargo bench -p sensaug-rt --bench rig_tick [-- <phase_s> [pinned] [polling]]`
 //! (default 3 s per phase: 9000 ticks). The loop runs as an ordinary thread
 //! (SCHED_OTHER, timer slack 1 ns, no mlockall), anywhere the scheduler
 //! puts it; with `pinned`, on the last CPU with the drive and log writer
-//! threads kept off it (as `sensaug-rt` with `rig.realtime.cpu` set). The
-//! send wakes the drive thread, sleeping in `recv`: on the loop's CPU the
-//! drive may run before the send returns; on another CPU the wake is an
-//! inter-processor interrupt (`benches/bus_floor.rs` times both).
+//! threads kept off it (as `sensaug-rt` with `rig.realtime.cpu` set).
+//!
+//! The drive model: by default the drive thread sleeps in a blocking
+//! `recv`, as the virtual rig of the demo does, so the loop's send wakes it:
+//! on the loop's CPU the drive may run before the send returns; on another
+//! CPU the wake is an inter-processor interrupt (`benches/bus_floor.rs`
+//! times both). With `polling` (implies `pinned`) the drive thread spins on
+//! another CPU, never asleep (the non-blocking `recv_ready`, then 20 us of
+//! busy-waiting when the bus was empty): the send wakes no one, the closer
+//! model of a CAN adapter, whose hardware is always listening. The polling
+//! drive keeps that CPU busy for the run.
 
 #[path = "../tests/common/drive.rs"]
 mod drive;
@@ -38,7 +45,13 @@ fn main() {
         .iter()
         .find_map(|a| a.parse::<f64>().ok())
         .unwrap_or(3.0);
-    let pin = args.iter().any(|a| a == "pinned");
+    let polling = args.iter().any(|a| a == "polling");
+    let pin = polling || args.iter().any(|a| a == "pinned");
+    let wait = if polling {
+        drive::DriveWait::Polling
+    } else {
+        drive::DriveWait::Sleeping
+    };
     let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/hi5_rig.toml");
     let spec = load_file(&config).expect("configs/hi5_rig.toml loads");
     let resolved = resolve(&spec).expect("configs/hi5_rig.toml resolves");
@@ -58,7 +71,7 @@ fn main() {
     let others_free = pin && loop_cpu > 0 && sensaug_rt::os::avoid_cpu(loop_cpu).is_ok();
     let port = drive::free_port();
     let drive_stop = Arc::new(AtomicBool::new(false));
-    let handle = drive::drive(port, Arc::clone(&drive_stop), u64::MAX);
+    let handle = drive::drive_waiting(port, Arc::clone(&drive_stop), u64::MAX, wait);
     let transport = Box::new(UdpBus::open(port).expect("loopback bus"));
     let mut rig =
         Rig::start(settings, drive_link(&settings).unwrap(), transport, robot).expect("drive");
@@ -78,6 +91,7 @@ fn main() {
         "ticks": report.ticks,
         "records_written": written.records_written,
         "loop_cpu": pinned.then_some(loop_cpu),
+        "drive_wait": if polling { "polling" } else { "sleeping" },
         "compute": report.compute,
         "compute_parts": report.compute_parts,
         "loop_page_faults": report.loop_page_faults,

@@ -13,10 +13,40 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+/// How the drive thread waits for the next frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DriveWait {
+    /// Asleep in a blocking `recv` (5 ms timeout): every command wakes it,
+    /// an inter-processor interrupt when it sleeps on another CPU. The
+    /// virtual rig of the tests and the demo.
+    Sleeping,
+    /// Spinning, never asleep: a non-blocking `recv_ready`, then
+    /// [`POLL_GAP`] of busy-waiting before the next look when it found
+    /// nothing. A command wakes no one, as on a CAN adapter (hardware
+    /// always listening).
+    Polling,
+}
+
+/// The polling drive's busy-wait between two looks at an empty bus: the
+/// feedback is at most this late, and the loop's sends do not meet a
+/// receive system call on the drive's socket every few hundred ns (an
+/// adapter's hardware listens without the host's socket locks).
+pub const POLL_GAP: Duration = Duration::from_micros(20);
+
 /// A drive that does just what the loop needs: heartbeats, enable, one
 /// feedback per torque command from the exact plant. It stops answering
 /// commands after `answer_for` of them (a dead drive).
 pub fn drive(port: u16, stop: Arc<AtomicBool>, answer_for: u64) -> JoinHandle<()> {
+    drive_waiting(port, stop, answer_for, DriveWait::Sleeping)
+}
+
+/// [`drive`], waiting for frames as `wait` says.
+pub fn drive_waiting(
+    port: u16,
+    stop: Arc<AtomicBool>,
+    answer_for: u64,
+    wait: DriveWait,
+) -> JoinHandle<()> {
     std::thread::spawn(move || {
         let node = NodeId::new(1).unwrap();
         let mut bus = UdpBus::open(port).unwrap();
@@ -39,7 +69,17 @@ pub fn drive(port: u16, stop: Arc<AtomicBool>, answer_for: u64) -> JoinHandle<()
                 bus.send(&encode(node, &hb).unwrap()).unwrap();
                 last_beat = Instant::now();
             }
-            let Ok(Some(f)) = bus.recv(Duration::from_millis(5)) else {
+            let received = match wait {
+                DriveWait::Sleeping => bus.recv(Duration::from_millis(5)),
+                DriveWait::Polling => bus.recv_ready(),
+            };
+            let Ok(Some(f)) = received else {
+                if wait == DriveWait::Polling {
+                    let looked = Instant::now();
+                    while looked.elapsed() < POLL_GAP {
+                        std::hint::spin_loop();
+                    }
+                }
                 continue;
             };
             match decode(node, &f) {
