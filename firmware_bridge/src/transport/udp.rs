@@ -345,9 +345,7 @@ fn recvmmsg_with_drops(
             // SAFETY: as for CMSG_FIRSTHDR.
             cmsg = unsafe { libc::CMSG_NXTHDR(msg, cmsg) };
         }
-        // Read through the header's pointer, the one the kernel wrote through.
-        // SAFETY: `msg_name` points to `batch.addr[i]`, a live sockaddr_in.
-        let addr = unsafe { msg.msg_name.cast::<libc::sockaddr_in>().read() };
+        let addr = &batch.addr[i];
         let ip = Ipv4Addr::from(u32::from_be(addr.sin_addr.s_addr));
         batch.src[i] = SocketAddr::V4(SocketAddrV4::new(ip, u16::from_be(addr.sin_port)));
         // At most the slot's length: the kernel truncates longer datagrams.
