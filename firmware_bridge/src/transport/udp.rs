@@ -18,7 +18,6 @@
 //! is dropped by the kernel; `SO_RXQ_OVFL` reports the socket's drop count
 //! with every datagram received, and [`BusStats::kernel_dropped`] sums it.
 
-use std::fmt;
 use std::io;
 use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4, UdpSocket};
 use std::os::fd::{AsRawFd, RawFd};
@@ -49,7 +48,7 @@ pub struct UdpBus {
     /// The last `SO_RXQ_OVFL` value (the kernel's wrapping u32 count).
     kernel_drops_seen: u32,
     /// Datagrams received by the last `recvmmsg` and not yet looked at.
-    batch: Box<Batch>,
+    batch: Batch,
 }
 
 /// Datagrams taken from the receive socket per `recvmmsg(2)`: a tick's
@@ -61,11 +60,9 @@ pub const RECV_BATCH: usize = 16;
 /// show as such.
 type Slot = [u8; WIRE_SIZE + 1];
 
-/// The datagrams of one `recvmmsg`, consumed in order by `recv`, and the
-/// call's headers. Fixed-size, filled in place: receiving allocates
-/// nothing. The headers are built once, pointing into this same (boxed,
-/// never moved) batch, so a refill resets only the two lengths the kernel
-/// overwrites instead of zeroing and rebuilding ~2.5 KiB of headers.
+/// The datagrams of one `recvmmsg`, consumed in order by `recv`. Fixed-size,
+/// filled in place: receiving allocates nothing.
+#[derive(Debug)]
 struct Batch {
     data: [Slot; RECV_BATCH],
     len: [usize; RECV_BATCH],
@@ -78,71 +75,18 @@ struct Batch {
     /// batch returned fewer than [`RECV_BATCH`]: the socket was empty then,
     /// so that drain ends when the batch is used up, without another call.
     emptied_socket: bool,
-    /// Header `i`: source address into `addr[i]`, one iovec (`iov[i]`)
-    /// over `data[i]`, control messages into `control[i]`.
-    msgs: [libc::mmsghdr; RECV_BATCH],
-    iov: [libc::iovec; RECV_BATCH],
-    addr: [libc::sockaddr_in; RECV_BATCH],
-    control: [CmsgBuf; RECV_BATCH],
-}
-
-// SAFETY: the raw pointers in `msgs` and `iov` point only into the same
-// boxed `Batch`, which its one owner moves between threads as a whole.
-unsafe impl Send for Batch {}
-
-impl fmt::Debug for Batch {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.debug_struct("Batch")
-            .field("filled", &self.filled)
-            .field("next", &self.next)
-            .field("emptied_socket", &self.emptied_socket)
-            .finish_non_exhaustive()
-    }
 }
 
 impl Batch {
-    /// Set-up: allocates the batch and points its headers at its buffers.
-    fn new() -> Box<Self> {
+    fn new() -> Self {
         let nowhere = SocketAddr::V4(SocketAddrV4::new(Ipv4Addr::UNSPECIFIED, 0));
-        let mut b = Box::new(Batch {
+        Batch {
             data: [[0; WIRE_SIZE + 1]; RECV_BATCH],
             len: [0; RECV_BATCH],
             src: [nowhere; RECV_BATCH],
             filled: 0,
             next: 0,
             emptied_socket: false,
-            // SAFETY: mmsghdr, iovec and sockaddr_in are plain C structs for
-            // which all-zero bytes are a valid value (null pointers, zero
-            // lengths).
-            msgs: unsafe { core::mem::zeroed() },
-            // SAFETY: as above.
-            iov: unsafe { core::mem::zeroed() },
-            // SAFETY: as above.
-            addr: unsafe { core::mem::zeroed() },
-            control: [CmsgBuf([0; CMSG_BYTES]); RECV_BATCH],
-        });
-        let b_ref = &mut *b;
-        for i in 0..RECV_BATCH {
-            b_ref.iov[i] = libc::iovec {
-                iov_base: b_ref.data[i].as_mut_ptr().cast(),
-                iov_len: b_ref.data[i].len(),
-            };
-            let h = &mut b_ref.msgs[i].msg_hdr;
-            h.msg_name = (&mut b_ref.addr[i] as *mut libc::sockaddr_in).cast();
-            h.msg_iov = &mut b_ref.iov[i];
-            h.msg_iovlen = 1;
-            h.msg_control = b_ref.control[i].0.as_mut_ptr().cast();
-        }
-        b_ref.reset_lengths();
-        b
-    }
-
-    /// The header lengths a `recvmmsg` overwrites with what it received,
-    /// back to the buffers' sizes.
-    fn reset_lengths(&mut self) {
-        for m in &mut self.msgs {
-            m.msg_hdr.msg_namelen = core::mem::size_of::<libc::sockaddr_in>() as libc::socklen_t;
-            m.msg_hdr.msg_controllen = CMSG_BYTES as _;
         }
     }
 }
@@ -287,35 +231,51 @@ fn set_int_option(fd: RawFd, name: libc::c_int, value: libc::c_int) -> io::Resul
     }
 }
 
-/// Control-message space per datagram: one `SO_RXQ_OVFL` (a u32) needs
-/// `CMSG_SPACE(4)` = 24 bytes on 64-bit Linux; 64 leaves room.
-const CMSG_BYTES: usize = 64;
-
-/// Control-message buffer for one `SO_RXQ_OVFL`, aligned for `cmsghdr`.
+/// Control-message buffer for one `SO_RXQ_OVFL` (a u32), aligned for
+/// `cmsghdr`.
 #[repr(C, align(8))]
 #[derive(Clone, Copy)]
-struct CmsgBuf([u8; CMSG_BYTES]);
+struct CmsgBuf([u8; 64]);
 
 /// `recvmmsg(2)` of up to [`RECV_BATCH`] IPv4 datagrams without blocking,
 /// into `batch` (from its start; `filled` set, `next` reset): the count, and
 /// each datagram's `SO_RXQ_OVFL` drop count if the kernel attached one.
-/// Allocation-free: the headers and buffers are the batch's own.
+/// Allocation-free: every buffer is on the stack or in `batch`.
 fn recvmmsg_with_drops(
     fd: RawFd,
     batch: &mut Batch,
     drops: &mut [Option<u32>; RECV_BATCH],
 ) -> io::Result<usize> {
+    // SAFETY: sockaddr_in, iovec and mmsghdr are plain C structs for which
+    // all-zero bytes are a valid value.
+    let mut addr: [libc::sockaddr_in; RECV_BATCH] = unsafe { core::mem::zeroed() };
+    // SAFETY: as above.
+    let mut iov: [libc::iovec; RECV_BATCH] = unsafe { core::mem::zeroed() };
+    let mut control = [CmsgBuf([0; 64]); RECV_BATCH];
+    // SAFETY: as above.
+    let mut msgs: [libc::mmsghdr; RECV_BATCH] = unsafe { core::mem::zeroed() };
+    for i in 0..RECV_BATCH {
+        iov[i] = libc::iovec {
+            iov_base: batch.data[i].as_mut_ptr().cast(),
+            iov_len: batch.data[i].len(),
+        };
+        let h = &mut msgs[i].msg_hdr;
+        h.msg_name = (&mut addr[i] as *mut libc::sockaddr_in).cast();
+        h.msg_namelen = core::mem::size_of::<libc::sockaddr_in>() as libc::socklen_t;
+        h.msg_iov = &mut iov[i];
+        h.msg_iovlen = 1;
+        h.msg_control = control[i].0.as_mut_ptr().cast();
+        h.msg_controllen = control[i].0.len() as _;
+    }
     batch.filled = 0;
     batch.next = 0;
-    batch.reset_lengths();
-    // SAFETY: every pointer in `batch.msgs` (name, one iovec over a slot of
-    // `batch.data`, control) points into the same live, boxed batch, with
-    // the stated lengths (set in `Batch::new`, reset above); `vlen` is the
-    // array's length; no timeout.
+    // SAFETY: every pointer in `msgs` (name, one iovec over a slot of
+    // `batch.data`, control) points to live, writable memory of the stated
+    // length for the call; `vlen` is the array's length; no timeout.
     let n = unsafe {
         libc::recvmmsg(
             fd,
-            batch.msgs.as_mut_ptr(),
+            msgs.as_mut_ptr(),
             RECV_BATCH as libc::c_uint,
             libc::MSG_DONTWAIT,
             core::ptr::null_mut(),
@@ -326,9 +286,9 @@ fn recvmmsg_with_drops(
     }
     // Fits: 0 <= n <= RECV_BATCH.
     let n = n as usize;
-    for (i, drop) in drops.iter_mut().enumerate().take(n) {
-        let msg = &batch.msgs[i].msg_hdr;
-        *drop = None;
+    for i in 0..n {
+        let msg = &msgs[i].msg_hdr;
+        drops[i] = None;
         // SAFETY: `msg` was filled by recvmmsg; CMSG_FIRSTHDR/CMSG_NXTHDR
         // stay within `msg_control[..msg_controllen]` and return null at
         // its end.
@@ -339,17 +299,16 @@ fn recvmmsg_with_drops(
             if hdr.cmsg_level == libc::SOL_SOCKET && hdr.cmsg_type == libc::SO_RXQ_OVFL {
                 // SAFETY: an SO_RXQ_OVFL message carries one u32 (possibly
                 // unaligned) right after its header, inside `control[i]`.
-                *drop =
+                drops[i] =
                     Some(unsafe { core::ptr::read_unaligned(libc::CMSG_DATA(cmsg).cast::<u32>()) });
             }
             // SAFETY: as for CMSG_FIRSTHDR.
             cmsg = unsafe { libc::CMSG_NXTHDR(msg, cmsg) };
         }
-        let addr = &batch.addr[i];
-        let ip = Ipv4Addr::from(u32::from_be(addr.sin_addr.s_addr));
-        batch.src[i] = SocketAddr::V4(SocketAddrV4::new(ip, u16::from_be(addr.sin_port)));
+        let ip = Ipv4Addr::from(u32::from_be(addr[i].sin_addr.s_addr));
+        batch.src[i] = SocketAddr::V4(SocketAddrV4::new(ip, u16::from_be(addr[i].sin_port)));
         // At most the slot's length: the kernel truncates longer datagrams.
-        batch.len[i] = (batch.msgs[i].msg_len as usize).min(batch.data[i].len());
+        batch.len[i] = (msgs[i].msg_len as usize).min(batch.data[i].len());
     }
     batch.filled = n;
     Ok(n)
