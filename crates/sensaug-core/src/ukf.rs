@@ -888,6 +888,70 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         self.store_prior(x_prior, P_prior, UpdatePoints::Deferred, pending)
     }
 
+    /// Per tick: [`Ukf::predict`] for an affine process `f(x) = F x + b`,
+    /// in closed form: `x- = F x + b`, `P- = F P F' + Q`.
+    ///
+    /// The unscented transform of an affine map is exact: on the sigma
+    /// points `chi_0 = x`, `x +- L e_k` (`L L' = (N + lambda) P`, weights
+    /// `w = Wm_k = Wc_k = 1 / (2 (N + lambda))` for `k >= 1`),
+    /// `x- = Wm_0 (F x + b) + w sum_k ((F x + F L e_k + b) + (F x - F L e_k + b)) = F x + b`
+    /// (the `+-` cancel, the weights sum to 1), and with
+    /// `chi_f,i - x- = F (chi_i - x)`:
+    /// `P- = Wc_0 0 0' + w sum_k 2 (F L e_k)(F L e_k)' + Q = 2 w F L L' F' + Q = F P F' + Q`.
+    /// So no factorisation and no sigma point is needed; equal to
+    /// [`Ukf::predict`] with `f` up to rounding. `P` is read from its upper
+    /// triangle (as the factorisation reads it) and one triangle of `P-` is
+    /// computed, mirrored. filterpy's re-draw is deferred as in
+    /// [`Ukf::predict_partial`]; an indefinite `P` is caught by the next
+    /// factorisation (of `S` or of the generic update's points).
+    /// Non-finite `F` or `b`: `Err(NonFiniteProcess)`, overflow:
+    /// `Err(NonFiniteResult)`; the state is unchanged.
+    pub fn predict_linear(
+        &mut self,
+        F: &SMatrix<f64, N, N>,
+        b: &SVector<f64, N>,
+    ) -> Result<Status, UkfError> {
+        if !all_finite(F) || !all_finite(b) {
+            return self.reject(UkfError::NonFiniteProcess);
+        }
+        // x- = F x + b
+        let x_prior = F * self.x + b;
+        // G = F P (P from its upper triangle), then P- = G F' + Q on i <= j.
+        let mut G = SMatrix::<f64, N, N>::zeros();
+        for c in 0..N {
+            for r in 0..N {
+                let mut g = 0.0;
+                for k in 0..N {
+                    let p = if k <= c {
+                        self.P[(k, c)]
+                    } else {
+                        self.P[(c, k)]
+                    };
+                    g += F[(r, k)] * p;
+                }
+                G[(r, c)] = g;
+            }
+        }
+        let mut P_prior = SMatrix::<f64, N, N>::zeros();
+        for j in 0..N {
+            for i in 0..=j {
+                let mut v = 0.0;
+                for k in 0..N {
+                    v += G[(i, k)] * F[(j, k)];
+                }
+                v += self.Q[(i, j)];
+                P_prior[(i, j)] = v;
+                P_prior[(j, i)] = v;
+            }
+        }
+        if !all_finite(&x_prior) || !all_finite(&P_prior) {
+            return self.reject(UkfError::NonFiniteResult {
+                phase: Phase::Predict,
+            });
+        }
+        self.store_prior(x_prior, P_prior, UpdatePoints::Deferred, Pending::default())
+    }
+
     /// The end of a predict: filterpy's re-draw of the sigma points from
     /// `(x-, P-)` (repairing `P-` if needed), then commit.
     #[inline(always)]

@@ -261,6 +261,61 @@ fn partial_predict_equals_full_predict() {
     }
 }
 
+/// `predict_linear` (the closed form `F x + b`, `F P F' + Q`) against the
+/// unscented `predict` of the same affine process, with updates in between
+/// (so `P` is not that of the closed form), and its refusals.
+#[test]
+fn linear_predict_equals_unscented_predict() {
+    let b = Vector2::new(0.01, -0.02);
+    for p in [
+        params(1.0, 2.0, 0.0),
+        params(0.5, 2.0, 1.0),
+        params(0.1, 0.0, 0.0),
+    ] {
+        let mut a = lin(p);
+        let mut c = a.clone();
+        let mut worst = 0.0f64;
+        for k in 0..2000 {
+            let z = Vector1::new(z_at(k));
+            assert_eq!(a.predict(|s| F() * s + b), Ok(Status::Nominal));
+            assert_eq!(c.predict_linear(&F(), &b), Ok(Status::Nominal));
+            assert_eq!(c.P(), &c.P().transpose(), "P- exactly symmetric");
+            worst = worst
+                .max(max_abs(&(a.x() - c.x())) / max_abs(a.x()))
+                .max(max_abs(&(a.P() - c.P())) / max_abs(a.P()));
+            assert_eq!(a.update(&z, |s| H() * s), c.update(&z, |s| H() * s));
+        }
+        eprintln!(
+            "alpha {}: linear vs unscented predict, max rel diff {worst:.2e}",
+            p.alpha
+        );
+        assert!(
+            worst <= 1e-12 / (p.alpha * p.alpha),
+            "alpha {}: rel diff {worst:e}",
+            p.alpha
+        );
+        assert_eq!(a.recoveries(), c.recoveries());
+    }
+    let mut c = lin(params(1.0, 2.0, 0.0));
+    let before = snapshot(&c);
+    assert_eq!(
+        c.predict_linear(&(F() * f64::NAN), &b),
+        Err(UkfError::NonFiniteProcess)
+    );
+    assert_eq!(
+        c.predict_linear(&F(), &Vector2::new(f64::INFINITY, 0.0)),
+        Err(UkfError::NonFiniteProcess)
+    );
+    assert_eq!(
+        c.predict_linear(&(F() * 1e300), &b),
+        Err(UkfError::NonFiniteResult {
+            phase: Phase::Predict
+        })
+    );
+    assert_eq!(snapshot(&c), before);
+    assert_eq!(c.recoveries().rejected, 3);
+}
+
 /// `predict_partial` defers filterpy's re-draw: the points drawn on demand
 /// equal the full predict's up to rounding, and an indefinite `P-` is
 /// repaired by the call that factors it (the generic update, as stage
