@@ -1220,7 +1220,9 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
             // P+ = P- - K Pxz'
             Posterior::Symmetric => posterior_covariance_symmetric(P, &K, Pxz),
         };
-        if !all_finite(&K) || !all_finite(&x_new) || !all_finite(&P_new) {
+        // A non-finite K needs no check of its own: y is finite, so a NaN
+        // or infinite K_rm makes x+_r non-finite (inf y_m, or inf 0 = NaN).
+        if !all_finite(&x_new) || !all_finite(&P_new) {
             return self.reject(UkfError::NonFiniteResult {
                 phase: Phase::Update,
             });
