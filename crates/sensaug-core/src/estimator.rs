@@ -274,10 +274,26 @@ impl TrajectoryEstimator {
 /// Discrete process model of the goal-integration state `[e, v]`:
 /// `e' = e + dx - dtau`, `v' = v + dt a` with `a = (u - C v)/M`, where `u`
 /// is all the torque the agent knows of (its own plus the estimated
-/// partner torque).
+/// partner torque). It is affine, `s' = F s + b` ([`error_transition`]).
 pub fn error_process(model: &HandleModel, s: &Vector2<f64>, u: f64, dtau: f64) -> Vector2<f64> {
-    let (dx, v_next) = model.kinematics(s[1], u);
-    Vector2::new(s[0] + dx - dtau, v_next)
+    let (F, b) = error_transition(model, u, dtau);
+    F * s + b
+}
+
+/// [`error_process`] as `s' = F s + b`: with [`HandleModel::kinematics`]
+/// written out, `dx = (dt - dt^2 C / (2 M)) v + dt^2 u / (2 M)` and
+/// `v' = (1 - dt C / M) v + dt u / M`, so
+/// `F = [[1, dt - dt^2 C / (2 M)], [0, 1 - dt C / M]]`,
+/// `b = [dt^2 u / (2 M) - dtau, dt u / M]`.
+pub fn error_transition(
+    model: &HandleModel,
+    u: f64,
+    dtau: f64,
+) -> (SMatrix<f64, 2, 2>, Vector2<f64>) {
+    let (dt, m, c) = (model.dt_s, model.mass, model.damping);
+    let F = SMatrix::<f64, 2, 2>::new(1.0, dt - 0.5 * dt * dt * c / m, 0.0, 1.0 - dt * c / m);
+    let b = Vector2::new(0.5 * dt * dt * u / m - dtau, dt * u / m);
+    (F, b)
 }
 
 /// Own sensing only ([`OWN_MEASUREMENT`]): `y = [e, v]`.
@@ -446,10 +462,12 @@ impl GoalIntegrator {
 
     /// Per tick: propagate both filters with the known torque `u` (own plus
     /// estimated partner) and the own target's increment (0 when unknown).
+    /// The process is affine ([`error_transition`]), so the unscented
+    /// predict is the exact `F x + b`, `F P F' + Q` (`Ukf::predict_linear`).
     pub fn predict(&mut self, u: f64, dtau: f64) -> Result<Status, UkfError> {
-        let model = self.model;
-        let own_status = self.own.predict(|s| error_process(&model, s, u, dtau));
-        let fused_status = self.fused.predict(|s| error_process(&model, s, u, dtau));
+        let (F, b) = error_transition(&self.model, u, dtau);
+        let own_status = self.own.predict_linear(&F, &b);
+        let fused_status = self.fused.predict_linear(&F, &b);
         combine(own_status, fused_status)
     }
 

@@ -550,6 +550,21 @@ pub fn symmetrise<const D: usize>(A: &SMatrix<f64, D, D>) -> SMatrix<f64, D, D> 
     (A + A.transpose()) * 0.5
 }
 
+/// Where the sigma points of the next `update` come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum UpdatePoints {
+    /// None belong to the current `(x, P)` (first call, after an update or a
+    /// reset): the update draws them (stage `UpdateSigmaPoints`).
+    Stale,
+    /// Re-drawn at the end of `predict` (filterpy's re-draw): the stored
+    /// centre and factor.
+    Drawn,
+    /// `predict_partial` left filterpy's re-draw to the update that needs
+    /// it: the generic update draws from `(x-, P-)` (stage `PredictRedraw`),
+    /// the selection update needs no points and no factor.
+    Deferred,
+}
+
 /// Recovery bookkeeping of one call, committed only with the new state.
 #[derive(Default)]
 struct Pending {
@@ -578,7 +593,7 @@ pub struct Ukf<const N: usize, const M: usize, const S: usize> {
     // update never needs the points themselves.
     sigma_center: SVector<f64, N>,
     sigma_factor: SMatrix<f64, N, N>,
-    sigmas_fresh: bool,
+    update_points: UpdatePoints,
     x_prior: SVector<f64, N>,
     P_prior: SMatrix<f64, N, N>,
     x_post: SVector<f64, N>,
@@ -637,7 +652,7 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
             // (see `update`).
             sigma_center: SVector::zeros(),
             sigma_factor: SMatrix::zeros(),
-            sigmas_fresh: false,
+            update_points: UpdatePoints::Stale,
             x_prior: x0,
             P_prior: P0,
             x_post: x0,
@@ -673,7 +688,7 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         self.P_prior = P;
         self.x_post = x;
         self.P_post = P;
-        self.sigmas_fresh = false;
+        self.update_points = UpdatePoints::Stale;
         Ok(())
     }
 
@@ -792,13 +807,27 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
     /// (random walks driven by `Q`, like the estimators' partner gains).
     ///
     /// With `d_i = chi_f,i - x-` for the moving rows and the sigma points
-    /// `x +- L e_k` (weights `w = Wc_1 = 1 / (2 (N + lambda))`), the unscented
-    /// sums have closed forms for the constant rows `b`:
-    /// `x-_b = x_b`, `P-_bb = P_bb + Q_bb` (`2 w L_b L_b' = P_bb`),
-    /// `P-_tb = w sum_k (f(x + L e_k) - f(x - L e_k)) L_b,k' + Q_tb`,
-    /// and `P-_tt = sum Wc d d' + Q_tt` as in [`Ukf::predict`]. Equal to
-    /// `predict` with the full `f` up to rounding, with the same errors,
-    /// repairs and re-draw.
+    /// `x +- L e_k` (`L L' = (N + lambda) P`, weights
+    /// `w = Wc_k = Wm_k = 1 / (2 (N + lambda))` for `k >= 1`), the unscented
+    /// sums have closed forms for the constant rows `b`, whose propagated
+    /// points are `x_b` and `x_b +- L_b e_k`:
+    /// `x-_b = Wm_0 x_b + w sum_k ((x_b + L_b e_k) + (x_b - L_b e_k)) = x_b`
+    /// (the `+-` cancel, the weights sum to 1);
+    /// `P-_bb = Wc_0 0 0' + w sum_k ((L_b e_k)(L_b e_k)' + (-L_b e_k)(-L_b e_k)') + Q_bb
+    /// = 2 w L_b L_b' + Q_bb = P_bb + Q_bb`;
+    /// `P-_tb = w sum_k (f(x + L e_k) - f(x - L e_k)) L_b,k' + Q_tb`
+    /// (the `chi_0` term is `d_0 0'`, and `sum_k` of `-x-_t (+-L_b e_k)'`
+    /// cancels); `P-_tt = sum Wc d d' + Q_tt` as in [`Ukf::predict`].
+    /// So only the `R` moving rows go through `f`. Equal to `predict` with
+    /// the full `f` up to rounding, with the same errors and repairs of the
+    /// first factorisation.
+    ///
+    /// filterpy's re-draw from `(x-, P-)` is deferred (its factorisation is
+    /// the second half of a predict's cost): [`Ukf::update_selected`] needs
+    /// no sigma points and skips it; the generic [`Ukf::update`] draws them
+    /// itself from `(x-, P-)`, with the repairs reported by that call as
+    /// stage `PredictRedraw`. An indefinite `P-` is then caught by the
+    /// factorisation of `S` or of the next predict instead of this call.
     pub fn predict_partial<const R: usize>(
         &mut self,
         mut f: impl FnMut(&SVector<f64, N>) -> SVector<f64, R>,
@@ -854,7 +883,73 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
                 phase: Phase::Predict,
             });
         }
-        self.commit_prior(x_prior, P_prior, pending)
+        // filterpy's re-draw from (x-, P-) is deferred to the update that
+        // needs the points: the selection update does not.
+        self.store_prior(x_prior, P_prior, UpdatePoints::Deferred, pending)
+    }
+
+    /// Per tick: [`Ukf::predict`] for an affine process `f(x) = F x + b`,
+    /// in closed form: `x- = F x + b`, `P- = F P F' + Q`.
+    ///
+    /// The unscented transform of an affine map is exact: on the sigma
+    /// points `chi_0 = x`, `x +- L e_k` (`L L' = (N + lambda) P`, weights
+    /// `w = Wm_k = Wc_k = 1 / (2 (N + lambda))` for `k >= 1`),
+    /// `x- = Wm_0 (F x + b) + w sum_k ((F x + F L e_k + b) + (F x - F L e_k + b)) = F x + b`
+    /// (the `+-` cancel, the weights sum to 1), and with
+    /// `chi_f,i - x- = F (chi_i - x)`:
+    /// `P- = Wc_0 0 0' + w sum_k 2 (F L e_k)(F L e_k)' + Q = 2 w F L L' F' + Q = F P F' + Q`.
+    /// So no factorisation and no sigma point is needed; equal to
+    /// [`Ukf::predict`] with `f` up to rounding. `P` is read from its upper
+    /// triangle (as the factorisation reads it) and one triangle of `P-` is
+    /// computed, mirrored. filterpy's re-draw is deferred as in
+    /// [`Ukf::predict_partial`]; an indefinite `P` is caught by the next
+    /// factorisation (of `S` or of the generic update's points).
+    /// Non-finite `F` or `b`: `Err(NonFiniteProcess)`, overflow:
+    /// `Err(NonFiniteResult)`; the state is unchanged.
+    pub fn predict_linear(
+        &mut self,
+        F: &SMatrix<f64, N, N>,
+        b: &SVector<f64, N>,
+    ) -> Result<Status, UkfError> {
+        if !all_finite(F) || !all_finite(b) {
+            return self.reject(UkfError::NonFiniteProcess);
+        }
+        // x- = F x + b
+        let x_prior = F * self.x + b;
+        // G = F P (P from its upper triangle), then P- = G F' + Q on i <= j.
+        let mut G = SMatrix::<f64, N, N>::zeros();
+        for c in 0..N {
+            for r in 0..N {
+                let mut g = 0.0;
+                for k in 0..N {
+                    let p = if k <= c {
+                        self.P[(k, c)]
+                    } else {
+                        self.P[(c, k)]
+                    };
+                    g += F[(r, k)] * p;
+                }
+                G[(r, c)] = g;
+            }
+        }
+        let mut P_prior = SMatrix::<f64, N, N>::zeros();
+        for j in 0..N {
+            for i in 0..=j {
+                let mut v = 0.0;
+                for k in 0..N {
+                    v += G[(i, k)] * F[(j, k)];
+                }
+                v += self.Q[(i, j)];
+                P_prior[(i, j)] = v;
+                P_prior[(j, i)] = v;
+            }
+        }
+        if !all_finite(&x_prior) || !all_finite(&P_prior) {
+            return self.reject(UkfError::NonFiniteResult {
+                phase: Phase::Predict,
+            });
+        }
+        self.store_prior(x_prior, P_prior, UpdatePoints::Deferred, Pending::default())
     }
 
     /// The end of a predict: filterpy's re-draw of the sigma points from
@@ -867,13 +962,26 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         mut pending: Pending,
     ) -> Result<Status, UkfError> {
         let L = self.factor(&mut P_prior, Stage::PredictRedraw, &mut pending);
+        self.sigma_center = x_prior;
+        self.sigma_factor = L;
+        self.store_prior(x_prior, P_prior, UpdatePoints::Drawn, pending)
+    }
+
+    /// Commit a predict's `(x-, P-)` and where the next update's sigma
+    /// points come from.
+    #[inline(always)]
+    fn store_prior(
+        &mut self,
+        x_prior: SVector<f64, N>,
+        P_prior: SMatrix<f64, N, N>,
+        points: UpdatePoints,
+        pending: Pending,
+    ) -> Result<Status, UkfError> {
         self.x = x_prior;
         self.P = P_prior;
         self.x_prior = x_prior;
         self.P_prior = P_prior;
-        self.sigma_center = x_prior;
-        self.sigma_factor = L;
-        self.sigmas_fresh = true;
+        self.update_points = points;
         self.recoveries.predicts = self.recoveries.predicts.saturating_add(1);
         self.finish(pending)
     }
@@ -941,15 +1049,17 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         }
         let mut pending = Pending::default();
         let mut P = self.P;
-        let drawn;
-        let fresh;
-        let chi = if self.sigmas_fresh {
-            fresh = self.sigmas_f();
-            &fresh
-        } else {
-            drawn = self.draw(&self.x, &mut P, Stage::UpdateSigmaPoints, &mut pending);
-            &drawn
+        let chi = match self.update_points {
+            UpdatePoints::Drawn => sigma_points(&self.sigma_center, &self.sigma_factor),
+            // predict_partial's deferred re-draw, from (x-, P-) as filterpy's.
+            UpdatePoints::Deferred => {
+                self.draw(&self.x, &mut P, Stage::PredictRedraw, &mut pending)
+            }
+            UpdatePoints::Stale => {
+                self.draw(&self.x, &mut P, Stage::UpdateSigmaPoints, &mut pending)
+            }
         };
+        let chi = &chi;
         // Z_i = h(chi_i)
         let mut Z = SMatrix::<f64, M, S>::zeros();
         for i in 0..S {
@@ -1028,9 +1138,10 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         let R = R.unwrap_or(&self.R);
         let mut pending = Pending::default();
         let mut P = self.P;
-        if !self.sigmas_fresh {
+        if self.update_points == UpdatePoints::Stale {
             // The generic path draws sigma points here: the same
-            // factorisation, with the same repairs of P.
+            // factorisation, with the same repairs of P. (A deferred
+            // re-draw is skipped: nothing here uses its factor.)
             let _ = self.factor(&mut P, Stage::UpdateSigmaPoints, &mut pending);
         }
         let idx = sel.indices();
@@ -1091,7 +1202,7 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
                         self.P = self.P_reset;
                         self.x_post = self.x;
                         self.P_post = self.P;
-                        self.sigmas_fresh = false;
+                        self.update_points = UpdatePoints::Stale;
                         return self.finish(pending);
                     }
                 }
@@ -1109,7 +1220,9 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
             // P+ = P- - K Pxz'
             Posterior::Symmetric => posterior_covariance_symmetric(P, &K, Pxz),
         };
-        if !all_finite(&K) || !all_finite(&x_new) || !all_finite(&P_new) {
+        // A non-finite K needs no check of its own: y is finite, so a NaN
+        // or infinite K_rm makes x+_r non-finite (inf y_m, or inf 0 = NaN).
+        if !all_finite(&x_new) || !all_finite(&P_new) {
             return self.reject(UkfError::NonFiniteResult {
                 phase: Phase::Update,
             });
@@ -1121,7 +1234,7 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         self.y = y;
         self.S_innov = S_innov;
         self.K = K;
-        self.sigmas_fresh = false;
+        self.update_points = UpdatePoints::Stale;
         self.recoveries.updates = self.recoveries.updates.saturating_add(1);
         self.finish(pending)
     }
@@ -1247,11 +1360,20 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
     pub fn Wc(&self) -> &SVector<f64, S> {
         &self.Wc
     }
-    /// Sigma points (columns) re-drawn at the end of the last `predict`.
-    /// (Formed on demand from the stored centre and factor; zeros before the
-    /// first `predict`, as filterpy's.)
-    pub fn sigmas_f(&self) -> SMatrix<f64, N, S> {
-        sigma_points(&self.sigma_center, &self.sigma_factor)
+    /// Sigma points (columns) re-drawn at the end of the last `predict`
+    /// (formed on demand from the stored centre and factor; zeros before the
+    /// first `predict`, as filterpy's). After [`Ukf::predict_partial`],
+    /// which defers the re-draw, they are drawn now from `(x-, P-)`; `None`
+    /// if `P-` does not factor (the next update repairs it first).
+    pub fn sigmas_f(&self) -> Option<SMatrix<f64, N, S>> {
+        match self.update_points {
+            UpdatePoints::Deferred => {
+                scaled_cholesky(&self.P, self.c).map(|L| sigma_points(&self.x, &L))
+            }
+            UpdatePoints::Drawn | UpdatePoints::Stale => {
+                Some(sigma_points(&self.sigma_center, &self.sigma_factor))
+            }
+        }
     }
     /// The covariance `P` is reset to on an unrecoverable factorisation.
     pub fn reset_covariance(&self) -> &SMatrix<f64, N, N> {

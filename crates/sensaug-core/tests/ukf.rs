@@ -204,27 +204,42 @@ fn selection_update_equals_sigma_point_update() {
 /// `predict_partial` (closed forms for constant states) against `predict`
 /// with the full process, on a 4-state filter whose last two states are
 /// constant parameters of the first two (as the estimators' gains are).
+type F4 = Ukf<4, 1, 9>;
+
+/// The moving rows of [`full4`].
+fn moving4(s: &SVector<f64, 4>, u: f64) -> Vector2<f64> {
+    Vector2::new(
+        s[0] + DT * s[1],
+        s[1] + DT * (u - s[2] * s[0] - s[3] * s[1]),
+    )
+}
+
+/// A 4-state process whose last two states are constant parameters of the
+/// first two (as the estimators' gains are).
+fn full4(s: &SVector<f64, 4>, u: f64) -> SVector<f64, 4> {
+    let m = moving4(s, u);
+    SVector::<f64, 4>::new(m[0], m[1], s[2], s[3])
+}
+
+fn P0_4() -> SMatrix<f64, 4, 4> {
+    SMatrix::<f64, 4, 4>::from_diagonal(&SVector::<f64, 4>::new(0.1, 0.1, 1.0, 0.5))
+}
+
+/// The filter of [`full4`], measuring the first state.
+fn filter4(p: MerweParams) -> F4 {
+    let x0 = SVector::<f64, 4>::new(0.3, 0.0, 2.0, 0.5);
+    let mut Q = SMatrix::<f64, 4, 4>::identity() * 1e-4;
+    Q[(0, 2)] = 2e-5;
+    Q[(2, 0)] = 2e-5;
+    F4::new(x0, P0_4(), Q, SMatrix::<f64, 1, 1>::new(1e-3), p).expect("valid")
+}
+
 #[test]
 fn partial_predict_equals_full_predict() {
-    type F4 = Ukf<4, 1, 9>;
-    let moving = |s: &SVector<f64, 4>, u: f64| {
-        Vector2::new(
-            s[0] + DT * s[1],
-            s[1] + DT * (u - s[2] * s[0] - s[3] * s[1]),
-        )
-    };
-    let full = |s: &SVector<f64, 4>, u: f64| {
-        let m = moving(s, u);
-        SVector::<f64, 4>::new(m[0], m[1], s[2], s[3])
-    };
+    let (moving, full) = (moving4, full4);
     let h = |s: &SVector<f64, 4>| Vector1::new(s[0]);
     for p in [params(1.0, 2.0, 0.0), params(0.5, 2.0, 1.0)] {
-        let x0 = SVector::<f64, 4>::new(0.3, 0.0, 2.0, 0.5);
-        let P0 = SMatrix::<f64, 4, 4>::from_diagonal(&SVector::<f64, 4>::new(0.1, 0.1, 1.0, 0.5));
-        let mut Q = SMatrix::<f64, 4, 4>::identity() * 1e-4;
-        Q[(0, 2)] = 2e-5;
-        Q[(2, 0)] = 2e-5;
-        let mut a = F4::new(x0, P0, Q, SMatrix::<f64, 1, 1>::new(1e-3), p).expect("valid");
+        let mut a = filter4(p);
         let mut b = a.clone();
         let mut worst = 0.0f64;
         for k in 0..2000 {
@@ -244,6 +259,109 @@ fn partial_predict_equals_full_predict() {
         assert!(worst <= 1e-12, "alpha {}: rel diff {worst:e}", p.alpha);
         assert_eq!(a.recoveries(), b.recoveries());
     }
+}
+
+/// `predict_linear` (the closed form `F x + b`, `F P F' + Q`) against the
+/// unscented `predict` of the same affine process, with updates in between
+/// (so `P` is not that of the closed form), and its refusals.
+#[test]
+fn linear_predict_equals_unscented_predict() {
+    let b = Vector2::new(0.01, -0.02);
+    for p in [
+        params(1.0, 2.0, 0.0),
+        params(0.5, 2.0, 1.0),
+        params(0.1, 0.0, 0.0),
+    ] {
+        let mut a = lin(p);
+        let mut c = a.clone();
+        let mut worst = 0.0f64;
+        for k in 0..2000 {
+            let z = Vector1::new(z_at(k));
+            assert_eq!(a.predict(|s| F() * s + b), Ok(Status::Nominal));
+            assert_eq!(c.predict_linear(&F(), &b), Ok(Status::Nominal));
+            assert_eq!(c.P(), &c.P().transpose(), "P- exactly symmetric");
+            worst = worst
+                .max(max_abs(&(a.x() - c.x())) / max_abs(a.x()))
+                .max(max_abs(&(a.P() - c.P())) / max_abs(a.P()));
+            assert_eq!(a.update(&z, |s| H() * s), c.update(&z, |s| H() * s));
+        }
+        eprintln!(
+            "alpha {}: linear vs unscented predict, max rel diff {worst:.2e}",
+            p.alpha
+        );
+        assert!(
+            worst <= 1e-12 / (p.alpha * p.alpha),
+            "alpha {}: rel diff {worst:e}",
+            p.alpha
+        );
+        assert_eq!(a.recoveries(), c.recoveries());
+    }
+    let mut c = lin(params(1.0, 2.0, 0.0));
+    let before = snapshot(&c);
+    assert_eq!(
+        c.predict_linear(&(F() * f64::NAN), &b),
+        Err(UkfError::NonFiniteProcess)
+    );
+    assert_eq!(
+        c.predict_linear(&F(), &Vector2::new(f64::INFINITY, 0.0)),
+        Err(UkfError::NonFiniteProcess)
+    );
+    assert_eq!(
+        c.predict_linear(&(F() * 1e300), &b),
+        Err(UkfError::NonFiniteResult {
+            phase: Phase::Predict
+        })
+    );
+    assert_eq!(snapshot(&c), before);
+    assert_eq!(c.recoveries().rejected, 3);
+}
+
+/// `predict_partial` defers filterpy's re-draw: the points drawn on demand
+/// equal the full predict's up to rounding, and an indefinite `P-` is
+/// repaired by the call that factors it (the generic update, as stage
+/// `PredictRedraw`) or refused by the factorisation of `S` in the selection
+/// update; never a NaN.
+#[test]
+fn partial_predict_defers_the_redraw() {
+    let h = |s: &SVector<f64, 4>| Vector1::new(s[0]);
+    let sel = Selection::<4, 1>::new([0]).expect("index < 4");
+    let mut a = filter4(params(0.5, 2.0, 1.0));
+    let mut b = a.clone();
+    assert_eq!(a.predict(|s| full4(s, 0.3)), Ok(Status::Nominal));
+    assert_eq!(b.predict_partial(|s| moving4(s, 0.3)), Ok(Status::Nominal));
+    let (pa, pb) = (
+        a.sigmas_f().expect("drawn"),
+        b.sigmas_f().expect("P- factors"),
+    );
+    let rel = max_abs(&(pa - pb)) / max_abs(&pa);
+    assert!(rel <= 1e-14, "re-drawn points differ by {rel:e}");
+
+    // A strongly negative Q: P- is indefinite, and predict_partial does not
+    // factor it.
+    b.set_Q(SMatrix::<f64, 4, 4>::identity() * -10.0)
+        .expect("finite");
+    assert_eq!(b.predict_partial(|s| moving4(s, 0.3)), Ok(Status::Nominal));
+    assert_eq!(b.sigmas_f(), None);
+    let mut c = b.clone();
+    let z = Vector1::new(0.2);
+    assert_eq!(
+        b.update(&z, h),
+        Err(UkfError::CovarianceReset {
+            stage: Stage::PredictRedraw
+        })
+    );
+    assert!(b.x().iter().chain(b.P().iter()).all(|v| v.is_finite()));
+    assert_eq!(b.recoveries().covariance_resets, 1);
+    assert_eq!(b.recoveries().updates, 1, "updated from the reset P");
+    let x_before = *c.x();
+    assert_eq!(
+        c.update_selected(&z, &sel),
+        Err(UkfError::CovarianceReset {
+            stage: Stage::InnovationCovariance
+        })
+    );
+    assert_eq!(*c.x(), x_before, "measurement discarded");
+    assert_eq!(*c.P(), P0_4());
 }
 
 #[test]
@@ -341,7 +459,7 @@ type Snapshot = (
     Matrix2<f64>,
     Vector2<f64>,
     Matrix2<f64>,
-    SMatrix<f64, 2, 5>,
+    Option<SMatrix<f64, 2, 5>>,
     SMatrix<f64, 2, 1>,
     Vector1<f64>,
     SMatrix<f64, 1, 1>,
