@@ -878,7 +878,8 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
                 P_prior[(c, r)] = v;
             }
         }
-        if !all_finite(&x_prior) || !all_finite(&P_prior) {
+        // x-_b is the finite state's x_b: only the moving rows can overflow.
+        if !all_finite(&x_t) || !all_finite(&P_prior) {
             return self.reject(UkfError::NonFiniteResult {
                 phase: Phase::Predict,
             });
