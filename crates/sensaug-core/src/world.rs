@@ -300,18 +300,18 @@ impl<'a> Scenario<'a> {
             });
         };
         let mut slots = out.iter_mut();
-        Ok(self.run_with(|rec| {
+        Ok(self.run_with(|_, rec| {
             if let Some(slot) = slots.next() {
                 *slot = *rec;
             }
         }))
     }
 
-    /// Runs the whole trial, handing each tick's record to `each` in tick
-    /// order ([`Scenario::ticks`] calls): a caller that converts records
-    /// (the log rows of the Python binding) needs no buffer of the whole
-    /// trial's records.
-    pub fn run_with(&mut self, mut each: impl FnMut(&TickRecord)) -> RunSummary {
+    /// Runs the whole trial, handing each tick's number and record to `each`
+    /// in tick order ([`Scenario::ticks`] calls): a caller that converts
+    /// records (the log rows of the Python binding) needs no buffer of the
+    /// whole trial's records.
+    pub fn run_with(&mut self, mut each: impl FnMut(u64, &TickRecord)) -> RunSummary {
         let mut summary = RunSummary {
             ticks: self.ticks(),
             ..RunSummary::default()
@@ -319,7 +319,7 @@ impl<'a> Scenario<'a> {
         // A copy, so the samples do not borrow the robot the ticks change.
         let protocol = *self.robot.protocol();
         for sample in protocol.samples() {
-            each(&self.tick(&sample, &mut summary));
+            each(sample.k, &self.tick(&sample, &mut summary));
         }
         summary.robot = self.robot.counters();
         summary.mirror_errors = match &self.partner {

@@ -105,11 +105,7 @@ fn run_scenario<'py>(
     // trial's records in between.
     let mut records = Vec::with_capacity(scenario.ticks() * RECORD_BYTES);
     let summary = py.detach(|| {
-        let mut k = 0u64;
-        scenario.run_with(|rec| {
-            pack_record(&Row::from_tick_record(k, rec), &mut records);
-            k += 1;
-        })
+        scenario.run_with(|k, rec| pack_record(&Row::from_tick_record(k, rec), &mut records))
     });
     let out = records.into_pyarray(py);
     let d = PyDict::new(py);
