@@ -267,6 +267,17 @@ class RealtimeConfig:
     """SCHED_FIFO priority 1..99; absent keeps the default scheduler."""
     mlockall: bool = True
     """Lock all memory (mlockall) before the loop."""
+    spin_us: int = 0
+    """Sleep-then-spin wake-up (us; 0: off, the tick sleeps until its deadline). With spin_us > 0
+    each tick sleeps until spin_us before its deadline, then busy-waits on the clock until the
+    deadline: an OS timer wake-up later than its target by less than spin_us no longer delays
+    the tick. The cost: the loop's cpu is busy for spin_us of every period (100 us at 1 kHz:
+    10% of a cpu). Best with `cpu` (the spin stays on the loop's own cpu, which the log writer
+    avoids) and `fifo_priority` (no ordinary thread preempts the spin); with
+    /dev/cpu_dma_latency held at 0 the idle cpu polls anyway (no deep idle state), so the spin
+    costs no more power than idling would, though it gives its cpu to no one. Must be below
+    half the loop period.
+    """
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> RealtimeConfig:
@@ -319,7 +330,7 @@ class RigConfig:
     """
     ramp_down_s: float = 0.2
     """Ramp from the last command to zero on SIGINT/SIGTERM (s)."""
-    realtime: RealtimeConfig = field(default_factory=lambda: RealtimeConfig.from_dict({'mlockall': True}))
+    realtime: RealtimeConfig = field(default_factory=lambda: RealtimeConfig.from_dict({'mlockall': True, 'spin_us': 0}))
     """Thread settings."""
     ring_capacity: int = 65536
     """Log ring capacity (records)."""
@@ -511,7 +522,7 @@ class ScenarioConfig:
     """The partner: the virtual human (simulation, and inside the rig loop)."""
     plant: PlantConfig = field(default_factory=lambda: PlantConfig.from_dict({'coulomb': 0.0, 'damping': 0.0, 'dt_s': 0.001, 'mass': 0.0035}))
     """The handle as the controller models it."""
-    rig: RigConfig = field(default_factory=lambda: RigConfig.from_dict({'can': 'udp:47100', 'drive': 'hi5', 'feedback_step_margin_rad': 0.01, 'feedback_timeout_ms': 20.0, 'log': 'out/rig_log.csv', 'max_estimator_errors': 10, 'max_feedback_velocity_rad_s': 8.0, 'max_missing_feedback_fraction': 0.5, 'max_stale_feedback_ticks': 100, 'node_id': 1, 'position_unit': 'deg', 'ramp_down_s': 0.2, 'realtime': {'mlockall': True}, 'ring_capacity': 65536, 'stats': 'out/rig_stats.json', 'torque_limit_nm': 3.0, 'virtual_human': True, 'watchdog_ms': 50}))
+    rig: RigConfig = field(default_factory=lambda: RigConfig.from_dict({'can': 'udp:47100', 'drive': 'hi5', 'feedback_step_margin_rad': 0.01, 'feedback_timeout_ms': 20.0, 'log': 'out/rig_log.csv', 'max_estimator_errors': 10, 'max_feedback_velocity_rad_s': 8.0, 'max_missing_feedback_fraction': 0.5, 'max_stale_feedback_ticks': 100, 'node_id': 1, 'position_unit': 'deg', 'ramp_down_s': 0.2, 'realtime': {'mlockall': True, 'spin_us': 0}, 'ring_capacity': 65536, 'stats': 'out/rig_stats.json', 'torque_limit_nm': 3.0, 'virtual_human': True, 'watchdog_ms': 50}))
     """The real-time loop and its CAN link (`sensaug-rt`; the simulation ignores it)."""
     robot: RobotConfig = field(default_factory=lambda: RobotConfig.from_dict({'gain_window_s': 8.0, 'integrate': True, 'q_pos': 1.0, 'q_vel': 0.0, 'seed': 1, 'sigma': {'alpha': 1.0, 'beta': 2.0, 'kappa': 0.0}, 'stage1': {'P0': [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0], 'Q': [0.01, 0.01, 0.01, 0.01, 0.01, 0.01], 'R': [1e-07, 1e-07, 1e-07], 'gains0': [0.0, 0.0, 0.0]}, 'stage2': {'P0': [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0], 'Q': [0.01, 0.01, 0.01, 0.01, 0.01, 0.01], 'R': [1e-07, 1e-07, 1e-07, 1e-07, 1e-07], 'gains0': [0.0, 0.0, 0.0]}, 'stage3': {'P0': [0.01, 0.01], 'Q': [0.01, 0.01], 'R_sensor': [1e-07, 1e-07], 'partner_window_s': 0.2}, 'torque_limit': 1000.0}))
     """The robot's controller and estimators."""

@@ -87,6 +87,9 @@ case("valid_socketcan", setting("rig", "can", '"socketcan:vcan0"'), "valid")
 case("valid_udp_max_port", setting("rig", "can", '"udp:65535"'), "valid")
 case("valid_dt_10ms", full({"plant": "dt_s = 0.01\n", "rig": "watchdog_ms = 200\nfeedback_timeout_ms = 100.0\n"}), "valid")
 case("valid_fifo", setting("rig.realtime", "fifo_priority", "80"), "valid")
+case("valid_spin", setting("rig.realtime", "spin_us", "100"), "valid")
+case("valid_spin_below_half_period", setting("rig.realtime", "spin_us", "499"), "valid")
+case("valid_spin_max_at_500_hz", full({"plant": "dt_s = 0.002\n", "rig.realtime": "spin_us = 900\n"}), "valid")
 case("valid_node_15", setting("rig", "node_id", "15"), "valid")
 case("valid_rad", setting("rig", "position_unit", '"rad"'), "valid")
 case("valid_drive_hi5", setting("rig", "drive", '"hi5"'), "valid")
@@ -158,6 +161,7 @@ for table, key, value, name in [
     ("rig", "ring_capacity", "1e12", "ring_float"),
     ("rig.realtime", "mlockall", "1", "mlockall_int"),
     ("rig.realtime", "cpu", '"0"', "cpu_string"),
+    ("rig.realtime", "spin_us", "100.0", "spin_float"),
     ("plant", "mass", '"heavy"', "mass_string"),
     ("plant", "dt_s", "true", "dt_bool"),
     ("world", "seed", "-3", "seed_negative"),
@@ -237,6 +241,8 @@ for table, key, value, name in [
     ("rig", "node_id", "-1", "node_negative"),
     ("rig.realtime", "fifo_priority", "0", "fifo_zero"),
     ("rig.realtime", "fifo_priority", "100", "fifo_100"),
+    ("rig.realtime", "spin_us", "-1", "spin_negative"),
+    ("rig.realtime", "spin_us", "901", "spin_901"),
     ("plant", "dt_s", "0.0", "dt_zero"),
     ("plant", "dt_s", "1.0", "dt_one_second"),
     ("plant", "dt_s", "1e-6", "dt_tiny"),
@@ -277,6 +283,11 @@ case("range_timeout_below_period", full({"plant": "dt_s = 0.01\n", "rig": "watch
      "rig.feedback_timeout_ms")
 case("range_watchdog_below_two_periods", full({"plant": "dt_s = 0.01\n", "rig": "watchdog_ms = 15\nfeedback_timeout_ms = 50.0\n"}),
      "rig.watchdog_ms")
+# Within the schema's 0..900 us but not below half the 1 ms period (500 us).
+case("range_spin_half_period", setting("rig.realtime", "spin_us", "500"), "rig.realtime.spin_us")
+case("range_spin_over_half_period", setting("rig.realtime", "spin_us", "600"), "rig.realtime.spin_us")
+case("range_spin_901_at_500_hz", full({"plant": "dt_s = 0.002\n", "rig.realtime": "spin_us = 901\n"}),
+     "rig.realtime.spin_us")
 case("range_phase_duration_zero", full(head=BASE.replace("duration_s = 2.0", "duration_s = 0.0", 1)), "phases[0].duration_s")
 case("range_phase_duration_subtick", full(head=BASE.replace("duration_s = 2.0", "duration_s = 0.0001", 1)),
      "phases[0].duration_s")

@@ -256,6 +256,21 @@ fn rig_timing(rig: &RigSpec, dt_s: f64) -> Result<(), ConfigError> {
             ),
         ));
     }
+    // The period in whole ns, as the loop derives it. A spin of half the
+    // period or more would leave the tick less time to run than it spins.
+    let period_ns = (dt_s * 1e9).round() as u64;
+    let spin_us = u64::from(rig.realtime.spin_us);
+    if spin_us > 0 && 2 * spin_us * 1000 >= period_ns {
+        return Err(ConfigError::new(
+            "rig.realtime.spin_us",
+            format!(
+                "{spin_us} us is not below half the loop period ({} us, plant.dt_s = {} s); \
+                 choose a smaller spin_us",
+                num(period_ns as f64 / 2e3),
+                num(dt_s)
+            ),
+        ));
+    }
     if rig.log.is_empty() {
         return Err(ConfigError::new(
             "rig.log",

@@ -112,3 +112,37 @@ fn oversized_text_is_refused_before_parsing() {
     let err = load_str(&text, Format::Toml).unwrap_err();
     assert!(err.message.contains("1 MiB"), "{err}");
 }
+
+/// `rig.realtime.spin_us`: the schema's 0..=900, and below half the loop
+/// period (a cross-field rule), named with the fix.
+#[test]
+fn spin_is_bounded_by_the_schema_and_by_half_the_period() {
+    let with = |dt_s: &str, spin: &str| {
+        load_str(
+            &format!("{MINIMAL}\n[plant]\ndt_s = {dt_s}\n[rig.realtime]\nspin_us = {spin}\n"),
+            Format::Toml,
+        )
+    };
+    assert_eq!(with("0.001", "0").unwrap().rig.realtime.spin_us, 0);
+    assert_eq!(with("0.001", "499").unwrap().rig.realtime.spin_us, 499);
+    let half = with("0.001", "500").unwrap_err();
+    assert_eq!(half.field, "rig.realtime.spin_us");
+    assert_eq!(
+        half.message,
+        "500 us is not below half the loop period (500 us, plant.dt_s = 0.001 s); \
+         choose a smaller spin_us"
+    );
+    // At 500 Hz the schema's bound is the one that binds.
+    assert_eq!(with("0.002", "900").unwrap().rig.realtime.spin_us, 900);
+    let over = with("0.002", "901").unwrap_err();
+    assert_eq!(over.field, "rig.realtime.spin_us");
+    assert!(over.message.contains("out of range"), "{}", over.message);
+    assert_eq!(
+        load_str(MINIMAL, Format::Toml)
+            .unwrap()
+            .rig
+            .realtime
+            .spin_us,
+        0
+    );
+}
