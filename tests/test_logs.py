@@ -62,6 +62,7 @@ def test_a_simulated_trial_is_in_the_schema(trial):
     assert trial["fresh"].all() and not trial["ramp"].any()
     assert np.all(trial["drive_state"] == logs.UNKNOWN_INT) and np.all(trial["guard"] == logs.UNKNOWN_INT)
     assert np.isnan(trial["torque_nm"]).all() and np.isnan(trial["wake_latency_us"]).all()
+    assert np.isnan(trial["sleep_latency_us"]).all()
     # Stage-3 columns only in the integration phase, with their variances.
     integ = trial["phase"] == 2
     assert np.isfinite(trial["e_hat_fused_var"][integ]).all() and np.isnan(trial["e_hat_fused_var"][~integ]).all()

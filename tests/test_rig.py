@@ -170,6 +170,29 @@ def test_short_trial_converges_and_logs_every_tick(procs):
           f"{stats['wake_latency']['max_us']:.0f} us, missing feedback {stats['can']['missing_feedback']}")
 
 
+def test_a_spin_before_each_deadline_logs_both_latencies_every_tick(procs):
+    """rig.realtime.spin_us: each tick sleeps until 100 us before its
+    deadline and spins on the clock for the rest. Every tick logs both the
+    wake-up latency (the tick's start after its deadline) and the sleep's
+    own (the OS timer's); no timing is asserted."""
+    cfg = stall_tolerant(short_config(gain_s=1.0, other_s=0.5))
+    cfg.rig.realtime.spin_us = 100
+    pr = procs(cfg)
+    pr.start_controller()
+    assert pr.wait_controller() == 0, pr.controller.stderr.read()
+    stats = json.loads(pr.stats.read_text())
+    log = load_log(pr.log)
+    assert stats["ticks"] == 2000 == len(log)
+    assert np.isfinite(log["sleep_latency_us"]).all() and (log["sleep_latency_us"] >= 0).all()
+    assert np.isfinite(log["wake_latency_us"]).all() and (log["wake_latency_us"] >= 0).all()
+    # One sample per wake-up: each tick's and the last, which found the protocol done.
+    assert stats["sleep_latency"]["count"] == stats["wake_latency"]["count"] == stats["ticks"] + 1
+    assert "spin 100 us before each deadline" in stats["realtime"]
+    assert log.meta["loop"]["spin_us"] == 100 and log.meta["config"]["rig"]["realtime"]["spin_us"] == 100
+    print(f"\nspin 100 us: wake p50/p99 {stats['wake_latency']['p50_us']}/{stats['wake_latency']['p99_us']} us, "
+          f"sleep p50/p99 {stats['sleep_latency']['p50_us']}/{stats['sleep_latency']['p99_us']} us")
+
+
 def test_killing_the_controller_trips_the_drive_watchdog(procs):
     """SIGKILL: no ramp, no disable. The drive must zero its torque and latch
     FAULT(WATCHDOG) after its 50 ms watchdog; we allow 1 s for a loaded VM

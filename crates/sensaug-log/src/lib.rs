@@ -198,7 +198,8 @@ schema! {
     e_h_meas: Float, "pos", "goal-integrating partner (simulation section): its (noisy in integration phases) view of x - tau_h; NaN for a virtual human";
     e_h_hat_own: Float, "pos", "goal-integrating partner, stage 3: (x - tau_h)^ from own sensing only";
     e_h_hat_fused: Float, "pos", "goal-integrating partner, stage 3: (x - tau_h)^ with the robot channel";
-    wake_latency_us: Float, "us", "rig: wake-up after the tick's deadline (NaN in simulations)";
+    wake_latency_us: Float, "us", "rig: the tick's start after its deadline, after the spin if rig.realtime.spin_us is set (NaN in simulations)";
+    sleep_latency_us: Float, "us", "rig: the deadline sleep's return after its own target, the deadline less rig.realtime.spin_us: the OS timer's latency; equal to wake_latency_us without a spin (NaN in simulations)";
     compute_us: Float, "us", "rig: wake-up to command sent (NaN in simulations)";
     feedback_age_ticks: Int, "1", "ticks since the last feedback (0 in simulations: a measurement every tick)";
     drive_state: Int, "1", "rig: drive state 0 boot, 1 disabled, 2 enabled, 3 fault (-1 in simulations)";

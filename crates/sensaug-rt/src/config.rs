@@ -65,5 +65,6 @@ pub fn loop_settings(resolved: &Resolved<'_>) -> Result<LoopSettings, ConfigErro
         max_missing_feedback_fraction: rig.max_missing_feedback_fraction,
         max_stale_feedback_ticks: rig.max_stale_feedback_ticks,
         max_estimator_errors: rig.max_estimator_errors,
+        spin_us: rig.realtime.spin_us,
     })
 }

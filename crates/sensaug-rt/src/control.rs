@@ -14,6 +14,7 @@
 use crate::log::{LogRecord, LogSink};
 use crate::os;
 use crate::stats::{CanCounters, ComputeParts, Histogram, LoopReport, StartGap};
+use crate::wake::{wake_up, Wake};
 use sensaug_bridge::drive_link::{Absorbed, DriveLink, DriveSample};
 use sensaug_bridge::protocol::NodeId;
 use sensaug_bridge::{Frame, Transport};
@@ -41,6 +42,8 @@ struct Timing {
     /// Absolute time of tick 0 (ns, `CLOCK_MONOTONIC`).
     start_ns: u64,
     period_ns: u64,
+    /// How long before each deadline the sleep ends and the spin begins.
+    spin_ns: u64,
     /// Feedback older than this many ticks trips the timeout.
     timeout_ticks: u64,
     ramp_ticks: u64,
@@ -55,17 +58,11 @@ impl Timing {
         Timing {
             start_ns: (first_command_ns + period_ns).max(os::now_ns()),
             period_ns,
+            spin_ns: u64::from(s.spin_us) * 1000,
             timeout_ticks: (s.feedback_timeout_ms * 1e-3 / s.dt_s).ceil() as u64,
             ramp_ticks: (s.ramp_down_s / s.dt_s).round() as u64,
         }
     }
-}
-
-/// When a tick was due and when it woke (ns).
-#[derive(Clone, Copy, Debug)]
-struct Wake {
-    deadline_ns: u64,
-    woke_ns: u64,
 }
 
 /// What a tick sensed.
@@ -186,6 +183,9 @@ pub struct LoopSettings {
     pub max_stale_feedback_ticks: u64,
     /// Degraded run: most estimator errors plus non-finite outputs.
     pub max_estimator_errors: u64,
+    /// Sleep-then-spin: the sleep ends this long before each deadline and
+    /// the loop spins on the clock for the rest (us; 0: sleep only).
+    pub spin_us: u32,
 }
 
 impl LoopSettings {
@@ -242,6 +242,8 @@ pub struct Rig<'a> {
     protocol: Protocol<'a>,
     drive: DriveView,
     wake: Histogram,
+    /// The deadline sleep's return after its own target (the OS's part).
+    sleep: Histogram,
     compute: Histogram,
     parts: ComputeParts,
     /// Page faults of the loop's thread during [`Rig::run`].
@@ -291,6 +293,7 @@ impl<'a> Rig<'a> {
                 last_feedback_tick: 0,
             },
             wake: Histogram::new(50_000),
+            sleep: Histogram::new(50_000),
             compute: Histogram::new(50_000),
             parts: ComputeParts::new(10_000),
             page_faults: 0,
@@ -456,20 +459,18 @@ impl<'a> Rig<'a> {
         reason
     }
 
-    /// Sleeps until tick `k`'s absolute deadline; records the wake-up
-    /// latency and counts a miss when the next deadline has already passed.
+    /// Waits for tick `k`'s absolute deadline (a sleep, then the spin if
+    /// one is set: [`wake_up`]); records the wake-up latency and the sleep's
+    /// own, and counts a miss when the next deadline has already passed.
     fn wait_for_tick(&mut self, timing: &Timing, k: u64) -> Wake {
         let deadline_ns = timing.start_ns + k * timing.period_ns;
-        os::sleep_until(deadline_ns);
-        let woke_ns = os::now_ns();
-        self.wake.record(woke_ns.saturating_sub(deadline_ns));
-        if woke_ns > deadline_ns + timing.period_ns {
+        let wake = wake_up(deadline_ns, timing.spin_ns, os::sleep_until, os::now_ns);
+        self.wake.record(wake.wake_latency_ns());
+        self.sleep.record(wake.sleep_latency_ns());
+        if wake.woke_ns > deadline_ns + timing.period_ns {
             self.deadline_misses += 1;
         }
-        Wake {
-            deadline_ns,
-            woke_ns,
-        }
+        wake
     }
 
     /// Sense: drain the received frames; the feedback is fresh when it
@@ -579,11 +580,8 @@ impl<'a> Rig<'a> {
         safety: Safety,
         sent_ns: u64,
     ) {
-        let Wake {
-            deadline_ns,
-            woke_ns,
-        } = sensed.wake;
-        let compute_ns = sent_ns.saturating_sub(woke_ns);
+        let wake = sensed.wake;
+        let compute_ns = sent_ns.saturating_sub(wake.woke_ns);
         self.compute.record(compute_ns);
         log.push(LogRecord {
             tick: k,
@@ -596,7 +594,8 @@ impl<'a> Rig<'a> {
             u_h: command.u_h,
             torque_nm: command.torque_nm,
             robot: command.robot,
-            wake_latency_us: woke_ns.saturating_sub(deadline_ns) as f64 / 1e3,
+            wake_latency_us: wake.wake_latency_ns() as f64 / 1e3,
+            sleep_latency_us: wake.sleep_latency_ns() as f64 / 1e3,
             compute_us: compute_ns as f64 / 1e3,
             feedback_age_ticks: sensed.age_ticks,
             drive_state: self.drive.sample.state_code,
@@ -638,6 +637,7 @@ impl<'a> Rig<'a> {
             ticks: self.ticks_run,
             stop_reason: reason.to_string(),
             wake_latency: self.wake.summary(),
+            sleep_latency: self.sleep.summary(),
             compute: self.compute.summary(),
             compute_parts: self.parts.summary(),
             loop_page_faults: self.page_faults,

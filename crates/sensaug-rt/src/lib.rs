@@ -9,3 +9,4 @@ pub mod log;
 pub mod os;
 pub mod safety;
 pub mod stats;
+pub mod wake;

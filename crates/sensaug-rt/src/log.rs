@@ -59,8 +59,11 @@ pub struct LogRecord {
     pub torque_nm: f64,
     /// The controller's log line (its `u` is NaN while ramping down).
     pub robot: RobotTick,
-    /// Wake-up latency after the deadline (us).
+    /// Wake-up latency: the tick's start after its deadline (us).
     pub wake_latency_us: f64,
+    /// Sleep latency: the deadline sleep's return after its own target,
+    /// the deadline less the spin (us).
+    pub sleep_latency_us: f64,
     /// Wake-up to command sent (us).
     pub compute_us: f64,
     /// Ticks since the last feedback.
@@ -99,6 +102,7 @@ impl LogRecord {
             torque_nm: self.torque_nm,
             e: self.x - self.tau,
             wake_latency_us: self.wake_latency_us,
+            sleep_latency_us: self.sleep_latency_us,
             compute_us: self.compute_us,
             feedback_age_ticks: self.feedback_age_ticks as i64,
             drive_state: i64::from(self.drive_state),
@@ -289,6 +293,7 @@ fn touch_every_slot(producer: &mut Producer<LogRecord>, consumer: &mut Consumer<
         torque_nm: 0.0,
         robot: RobotTick::NONE,
         wake_latency_us: 0.0,
+        sleep_latency_us: 0.0,
         compute_us: 0.0,
         feedback_age_ticks: 0,
         drive_state: 0,
@@ -364,6 +369,7 @@ mod tests {
                 ..RobotTick::NONE
             },
             wake_latency_us: 12.5,
+            sleep_latency_us: 112.5,
             compute_us: 30.0,
             feedback_age_ticks: 1,
             drive_state: 2,
@@ -382,6 +388,7 @@ mod tests {
         assert!(row.fresh && !row.ramp);
         assert_eq!((row.x_meas, row.xdot_meas), (0.5, -0.25));
         assert_eq!(row.e, 0.5 - 0.125);
+        assert_eq!((row.wake_latency_us, row.sleep_latency_us), (12.5, 112.5));
         assert!(row.eps.is_nan() && row.Lx_hat.is_nan());
         let ramp = LogRecord {
             guard: None,

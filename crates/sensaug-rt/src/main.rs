@@ -240,6 +240,13 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, RunError> {
             &mut realtime,
         ),
     }
+    if rig.realtime.spin_us > 0 {
+        // Nothing to refuse: the spin is the loop's own busy-wait.
+        realtime.push(format!(
+            "spin {} us before each deadline",
+            rig.realtime.spin_us
+        ));
+    }
 
     let mut rig_loop = match Rig::start(settings, link, transport, robot) {
         Ok(r) => r,
@@ -319,6 +326,7 @@ fn log_metadata(resolved: &Resolved<'_>, s: &LoopSettings) -> serde_json::Value 
             "max_missing_feedback_fraction": s.max_missing_feedback_fraction,
             "max_stale_feedback_ticks": s.max_stale_feedback_ticks,
             "max_estimator_errors": s.max_estimator_errors,
+            "spin_us": s.spin_us,
             "quiet_period_ms": s.quiet_period().as_secs_f64() * 1e3,
             "log_write_period_ms": log::WRITE_PERIOD.as_secs_f64() * 1e3,
         }),

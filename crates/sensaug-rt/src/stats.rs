@@ -1,6 +1,6 @@
 //! Loop statistics: fixed-bin histograms (allocated before the loop; a
-//! sample is one counter increment) of wake-up latency and tick compute
-//! time, and the loop's error counters.
+//! sample is one counter increment) of wake-up latency, sleep latency and
+//! tick compute time, and the loop's error counters.
 
 use serde::Serialize;
 
@@ -210,8 +210,15 @@ pub struct LoopReport {
     pub ticks: u64,
     /// Why the loop stopped.
     pub stop_reason: String,
-    /// Wake-up latency after each absolute deadline.
+    /// Wake-up latency: each tick's start after its absolute deadline
+    /// (after the spin, with `rig.realtime.spin_us`): what the controller
+    /// sees.
     pub wake_latency: Summary,
+    /// Sleep latency: the deadline sleep's return after its own target
+    /// (the deadline less `rig.realtime.spin_us`): the OS timer's latency,
+    /// the quantity cyclictest measures. Equal to `wake_latency` without a
+    /// spin.
+    pub sleep_latency: Summary,
     /// Compute time of a tick (wake-up to command sent).
     pub compute: Summary,
     /// `compute` by part, and the log push after it.

@@ -1,14 +1,16 @@
 //! The real-time loop against a minimal in-process drive on the loopback
 //! bus: it completes, it stops cleanly on the stop flag, a silent drive trips
-//! the feedback timeout, and its ticks allocate nothing (counting allocator,
-//! counted only on the loop's thread).
+//! the feedback timeout, its ticks allocate nothing (counting allocator,
+//! counted only on the loop's thread), with or without the sleep-then-spin
+//! wake-up. No timing is asserted.
 
 use sensaug_bridge::transport::UdpBus;
 use sensaug_config::{load_str, resolve, Format};
 use sensaug_core::controller::Robot;
 use sensaug_core::protocol::Protocol;
+use sensaug_log::{parse_row, Row};
 use sensaug_rt::config::drive_link;
-use sensaug_rt::control::{Rig, StopReason};
+use sensaug_rt::control::{LoopSettings, Rig, StopReason};
 use sensaug_rt::log;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -52,9 +54,14 @@ struct Outcome {
     records: u64,
     ticks: u64,
     estimate: [f64; 3],
+    /// Samples in the wake-up and sleep latency histograms.
+    wake_samples: u64,
+    sleep_samples: u64,
+    /// The log's rows (parsed back from the file).
+    rows: Vec<Row>,
 }
 
-fn run_loop(answer_for: u64, stop_after: Option<Duration>) -> Outcome {
+fn run_loop(answer_for: u64, stop_after: Option<Duration>, spin_us: u32) -> Outcome {
     let spec = load_str(CONFIG, Format::Toml).unwrap();
     let resolved = resolve(&spec).unwrap();
     let port = free_port();
@@ -62,7 +69,10 @@ fn run_loop(answer_for: u64, stop_after: Option<Duration>) -> Outcome {
     let handle = drive(port, Arc::clone(&drive_stop), answer_for);
     let protocol = Protocol::new(&resolved.phases, resolved.dt_s).unwrap();
     let robot = Robot::new(resolved.robot, protocol).unwrap();
-    let settings = drive::loop_settings(&resolved);
+    let settings = LoopSettings {
+        spin_us,
+        ..drive::loop_settings(&resolved)
+    };
     let transport = Box::new(UdpBus::open(port).unwrap());
     let mut rig = Rig::start(settings, drive_link(&settings).unwrap(), transport, robot).unwrap();
     let dir = std::env::temp_dir().join(format!("sensaug-rt-test-{port}"));
@@ -85,23 +95,52 @@ fn run_loop(answer_for: u64, stop_after: Option<Duration>) -> Outcome {
     drive_stop.store(true, Ordering::Relaxed);
     handle.join().unwrap();
     let report = rig.report(reason);
+    let text = std::fs::read_to_string(dir.join("log.csv")).unwrap();
     let _ = std::fs::remove_dir_all(&dir);
+    // After the format line, the metadata and the header; before the end line.
+    let rows = text
+        .lines()
+        .skip(3)
+        .filter(|l| !l.starts_with('#'))
+        .map(|l| parse_row(l).unwrap())
+        .collect();
     Outcome {
         reason,
         allocations,
         records,
         ticks: report.ticks,
         estimate: report.partner_gains_estimate,
+        wake_samples: report.wake_latency.count,
+        sleep_samples: report.sleep_latency.count,
+        rows,
     }
 }
 
-#[test]
-fn a_whole_trial_completes_without_allocating_and_logs_every_tick() {
-    let o = run_loop(u64::MAX, None);
+/// A whole trial ran: it completed without allocating, logged every tick,
+/// and recorded one wake-up and one sleep latency per wake-up (every
+/// tick's, and the last one's, which found the protocol done and ran no
+/// tick).
+fn assert_completed_and_recorded(o: &Outcome) {
     assert_eq!(o.reason, StopReason::Completed);
     assert_eq!(o.allocations, 0, "the loop allocated");
     assert_eq!(o.ticks, 3500);
     assert_eq!(o.records, o.ticks);
+    assert_eq!(o.rows.len() as u64, o.ticks);
+    assert_eq!(
+        (o.wake_samples, o.sleep_samples),
+        (o.ticks + 1, o.ticks + 1)
+    );
+}
+
+#[test]
+fn a_whole_trial_completes_without_allocating_and_logs_every_tick() {
+    let o = run_loop(u64::MAX, None, 0);
+    assert_completed_and_recorded(&o);
+    // Without a spin the sleep's target is the deadline: one latency.
+    assert!(o
+        .rows
+        .iter()
+        .all(|r| r.sleep_latency_us == r.wake_latency_us));
     // The same protocol simulated without noise (sensaug.experiment, 3 s gain
     // phase, 0.5 s window) gives Lhh = 1.99929; 0.02 leaves room for the
     // ticks a noisy VM loses feedback (predict-only there).
@@ -110,7 +149,7 @@ fn a_whole_trial_completes_without_allocating_and_logs_every_tick() {
 
 #[test]
 fn the_stop_flag_ramps_down_and_stops() {
-    let o = run_loop(u64::MAX, Some(Duration::from_millis(700)));
+    let o = run_loop(u64::MAX, Some(Duration::from_millis(700)), 0);
     assert_eq!(o.reason, StopReason::Signal);
     assert!(o.ticks < 3500);
     assert_eq!(o.records, o.ticks);
@@ -118,10 +157,24 @@ fn the_stop_flag_ramps_down_and_stops() {
 
 #[test]
 fn a_silent_drive_trips_the_feedback_timeout() {
-    let o = run_loop(300, None);
+    let o = run_loop(300, None, 0);
     assert_eq!(o.reason, StopReason::FeedbackTimeout);
     // 300 answered commands, then the 50 ms timeout (+ the tick that
     // notices) before stopping.
     assert!(o.ticks >= 300 && o.ticks <= 300 + 52, "{}", o.ticks);
     assert_eq!(o.records, o.ticks);
+}
+
+#[test]
+fn with_a_spin_every_tick_records_both_latencies_without_allocating() {
+    let o = run_loop(u64::MAX, None, 100);
+    assert_completed_and_recorded(&o);
+    for r in &o.rows {
+        assert!(r.wake_latency_us >= 0.0, "tick {}", r.tick);
+        assert!(
+            r.sleep_latency_us.is_finite() && r.sleep_latency_us >= 0.0,
+            "tick {}",
+            r.tick
+        );
+    }
 }

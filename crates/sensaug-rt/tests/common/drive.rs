@@ -136,5 +136,6 @@ pub fn loop_settings(resolved: &Resolved<'_>) -> LoopSettings {
         max_missing_feedback_fraction: 0.5,
         max_stale_feedback_ticks: 100,
         max_estimator_errors: 10,
+        spin_us: 0,
     }
 }
