@@ -20,7 +20,8 @@ run on one machine it
    --bench rig_tick``, compute split by part) and the bus's floor (``--bench
    bus_floor``: the cost of the system calls alone),
 7. compares the loop's wake-up latency with cyclictest in interleaved rounds
-   under SCHED_OTHER and SCHED_FIFO (``benches/loop_jitter.py``),
+   under SCHED_OTHER and SCHED_FIFO, the loop sleeping until each deadline
+   and sleeping then spinning 100 us (``benches/loop_jitter.py``),
 8. records the machine (``lscpu``), the date, the load average and the commit.
 """
 from __future__ import annotations
@@ -64,7 +65,8 @@ RIG_MODES = {"not pinned": [], "pinned": ["pinned"], "pinned, drive polling": ["
 # The bus calls alone, each timed: the kernel's floor under the rig tick.
 FLOOR = ["cargo", "bench", "-q", "-p", "sensaug-rt", "--bench", "bus_floor", "--"]
 FLOOR_CALLS = 5000
-# Interleaved rounds of cyclictest and of the loop, per scheduling policy.
+# Interleaved rounds of cyclictest and of the loop (sleep only; sleep then
+# spin), per scheduling policy.
 JITTER_ROUND_S = 2.0
 JITTER_ROUNDS = 5
 
@@ -223,52 +225,57 @@ def rig_lines(rigs: dict[str, dict], floor: dict) -> list[str]:
 
 
 def jitter_lines(jitter: dict) -> list[str]:
-    """The wake-up latency section: cyclictest and the loop per policy,
-    pooled over interleaved rounds, with the per-round spread."""
-    rounds, round_s = jitter["rounds"], jitter["round_s"]
+    """The wake-up latency section: cyclictest and the loop (sleep only, and
+    sleep then spin) per policy, pooled over interleaved rounds, with the
+    per-round spread."""
+    rounds, round_s, spin = jitter["rounds"], jitter["round_s"], jitter["spin_us"]
     lines = [
         "## Loop wake-up latency against cyclictest",
         "",
-        f"1 ms period; per policy {rounds} rounds of {round_s:g} s of each, interleaved (cyclictest, "
-        "loop, loop, cyclictest, ...), pooled into one histogram each; the per-round range of p99 "
-        "and p99.9 shows the spread (`benches/loop_jitter.py`, `compare`). Both pinned to cpu "
+        f"1 ms period; per policy {rounds} rounds of {round_s:g} s of each of three, interleaved "
+        f"(cyclictest, loop, loop with spin, loop with spin, loop, cyclictest, ...), pooled into one "
+        "histogram each; the per-round range of p99 and p99.9 shows the spread "
+        "(`benches/loop_jitter.py`, `compare`). All three pinned to cpu "
         f"{jitter['cpu']} with memory locked; SCHED_FIFO at priority {loop_jitter.FIFO_PRIORITY} "
-        "for both, or the default scheduler for both. The same background for both: the loop's "
+        "for all, or the default scheduler for all. The same background for all: the loop's "
         "rounds have the virtual drive, the bus capture and the loop's log writer on the other "
         "cpus; cyclictest's rounds have a whole virtual rig there. `/dev/cpu_dma_latency` (the "
         f"power-management request cyclictest makes): {jitter['cpu_dma_latency']} through all "
-        "rounds of both. Latency in us, 1 us bins, lower edges (cyclictest's convention; the "
+        "rounds of all three. Latency in us, 1 us bins, lower edges (cyclictest's convention; the "
         "loop's per-tick values from its log), nearest-rank percentiles; one sample per wake-up "
-        "for both (the ticks the loop runs at once to catch up after a stall never slept: "
-        "counted apart, as cyclictest skips those periods).",
+        "(the ticks the loop runs at once to catch up after a stall never waited: counted apart, "
+        "as cyclictest skips those periods).",
         "",
-        "| policy | what | p50 | p99 | p99.9 | max | per-round p99 | per-round p99.9 | "
-        "loop / cyclictest at p99, p99.9 |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---:|",
+        "The rows: *cyclictest wake-up*, a bare thread's sleep on absolute deadlines; "
+        "*sensaug-rt wake-up (sleep only)*, the loop's tick start after its deadline when it "
+        "sleeps until the deadline (`rig.realtime.spin_us = 0`, the default): the same quantity "
+        f"as cyclictest's; *sensaug-rt wake-up (sleep + {spin} us spin)*, the tick start after "
+        f"its deadline when the loop sleeps until {spin} us before it and busy-waits on the clock "
+        f"for the rest (`spin_us = {spin}`): what the controller sees, at the cost of a busy cpu "
+        f"for {spin} us of every 1 ms period ({spin / 10:g}% of the cpu); *sensaug-rt "
+        "sleep_latency (... the OS's part)*, in that same run, the sleep's return after its own "
+        f"target ({spin} us before the deadline): the OS timer's latency, cyclictest's quantity "
+        "(only ticks whose sleep slept: a tick whose previous tick ended after the sleep's "
+        "target spun without sleeping); *tick compute*, wake-up to command sent, per run. The "
+        "ratio column divides each loop row by cyclictest's.",
+        "",
+        *loop_jitter.table(jitter),
+        "",
     ]
+    irq = lambda d: ", ".join(f"{k} {v:.0f}" for k, v in d.items())  # noqa: E731
     for r in jitter["rows"]:
-        b, w, cpt = r["cyclictest"], r["wake"], r["compute"]
-        rng = lambda s, p: f"{s[p][0]:.0f}-{s[p][1]:.0f}"  # noqa: E731
-        ratio = f"{loop_jitter.ratio(w['p99'], b['p99']):.2f}, {loop_jitter.ratio(w['p99.9'], b['p99.9']):.2f}"
-        lines.append(f"| {r['policy']} | cyclictest wake-up | {b['p50']:.0f} | {b['p99']:.0f} | "
-                     f"{b['p99.9']:.0f} | {b['max']:.0f} | {rng(r['cyclictest_spread'], 'p99')} | "
-                     f"{rng(r['cyclictest_spread'], 'p99.9')} | |")
-        lines.append(f"| {r['policy']} | sensaug-rt wake-up | {w['p50']:.0f} | {w['p99']:.0f} | "
-                     f"{w['p99.9']:.0f} | {w['max']:.0f} | {rng(r['wake_spread'], 'p99')} | "
-                     f"{rng(r['wake_spread'], 'p99.9')} | {ratio} |")
-        lines.append(f"| {r['policy']} | sensaug-rt tick compute | {cpt['p50']:.0f} | {cpt['p99']:.0f} | "
-                     f"{cpt['p99.9']:.0f} | {cpt['max']:.0f} | | | |")
-    lines.append("")
-    for r in jitter["rows"]:
-        irq = lambda d: ", ".join(f"{k} {v:.0f}" for k, v in d.items())  # noqa: E731
+        runs = "; ".join(
+            f"sensaug-rt {lp['name']}: {lp['wake_samples']} wake-ups ({lp['sleep_samples']} that slept), stopped: "
+            f"{', '.join(lp['stop_reasons'])}, deadline misses {lp['deadline_misses']}, catch-up ticks "
+            f"(not wake-ups) {lp['catch_up_ticks']}, page faults per round {lp['loop_page_faults']}, "
+            f"settings granted: {', '.join(lp['granted'])}; interrupts per second on cpu {jitter['cpu']} "
+            f"(set-up and the outputs' final fsync included): {irq(lp['irq'])}"
+            for lp in r["loops"]
+        )
         lines.append(
-            f"* {r['policy']}: `{r['cyclictest_command']}` ({r['cyclictest_samples']} samples); "
-            f"sensaug-rt ({r['wake_samples']} wake-ups) stopped: {', '.join(r['stop_reasons'])}; deadline "
-            f"misses {r['deadline_misses']}; catch-up ticks (not wake-ups) {r['catch_up_ticks']}; page faults per round {r['loop_page_faults']}; settings "
-            f"granted: {'; '.join(r['granted'])}; background rigs stopped: "
-            f"{', '.join(r['background_stop_reasons'])}. Interrupts per second on cpu {jitter['cpu']}, "
-            f"cyclictest rounds: {irq(r['irq_cyclictest'])}; loop rounds (set-up and the outputs' final "
-            f"fsync included): {irq(r['irq_loop'])}."
+            f"* {r['policy']}: `{r['cyclictest_command']}` ({r['cyclictest_samples']} samples; background "
+            f"rigs stopped: {', '.join(r['background_stop_reasons'])}; interrupts per second on cpu "
+            f"{jitter['cpu']}: {irq(r['irq_cyclictest'])}); {runs}."
         )
     return lines + [""]
 
