@@ -38,17 +38,9 @@ def recorded():
     return y, u, dtau, dtau_h
 
 
-@pytest.mark.parametrize("alpha,beta,kappa", [(1.0, 2.0, 0.0), (0.5, 2.0, 1.0)])
-def test_gain_estimator_matches_filterpy_step_by_step(recorded, alpha, beta, kappa):
-    y, u, dtau, dtau_h = recorded
-    Q, R = 1e-2 * np.eye(6), 1e-7 * np.eye(3)
-    P0 = np.diag([1e-4] * 3 + [1.0] * 3)
-    x0 = np.zeros(6)
-    ours = sensaug.GainEstimator(mass=M, dt=DT, Q=Q, R=R, x0=x0, P0=P0, alpha=alpha, beta=beta, kappa=kappa)
-    pts = MerweScaledSigmaPoints(6, alpha=alpha, beta=beta, kappa=kappa)
-    fp = UnscentedKalmanFilter(dim_x=6, dim_z=3, dt=DT, fx=reference_fx, hx=lambda z: z[:3], points=pts)
-    fp.x, fp.P, fp.Q, fp.R = x0.copy(), P0.copy(), Q, R
-    fp.sigmas_f = pts.sigma_points(fp.x, fp.P)
+def assert_steps_match_filterpy(ours, fp, y, u, dtau, dtau_h):
+    """update(y[k]) then predict(u[k], dtau[k], dtau_h[k]) in both; after each
+    update, x and P within 1e-9 of filterpy's, relative to their scale."""
     worst_x = worst_p = 0.0
     for k in range(len(y)):
         ours.update(y[k])
@@ -62,6 +54,20 @@ def test_gain_estimator_matches_filterpy_step_by_step(recorded, alpha, beta, kap
     print(f"\nworst relative difference over {len(y)} steps: x {worst_x:.1e}, P {worst_p:.1e}")
 
 
+@pytest.mark.parametrize("alpha,beta,kappa", [(1.0, 2.0, 0.0), (0.5, 2.0, 1.0)])
+def test_gain_estimator_matches_filterpy_step_by_step(recorded, alpha, beta, kappa):
+    y, u, dtau, dtau_h = recorded
+    Q, R = 1e-2 * np.eye(6), 1e-7 * np.eye(3)
+    P0 = np.diag([1e-4] * 3 + [1.0] * 3)
+    x0 = np.zeros(6)
+    ours = sensaug.GainEstimator(mass=M, dt=DT, Q=Q, R=R, x0=x0, P0=P0, alpha=alpha, beta=beta, kappa=kappa)
+    pts = MerweScaledSigmaPoints(6, alpha=alpha, beta=beta, kappa=kappa)
+    fp = UnscentedKalmanFilter(dim_x=6, dim_z=3, dt=DT, fx=reference_fx, hx=lambda z: z[:3], points=pts)
+    fp.x, fp.P, fp.Q, fp.R = x0.copy(), P0.copy(), Q, R
+    fp.sigmas_f = pts.sigma_points(fp.x, fp.P)
+    assert_steps_match_filterpy(ours, fp, y, u, dtau, dtau_h)
+
+
 def test_batch_run_equals_stepping(recorded):
     y, u, dtau, dtau_h = recorded
     kw = dict(mass=M, dt=DT, Q=1e-2 * np.eye(6), R=1e-7 * np.eye(3), x0=np.zeros(6), P0=np.diag([1e-4] * 3 + [1.0] * 3))
@@ -72,6 +78,26 @@ def test_batch_run_equals_stepping(recorded):
         np.testing.assert_array_equal(xs[k], b.x)
         np.testing.assert_array_equal(pd[k], np.diag(b.P))
         b.predict(u[k], dtau[k], dtau_h[k])
+
+
+@pytest.mark.parametrize("alpha,beta,kappa", [(1.0, 2.0, 0.0), (0.1, 2.0, 0.0)])
+def test_trajectory_estimator_matches_filterpy_step_by_step(recorded, alpha, beta, kappa):
+    """Stage 2: the partner's target unknown (the process gets dtau_h = 0),
+    the gains measured as pseudo-measurements, y2 = [e, v, Lhx, Lhv, Lhh];
+    the partner-target error e_h is observed only through the dynamics."""
+    y, u, dtau, _ = recorded
+    gains = np.array([0.02, 0.0, 1.5])
+    y2 = np.column_stack([y[:, :2], np.tile(gains, (len(y), 1))])
+    Q = np.diag([1e-8, 1e-6, 1e-5, 1e-8, 1e-8, 1e-8])
+    R = np.diag([1e-7, 1e-7, 1e-4, 1e-4, 1e-4])
+    P0 = np.diag([1e-4] * 3 + [1e-2] * 3)
+    x0 = np.concatenate([np.zeros(3), gains])
+    ours = sensaug.TrajectoryEstimator(mass=M, dt=DT, Q=Q, R=R, x0=x0, P0=P0, alpha=alpha, beta=beta, kappa=kappa)
+    pts = MerweScaledSigmaPoints(6, alpha=alpha, beta=beta, kappa=kappa)
+    fp = UnscentedKalmanFilter(dim_x=6, dim_z=5, dt=DT, fx=reference_fx, hx=lambda z: z[[0, 1, 3, 4, 5]], points=pts)
+    fp.x, fp.P, fp.Q, fp.R = x0.copy(), P0.copy(), Q, R
+    fp.sigmas_f = pts.sigma_points(fp.x, fp.P)
+    assert_steps_match_filterpy(ours, fp, y2, u, dtau, np.zeros_like(dtau))
 
 
 def test_trajectory_estimator_partner_target_is_x_minus_state():

@@ -12,7 +12,7 @@
 //! computes its command `u_k`, then `predict` with `u_k` and the targets'
 //! increments `tau[k+1] - tau[k]` (0 for a target the agent does not know).
 
-use crate::ukf::{MerweParams, Selection, Status, Ukf, UkfError};
+use crate::ukf::{BilinearForm, BilinearProcess, MerweParams, Selection, Status, Ukf, UkfError};
 use nalgebra::{SMatrix, SVector, Vector2, Vector3};
 
 /// Extended state (eq.state-extended): `[e, v, e_h, Lhx, Lhv, Lhh]` with
@@ -53,14 +53,36 @@ impl HandleModel {
         Ok(())
     }
 
-    /// One step of `M a = f - C v` with the acceleration held:
-    /// `dx = dt v + dt^2 a / 2`, `v' = v + dt a`. Returns `(dx, v')`.
-    /// Exact for `C = 0` (the zero-order hold of the double integrator).
-    pub fn kinematics(&self, v: f64, force: f64) -> (f64, f64) {
-        let a = (force - self.damping * v) / self.mass;
-        let dt = self.dt_s;
-        (dt * v + 0.5 * dt * dt * a, v + dt * a)
+    /// One step of `M a = f - C v` with the acceleration held,
+    /// `dx = dt v + dt^2 a / 2`, `v' = v + dt a` (exact for `C = 0`: the
+    /// zero-order hold of the double integrator), as a linear map of `v`
+    /// and `f` ([`Step`]).
+    pub fn step(&self) -> Step {
+        let (dt, m, c) = (self.dt_s, self.mass, self.damping);
+        let (dx_f, v_f) = (0.5 * dt * dt / m, dt / m);
+        Step {
+            dx_v: dt - dx_f * c,
+            dx_f,
+            v_v: 1.0 - v_f * c,
+            v_f,
+        }
     }
+}
+
+/// [`HandleModel::step`] written out: with `a = (f - C v) / M`,
+/// `dx = dx_v v + dx_f f` and `v' = v_v v + v_f f`, where
+/// `dx_f = dt^2 / (2 M)`, `dx_v = dt - dx_f C`, `v_f = dt / M`,
+/// `v_v = 1 - v_f C`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Step {
+    /// `d dx / d v`.
+    pub dx_v: f64,
+    /// `d dx / d f`.
+    pub dx_f: f64,
+    /// `d v' / d v`.
+    pub v_v: f64,
+    /// `d v' / d f`.
+    pub v_f: f64,
 }
 
 /// Set-up errors of an estimator.
@@ -78,16 +100,59 @@ impl From<UkfError> for EstimatorError {
     }
 }
 
+/// The partner's control (eq.LQRhuman) without its sign, a bilinear form of
+/// the extended state: `Lhx e + Lhv v + Lhh e_h`.
+pub const PARTNER_CONTROL: BilinearForm<6, 3> =
+    match BilinearForm::new([(GAINS, 0), (GAINS + 1, 1), (GAINS + 2, E_H)]) {
+        Some(q) => q,
+        None => panic!("partner control index out of range"),
+    };
+
 /// Partner torque (eq.LQRhuman) from the extended state:
 /// `u_h = -(Lhx e + Lhv v + Lhh e_h)`.
 pub fn partner_torque(z: &Extended) -> f64 {
-    -(z[GAINS] * z[0] + z[GAINS + 1] * z[1] + z[GAINS + 2] * z[E_H])
+    -PARTNER_CONTROL.eval(z)
 }
 
 /// Discrete process model of the extended state (eq.system-extended,
-/// discretised as in docs/model.md):
+/// discretised as in docs/model.md) as a [`BilinearProcess`]:
 /// `a = (u + u_h - C v)/M`, `dx = dt v + dt^2 a/2`,
 /// `e' = e + dx - dtau`, `v' = v + dt a`, `e_h' = e_h + dx - dtau_h`, `L' = L`.
+///
+/// With the step written out ([`HandleModel::step`]) and `u_h = -q`
+/// (`q` = [`PARTNER_CONTROL`]), `dx = dx_v v + dx_f (u - q)` and
+/// `v' = v_v v + v_f (u - q)`, so the moving rows are
+/// `[e', v', e_h'] = F z + b + g q(z)` with
+/// `F = [[1, dx_v, 0, 0, 0, 0], [0, v_v, 0, 0, 0, 0], [0, dx_v, 1, 0, 0, 0]]`,
+/// `b = [dx_f u - dtau, v_f u, dx_f u - dtau_h]`, `g = [-dx_f, -v_f, -dx_f]`;
+/// the gains are constant (`Ukf::predict_bilinear` exploits both).
+pub fn extended_transition(
+    step: &Step,
+    u: f64,
+    dtau: f64,
+    dtau_h: f64,
+) -> BilinearProcess<6, 3, 3> {
+    let Step {
+        dx_v,
+        dx_f,
+        v_v,
+        v_f,
+    } = *step;
+    let mut F = SMatrix::<f64, 3, 6>::zeros();
+    F[(0, 0)] = 1.0;
+    F[(0, 1)] = dx_v;
+    F[(1, 1)] = v_v;
+    F[(2, 1)] = dx_v;
+    F[(2, E_H)] = 1.0;
+    BilinearProcess {
+        F,
+        b: Vector3::new(dx_f * u - dtau, v_f * u, dx_f * u - dtau_h),
+        g: Vector3::new(-dx_f, -v_f, -dx_f),
+        q: PARTNER_CONTROL,
+    }
+}
+
+/// [`extended_transition`] applied to `z`: the next extended state.
 pub fn extended_process(
     model: &HandleModel,
     z: &Extended,
@@ -95,23 +160,7 @@ pub fn extended_process(
     dtau: f64,
     dtau_h: f64,
 ) -> Extended {
-    let mut next = *z;
-    next.fixed_rows_mut::<GAINS>(0)
-        .copy_from(&extended_process_moving(model, z, u, dtau, dtau_h));
-    next
-}
-
-/// The moving part of [`extended_process`], `[e', v', e_h']` (the gains
-/// `L' = L` are constant, which `Ukf::predict_partial` exploits).
-pub fn extended_process_moving(
-    model: &HandleModel,
-    z: &Extended,
-    u: f64,
-    dtau: f64,
-    dtau_h: f64,
-) -> Vector3<f64> {
-    let (dx, v_next) = model.kinematics(z[1], u + partner_torque(z));
-    Vector3::new(z[0] + dx - dtau, v_next, z[E_H] + dx - dtau_h)
+    extended_transition(&model.step(), u, dtau, dtau_h).apply(z)
 }
 
 /// `Some(sel)` at compile time, or a compile error naming a bad selection.
@@ -167,7 +216,8 @@ pub struct ExtendedFilterConfig<const M: usize> {
 /// gains, with both targets known.
 #[derive(Clone, Debug)]
 pub struct GainEstimator {
-    model: HandleModel,
+    /// The handle model's step, computed once at set-up.
+    step: Step,
     ukf: Ukf<6, 3, 13>,
 }
 
@@ -176,7 +226,10 @@ impl GainEstimator {
     pub fn new(model: HandleModel, cfg: &ExtendedFilterConfig<3>) -> Result<Self, EstimatorError> {
         model.validate()?;
         let ukf = Ukf::new(cfg.x0, cfg.P0, cfg.Q, cfg.R, cfg.sigma)?;
-        Ok(GainEstimator { model, ukf })
+        Ok(GainEstimator {
+            step: model.step(),
+            ukf,
+        })
     }
 
     /// Per tick: fuse `y1 = [x - tau, xdot, x - tau_h]`.
@@ -187,9 +240,8 @@ impl GainEstimator {
     /// Per tick: propagate with the own torque `u` and both targets'
     /// increments over the coming step.
     pub fn predict(&mut self, u: f64, dtau: f64, dtau_h: f64) -> Result<Status, UkfError> {
-        let model = self.model;
         self.ukf
-            .predict_partial(|z| extended_process_moving(&model, z, u, dtau, dtau_h))
+            .predict_bilinear(&extended_transition(&self.step, u, dtau, dtau_h))
     }
 
     /// The estimated partner gains `[Lhx, Lhv, Lhh]`.
@@ -208,7 +260,8 @@ impl GainEstimator {
 /// partner's target, with the stage-1 gains as pseudo-measurements.
 #[derive(Clone, Debug)]
 pub struct TrajectoryEstimator {
-    model: HandleModel,
+    /// The handle model's step, computed once at set-up.
+    step: Step,
     ukf: Ukf<6, 5, 13>,
 }
 
@@ -217,7 +270,10 @@ impl TrajectoryEstimator {
     pub fn new(model: HandleModel, cfg: &ExtendedFilterConfig<5>) -> Result<Self, EstimatorError> {
         model.validate()?;
         let ukf = Ukf::new(cfg.x0, cfg.P0, cfg.Q, cfg.R, cfg.sigma)?;
-        Ok(TrajectoryEstimator { model, ukf })
+        Ok(TrajectoryEstimator {
+            step: model.step(),
+            ukf,
+        })
     }
 
     /// Per tick: fuse `y2 = [x - tau, xdot, Lhx^, Lhv^, Lhh^]`.
@@ -244,9 +300,8 @@ impl TrajectoryEstimator {
     /// Per tick: as [`GainEstimator::predict`]; the partner's target is
     /// unknown, so pass `dtau_h = 0` (its motion is left to the process noise).
     pub fn predict(&mut self, u: f64, dtau: f64, dtau_h: f64) -> Result<Status, UkfError> {
-        let model = self.model;
         self.ukf
-            .predict_partial(|z| extended_process_moving(&model, z, u, dtau, dtau_h))
+            .predict_bilinear(&extended_transition(&self.step, u, dtau, dtau_h))
     }
 
     /// `tau_h^ = x - (x - tau_h)^`, given the handle position `x`.
@@ -276,23 +331,16 @@ impl TrajectoryEstimator {
 /// is all the torque the agent knows of (its own plus the estimated
 /// partner torque). It is affine, `s' = F s + b` ([`error_transition`]).
 pub fn error_process(model: &HandleModel, s: &Vector2<f64>, u: f64, dtau: f64) -> Vector2<f64> {
-    let (F, b) = error_transition(model, u, dtau);
+    let (F, b) = error_transition(&model.step(), u, dtau);
     F * s + b
 }
 
-/// [`error_process`] as `s' = F s + b`: with [`HandleModel::kinematics`]
-/// written out, `dx = (dt - dt^2 C / (2 M)) v + dt^2 u / (2 M)` and
-/// `v' = (1 - dt C / M) v + dt u / M`, so
-/// `F = [[1, dt - dt^2 C / (2 M)], [0, 1 - dt C / M]]`,
-/// `b = [dt^2 u / (2 M) - dtau, dt u / M]`.
-pub fn error_transition(
-    model: &HandleModel,
-    u: f64,
-    dtau: f64,
-) -> (SMatrix<f64, 2, 2>, Vector2<f64>) {
-    let (dt, m, c) = (model.dt_s, model.mass, model.damping);
-    let F = SMatrix::<f64, 2, 2>::new(1.0, dt - 0.5 * dt * dt * c / m, 0.0, 1.0 - dt * c / m);
-    let b = Vector2::new(0.5 * dt * dt * u / m - dtau, dt * u / m);
+/// [`error_process`] as `s' = F s + b`: with the step written out
+/// ([`HandleModel::step`]), `dx = dx_v v + dx_f u` and `v' = v_v v + v_f u`, so
+/// `F = [[1, dx_v], [0, v_v]]`, `b = [dx_f u - dtau, v_f u]`.
+pub fn error_transition(step: &Step, u: f64, dtau: f64) -> (SMatrix<f64, 2, 2>, Vector2<f64>) {
+    let F = SMatrix::<f64, 2, 2>::new(1.0, step.dx_v, 0.0, step.v_v);
+    let b = Vector2::new(step.dx_f * u - dtau, step.v_f * u);
     (F, b)
 }
 
@@ -374,6 +422,8 @@ const UNINFORMATIVE_VARIANCE: f64 = 1e100;
 #[derive(Clone, Debug)]
 pub struct GoalIntegrator {
     model: HandleModel,
+    /// `model`'s step, computed once at set-up.
+    step: Step,
     own: Ukf<2, 2, 5>,
     fused: Ukf<2, 3, 5>,
     r_own: SMatrix<f64, 2, 2>,
@@ -414,6 +464,7 @@ impl GoalIntegrator {
         let fused = Ukf::new(cfg.x0, cfg.P0, cfg.Q, r3, cfg.sigma)?;
         Ok(GoalIntegrator {
             model,
+            step: model.step(),
             own,
             fused,
             r_own: cfg.R_own,
@@ -465,7 +516,7 @@ impl GoalIntegrator {
     /// The process is affine ([`error_transition`]), so the unscented
     /// predict is the exact `F x + b`, `F P F' + Q` (`Ukf::predict_linear`).
     pub fn predict(&mut self, u: f64, dtau: f64) -> Result<Status, UkfError> {
-        let (F, b) = error_transition(&self.model, u, dtau);
+        let (F, b) = error_transition(&self.step, u, dtau);
         let own_status = self.own.predict_linear(&F, &b);
         let fused_status = self.fused.predict_linear(&F, &b);
         combine(own_status, fused_status)

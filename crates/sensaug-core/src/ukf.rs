@@ -285,12 +285,14 @@ pub fn cholesky_lower<const M: usize>(A: &SMatrix<f64, M, M>) -> Option<SMatrix<
 /// and returned as 0.
 ///
 /// Column by column (left-looking, the operation order of nalgebra's
-/// `Cholesky`, so the factor is the same to the last bit), for `i >= j`:
-/// `a_ij <- a_ij - sum_{k<j} L_jk L_ik`, `L_jj = sqrt(a_jj)`,
-/// `L_ij = a_ij / L_jj`. Non-finite input needs no separate pass: a pivot
-/// that is NaN, zero, negative or infinite is refused, and every `L_ij`
-/// below the diagonal enters pivot `i` as `-L_ij^2`, so a NaN or infinite
-/// entry makes that pivot NaN or `-inf`.
+/// `Cholesky`), for `i >= j`: `a_ij <- a_ij - sum_{k<j} L_jk L_ik`,
+/// `L_jj = sqrt(a_jj)`, `L_ij = a_ij (1 / L_jj)`: one division per column,
+/// not per entry (the divider's throughput, not the arithmetic, bounded the
+/// tick; the factor differs from nalgebra's by rounding only, Rust test
+/// `innovation_factor_and_gain_equal_nalgebra`). Non-finite input needs no
+/// separate pass: a pivot that is NaN, zero, negative or infinite is
+/// refused, and every `L_ij` below the diagonal enters pivot `i` as
+/// `-L_ij^2`, so a NaN or infinite entry makes that pivot NaN or `-inf`.
 #[inline(always)]
 fn cholesky_in_place<const N: usize>(mut l: [[f64; N]; N]) -> Option<SMatrix<f64, N, N>> {
     for j in 0..N {
@@ -309,8 +311,9 @@ fn cholesky_in_place<const N: usize>(mut l: [[f64; N]; N]) -> Option<SMatrix<f64
         }
         let d = libm::sqrt(d);
         col[j] = d;
+        let inv = 1.0 / d;
         for v in col[j + 1..].iter_mut() {
-            *v /= d;
+            *v *= inv;
         }
     }
     Some(SMatrix::<f64, N, N>::from_data(nalgebra::ArrayStorage(l)))
@@ -407,13 +410,16 @@ pub fn cross_covariance<const N: usize, const M: usize, const S: usize>(
 /// row `r` of `K` by forward substitution `L w = Pxz_r'` then back
 /// substitution `L' k = w`, in the operation order of nalgebra's
 /// `Cholesky::solve_mut` (column-wise `axpy` forward, ascending dot
-/// products backward), so the gain is the same to the last bit.
+/// products backward), dividing by `L_ii` as a multiplication by `1 / L_ii`
+/// computed once for all rows (`M` divisions instead of `2 N M`; equal to
+/// nalgebra's up to rounding).
 #[inline(always)]
 pub fn kalman_gain<const N: usize, const M: usize>(
     Pxz: &SMatrix<f64, N, M>,
     L: &SMatrix<f64, M, M>,
 ) -> SMatrix<f64, N, M> {
     let mut K = SMatrix::<f64, N, M>::zeros();
+    let inv: [f64; M] = core::array::from_fn(|i| 1.0 / L[(i, i)]);
     for r in 0..N {
         let mut b = [0.0f64; M];
         for (m, bm) in b.iter_mut().enumerate() {
@@ -421,7 +427,7 @@ pub fn kalman_gain<const N: usize, const M: usize>(
         }
         // L w = b: w_i = b_i / L_ii, b_k += (-w_i) L_ki for k > i
         for i in 0..M {
-            let w = b[i] / L[(i, i)];
+            let w = b[i] * inv[i];
             b[i] = w;
             for k in i + 1..M {
                 b[k] += -w * L[(k, i)];
@@ -433,7 +439,7 @@ pub fn kalman_gain<const N: usize, const M: usize>(
             for j in i + 1..M {
                 dot += L[(j, i)] * b[j];
             }
-            b[i] = (b[i] - dot) / L[(i, i)];
+            b[i] = (b[i] - dot) * inv[i];
         }
         for (m, bm) in b.iter().enumerate() {
             K[(r, m)] = *bm;
@@ -518,6 +524,79 @@ impl<const N: usize, const M: usize> Selection<N, M> {
     }
 }
 
+/// A bilinear form of the state, `q(z) = sum_j z[a_j] z[b_j]` (a pair may
+/// repeat an index: `z[a]^2`). The estimators' nonlinearity is one:
+/// the partner's torque `Lhx e + Lhv v + Lhh e_h`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BilinearForm<const N: usize, const K: usize> {
+    pairs: [(usize, usize); K],
+}
+
+impl<const N: usize, const K: usize> BilinearForm<N, K> {
+    /// `None` if an index is `>= N`. In a `const` item, a bad index is a
+    /// compile error (see the estimators' process).
+    pub const fn new(pairs: [(usize, usize); K]) -> Option<Self> {
+        let mut j = 0;
+        while j < K {
+            if pairs[j].0 >= N || pairs[j].1 >= N {
+                return None;
+            }
+            j += 1;
+        }
+        Some(Self { pairs })
+    }
+
+    /// The index pairs `(a_j, b_j)`.
+    pub fn pairs(&self) -> &[(usize, usize); K] {
+        &self.pairs
+    }
+
+    /// `q(z) = sum_j z[a_j] z[b_j]`.
+    pub fn eval(&self, z: &SVector<f64, N>) -> f64 {
+        self.pairs.iter().map(|&(a, b)| z[a] * z[b]).sum()
+    }
+
+    /// The gradient `dq/dz`: `z[b_j]` added at `a_j`, `z[a_j]` at `b_j`.
+    pub fn gradient(&self, z: &SVector<f64, N>) -> SVector<f64, N> {
+        let mut g = SVector::<f64, N>::zeros();
+        for &(a, b) in &self.pairs {
+            g[a] += z[b];
+            g[b] += z[a];
+        }
+        g
+    }
+}
+
+/// A process that moves the first `R` of `N` states by an affine map plus
+/// one bilinear term and keeps states `R..N` constant:
+/// `f_t(z) = F z + b + g q(z)` for the moving rows `t < R`, `f_c(z) = z_c`
+/// for the rest. [`Ukf::predict_bilinear`] propagates it in closed form.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BilinearProcess<const N: usize, const R: usize, const K: usize> {
+    /// Linear part of the moving rows (`R x N`).
+    pub F: SMatrix<f64, R, N>,
+    /// Constant part of the moving rows.
+    pub b: SVector<f64, R>,
+    /// How the bilinear term enters each moving row.
+    pub g: SVector<f64, R>,
+    /// The bilinear term `q`.
+    pub q: BilinearForm<N, K>,
+}
+
+impl<const N: usize, const R: usize, const K: usize> BilinearProcess<N, R, K> {
+    /// The moving rows `f_t(z) = F z + b + g q(z)`.
+    pub fn moving(&self, z: &SVector<f64, N>) -> SVector<f64, R> {
+        self.F * z + self.b + self.g * self.q.eval(z)
+    }
+
+    /// The whole next state: the moving rows, then `z_c` for `c >= R`.
+    pub fn apply(&self, z: &SVector<f64, N>) -> SVector<f64, N> {
+        let mut next = *z;
+        next.fixed_rows_mut::<R>(0).copy_from(&self.moving(z));
+        next
+    }
+}
+
 /// Which posterior covariance formula an update uses.
 #[derive(Clone, Copy)]
 enum Posterior {
@@ -559,8 +638,8 @@ enum UpdatePoints {
     /// Re-drawn at the end of `predict` (filterpy's re-draw): the stored
     /// centre and factor.
     Drawn,
-    /// `predict_partial` left filterpy's re-draw to the update that needs
-    /// it: the generic update draws from `(x-, P-)` (stage `PredictRedraw`),
+    /// `predict_bilinear` or `predict_linear` left filterpy's re-draw to the
+    /// update that needs it: the generic update draws from `(x-, P-)` (stage `PredictRedraw`),
     /// the selection update needs no points and no factor.
     Deferred,
 }
@@ -802,90 +881,119 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         self.predict_impl(Some(Q), f)
     }
 
-    /// Per tick: [`Ukf::predict`] for a process that moves only the first
-    /// `R` states: `f` returns their new values, states `R..N` are constant
-    /// (random walks driven by `Q`, like the estimators' partner gains).
+    /// Per tick: [`Ukf::predict`] for a [`BilinearProcess`], in closed form.
     ///
-    /// With `d_i = chi_f,i - x-` for the moving rows and the sigma points
-    /// `x +- L e_k` (`L L' = (N + lambda) P`, weights
-    /// `w = Wc_k = Wm_k = 1 / (2 (N + lambda))` for `k >= 1`), the unscented
-    /// sums have closed forms for the constant rows `b`, whose propagated
-    /// points are `x_b` and `x_b +- L_b e_k`:
-    /// `x-_b = Wm_0 x_b + w sum_k ((x_b + L_b e_k) + (x_b - L_b e_k)) = x_b`
-    /// (the `+-` cancel, the weights sum to 1);
-    /// `P-_bb = Wc_0 0 0' + w sum_k ((L_b e_k)(L_b e_k)' + (-L_b e_k)(-L_b e_k)') + Q_bb
-    /// = 2 w L_b L_b' + Q_bb = P_bb + Q_bb`;
-    /// `P-_tb = w sum_k (f(x + L e_k) - f(x - L e_k)) L_b,k' + Q_tb`
-    /// (the `chi_0` term is `d_0 0'`, and `sum_k` of `-x-_t (+-L_b e_k)'`
-    /// cancels); `P-_tt = sum Wc d d' + Q_tt` as in [`Ukf::predict`].
-    /// So only the `R` moving rows go through `f`. Equal to `predict` with
-    /// the full `f` up to rounding, with the same errors and repairs of the
-    /// first factorisation.
+    /// The sigma points are `x` and `x +- s_k`, `s_k = L e_k` with
+    /// `L L' = (N + lambda) P`, weights `w = Wm_k = Wc_k = 1 / (2 (N + lambda))`
+    /// for `k >= 1` (so `2 w sum_k s_k s_k' = P` and `Wm_0 + 2 N w = 1`).
+    /// With `q(x +- s) = q(x) +- grad q(x)' s + q(s)`, the Jacobian
+    /// `J = F + g grad q(x)'` and `p_k = q(s_k)`, the moving rows are
+    /// `f_t(x +- s_k) = f_t(x) +- J s_k + g p_k`, so:
+    /// `x-_t = Wm_0 f_t(x) + w sum_k 2 (f_t(x) + g p_k) = f_t(x) + g mu`,
+    /// `mu = 2 w sum_k p_k` (`= sum_j P_{a_j b_j}`, the exact mean of `q`);
+    /// the deviations `d_0 = -g mu`, `d_{+-k} = +-J s_k + g (p_k - mu)`,
+    /// whose cross terms cancel in each `+-` pair, give
+    /// `P-_tt = sum_i Wc_i d_i d_i' + Q_tt = J P J' + kappa g g' + Q_tt`,
+    /// `kappa = Wc_0 mu^2 + 2 w sum_k (p_k - mu)^2`;
+    /// a constant row `c` moves by `+-s_k,c`, so
+    /// `P-_tc = w sum_k 2 (J s_k) s_k,c + Q_tc = (J P)_tc + Q_tc`,
+    /// `x-_c = x_c` and `P-_cc = P_cc + Q_cc`. Only `kappa` (the unscented
+    /// transform's fourth-moment term of `q`) needs the factor `L`; no
+    /// sigma point is formed and `f` is not evaluated 2N + 1 times. Equal to
+    /// [`Ukf::predict`] with `f = process.apply` up to rounding, with the
+    /// same repairs of the factorisation (stage `PredictSigmaPoints`). `P`
+    /// is read from its upper triangle (as the factorisation reads it) and
+    /// one triangle of `P-` is computed, mirrored.
     ///
-    /// filterpy's re-draw from `(x-, P-)` is deferred (its factorisation is
-    /// the second half of a predict's cost): [`Ukf::update_selected`] needs
-    /// no sigma points and skips it; the generic [`Ukf::update`] draws them
+    /// filterpy's re-draw from `(x-, P-)` is deferred (its factorisation
+    /// would be half of this call's cost): [`Ukf::update_selected`] needs no
+    /// sigma points and skips it; the generic [`Ukf::update`] draws them
     /// itself from `(x-, P-)`, with the repairs reported by that call as
     /// stage `PredictRedraw`. An indefinite `P-` is then caught by the
     /// factorisation of `S` or of the next predict instead of this call.
-    pub fn predict_partial<const R: usize>(
+    /// Non-finite `F`, `b` or `g`: `Err(NonFiniteProcess)`; overflow:
+    /// `Err(NonFiniteResult)`; the state is unchanged.
+    pub fn predict_bilinear<const R: usize, const K: usize>(
         &mut self,
-        mut f: impl FnMut(&SVector<f64, N>) -> SVector<f64, R>,
+        process: &BilinearProcess<N, R, K>,
     ) -> Result<Status, UkfError> {
         const { assert!(R >= 1 && R <= N, "R must be in 1..=N") };
+        let BilinearProcess { F, b, g, q } = process;
+        if !all_finite(F) || !all_finite(b) || !all_finite(g) {
+            return self.reject(UkfError::NonFiniteProcess);
+        }
         let mut pending = Pending::default();
         let mut P = self.P;
         let L = self.factor(&mut P, Stage::PredictSigmaPoints, &mut pending);
-        // chi_f,i = f(chi_i) for the moving rows only.
-        let Some(chi_f) = propagate(&self.x, &L, &mut f) else {
-            return self.reject(UkfError::NonFiniteProcess);
-        };
-        // x-_t = sum_i Wm_i chi_f,i ; x-_b = x_b
-        let x_t = unscented_mean(&self.Wm, &chi_f);
-        let mut x_prior = self.x;
-        x_prior.fixed_rows_mut::<R>(0).copy_from(&x_t);
-        // P-_tt = sum_i Wc_i d_i d_i' + Q_tt
-        let Q = &self.Q;
-        let Q_tt = Q.fixed_view::<R, R>(0, 0).into_owned();
-        let P_tt = unscented_covariance(&self.Wc, &chi_f, &x_t, &Q_tt);
-        // D = [f(x + L e_k) - f(x - L e_k)]_k (R x N); T = w D L' (R x N),
-        // whose columns c >= R are P-_tb without Q (only those are formed:
-        // T_rc = (sum_k D_rk L_ck) w, summed in ascending k, the order of
-        // nalgebra's product, so the same bits).
-        let D = SMatrix::<f64, R, N>::from_fn(|r, k| chi_f[(r, 1 + k)] - chi_f[(r, 1 + N + k)]);
-        let mut T = SMatrix::<f64, R, N>::zeros();
-        for c in R..N {
-            for r in 0..R {
-                let mut t = D[(r, 0)] * L[(c, 0)];
-                for k in 1..N {
-                    t += D[(r, k)] * L[(c, k)];
-                }
-                T[(r, c)] = t * self.Wc[1];
-            }
-        }
-        // P- = [[P-_tt, T_b + Q_tb], [.., P_bb + Q_bb]], mirrored from the upper triangle.
-        let mut P_prior = P;
+        // P as the factor read it: its upper triangle, mirrored.
         for c in 0..N {
-            for r in 0..=c {
-                let v = if c < R {
-                    P_tt[(r, c)]
-                } else if r < R {
-                    T[(r, c)] + Q[(r, c)]
-                } else {
-                    P[(r, c)] + Q[(r, c)]
-                };
-                P_prior[(r, c)] = v;
-                P_prior[(c, r)] = v;
+            for r in c + 1..N {
+                P[(r, c)] = P[(c, r)];
             }
         }
-        // x-_b is the finite state's x_b: only the moving rows can overflow.
+        let w = self.Wm[1];
+        // p_k = q(L e_k) = sum_j L_{a_j k} L_{b_j k} ; mu = 2 w sum_k p_k
+        let l = &L.data.0;
+        let mut p = [0.0f64; N];
+        for &(a, c) in q.pairs() {
+            for (pk, lk) in p.iter_mut().zip(l) {
+                *pk += lk[a] * lk[c];
+            }
+        }
+        let mu = 2.0 * w * p.iter().sum::<f64>();
+        // kappa = Wc_0 mu^2 + 2 w sum_k (p_k - mu)^2
+        let spread: f64 = p.iter().map(|pk| (pk - mu) * (pk - mu)).sum();
+        let kappa = self.Wc[0] * mu * mu + 2.0 * w * spread;
+        let x = &self.x;
+        // x-_t = F x + b + g (q(x) + mu)
+        let x_t = F * x + b + g * (q.eval(x) + mu);
+        // J = F + g grad q(x)' (rows) ; PJ = P J' (columns: PJ[r] = sum_k P e_k J_rk)
+        let grad = q.gradient(x);
+        let mut J = [[0.0f64; N]; R];
+        let mut PJ = [[0.0f64; N]; R];
+        let pc = &P.data.0;
+        for r in 0..R {
+            for k in 0..N {
+                let jrk = F[(r, k)] + g[r] * grad[k];
+                J[r][k] = jrk;
+                for (v, pik) in PJ[r].iter_mut().zip(pc[k]) {
+                    *v += pik * jrk;
+                }
+            }
+        }
+        // P- = P + Q, then the moving rows: P-_tt = J P J' + kappa g g' + Q_tt,
+        // P-_tc = (J P)_tc + Q_tc (mirrored).
+        let mut P_prior = P + self.Q;
+        for t in 0..R {
+            for r in 0..=t {
+                let mut jpj = 0.0;
+                for k in 0..N {
+                    jpj += J[r][k] * PJ[t][k];
+                }
+                let v = jpj + kappa * g[r] * g[t] + self.Q[(r, t)];
+                P_prior[(r, t)] = v;
+                P_prior[(t, r)] = v;
+            }
+            for c in R..N {
+                let v = PJ[t][c] + self.Q[(t, c)];
+                P_prior[(t, c)] = v;
+                P_prior[(c, t)] = v;
+            }
+        }
+        // P-_cc = P_cc + Q_cc from the upper triangle (Q need not be symmetric).
+        for c in R..N {
+            for r in c + 1..N {
+                P_prior[(r, c)] = P_prior[(c, r)];
+            }
+        }
+        // x-_c is the finite state's x_c: only the moving rows can overflow.
         if !all_finite(&x_t) || !all_finite(&P_prior) {
             return self.reject(UkfError::NonFiniteResult {
                 phase: Phase::Predict,
             });
         }
-        // filterpy's re-draw from (x-, P-) is deferred to the update that
-        // needs the points: the selection update does not.
+        let mut x_prior = self.x;
+        x_prior.fixed_rows_mut::<R>(0).copy_from(&x_t);
         self.store_prior(x_prior, P_prior, UpdatePoints::Deferred, pending)
     }
 
@@ -903,7 +1011,7 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
     /// [`Ukf::predict`] with `f` up to rounding. `P` is read from its upper
     /// triangle (as the factorisation reads it) and one triangle of `P-` is
     /// computed, mirrored. filterpy's re-draw is deferred as in
-    /// [`Ukf::predict_partial`]; an indefinite `P` is caught by the next
+    /// [`Ukf::predict_bilinear`]; an indefinite `P` is caught by the next
     /// factorisation (of `S` or of the generic update's points).
     /// Non-finite `F` or `b`: `Err(NonFiniteProcess)`, overflow:
     /// `Err(NonFiniteResult)`; the state is unchanged.
@@ -1052,7 +1160,7 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         let mut P = self.P;
         let chi = match self.update_points {
             UpdatePoints::Drawn => sigma_points(&self.sigma_center, &self.sigma_factor),
-            // predict_partial's deferred re-draw, from (x-, P-) as filterpy's.
+            // The deferred re-draw, from (x-, P-) as filterpy's.
             UpdatePoints::Deferred => {
                 self.draw(&self.x, &mut P, Stage::PredictRedraw, &mut pending)
             }
@@ -1363,7 +1471,7 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
     }
     /// Sigma points (columns) re-drawn at the end of the last `predict`
     /// (formed on demand from the stored centre and factor; zeros before the
-    /// first `predict`, as filterpy's). After [`Ukf::predict_partial`],
+    /// first `predict`, as filterpy's). After [`Ukf::predict_bilinear`],
     /// which defers the re-draw, they are drawn now from `(x-, P-)`; `None`
     /// if `P-` does not factor (the next update repairs it first).
     pub fn sigmas_f(&self) -> Option<SMatrix<f64, N, S>> {
