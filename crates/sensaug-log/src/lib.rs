@@ -112,6 +112,16 @@ macro_rules! schema {
             $( #[doc = $doc] pub $name: schema!(@ty $kind), )*
         }
 
+        /// A [`Row`] as one packed record, the layout of the Python log's
+        /// structured array (`sensaug.logs.DTYPE`): the columns in
+        /// [`COLUMNS`] order, native-endian, no padding, a bool as one
+        /// byte. Its bytes are a record ([`Row::packed`], `as_bytes`).
+        #[derive(Clone, Copy, Debug, zerocopy::IntoBytes, zerocopy::Immutable)]
+        #[repr(C, packed)]
+        pub struct PackedRow {
+            $( #[doc = $doc] pub $name: schema!(@ty $kind), )*
+        }
+
         /// Every column of a log, in file order.
         pub const COLUMNS: [Column; schema!(@count $($name)*)] = [
             $( Column { name: stringify!($name), unit: $unit, kind: Kind::$kind, description: $doc }, )*
@@ -120,6 +130,11 @@ macro_rules! schema {
         impl Row {
             /// Nothing known: NaN floats, [`UNKNOWN`] integers, `false`.
             pub const UNKNOWN: Row = Row { $( $name: schema!(@unknown $kind), )* };
+
+            /// The row as a packed record ([`PackedRow`]).
+            pub fn packed(&self) -> PackedRow {
+                PackedRow { $( $name: self.$name, )* }
+            }
 
             /// The row's values in [`COLUMNS`] order.
             pub fn values(&self) -> [Value; COLUMNS.len()] {
@@ -502,6 +517,38 @@ mod tests {
     use super::*;
     use sensaug_core::controller::RobotTick;
     use sensaug_core::world::PartnerEstimate;
+
+    /// A packed record holds every column at the offset the Python dtype
+    /// gives it (the columns in order, 8 bytes for int64 and float64, 1 for
+    /// bool, no padding), each value's native-endian bytes.
+    #[test]
+    fn packed_row_is_the_dtype_layout() {
+        use zerocopy::IntoBytes;
+        let mut row = Row::UNKNOWN;
+        for (i, c) in COLUMNS.iter().enumerate() {
+            let v = match c.kind {
+                Kind::Int => Value::Int(-1000 - i as i64),
+                Kind::Float => Value::Float(0.5 + i as f64),
+                Kind::Bool => Value::Bool(i % 2 == 0),
+            };
+            row.set(i, v).expect("kinds agree");
+        }
+        let packed = row.packed();
+        let bytes = packed.as_bytes();
+        let mut at = 0;
+        for (c, v) in COLUMNS.iter().zip(row.values()) {
+            let width = if c.kind == Kind::Bool { 1 } else { 8 };
+            let field = &bytes[at..at + width];
+            let expected: Vec<u8> = match v {
+                Value::Int(x) => x.to_ne_bytes().to_vec(),
+                Value::Float(x) => x.to_ne_bytes().to_vec(),
+                Value::Bool(x) => vec![u8::from(x)],
+            };
+            assert_eq!(field, expected.as_slice(), "column {}", c.name);
+            at += width;
+        }
+        assert_eq!(at, bytes.len(), "no padding, nothing after the last column");
+    }
 
     /// The metadata travels as JSON (Python's `json` <-> serde_json): every
     /// float must come back with the same bits, which serde_json's parser

@@ -6,9 +6,10 @@ use numpy::{IntoPyArray, PyReadonlyArray1};
 use pyo3::exceptions::{PyOSError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use sensaug_log::{Kind, Row, Value, COLUMNS};
+use sensaug_log::{Kind, PackedRow, Row, Value, COLUMNS};
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use zerocopy::IntoBytes;
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(log_schema, m)?)?;
@@ -106,65 +107,15 @@ pub fn rows_to_columns<'py>(py: Python<'py>, rows: &[Row]) -> PyResult<Bound<'py
     Ok(d)
 }
 
-/// Bytes of one packed record: the columns in schema order, native-endian
-/// int64 / float64, bool as one byte (the layout of `sensaug.logs.DTYPE`).
-pub const RECORD_BYTES: usize = RECORD_OFFSETS[COLUMNS.len()];
+/// Bytes of one packed record ([`PackedRow`]: the columns in schema order,
+/// native-endian int64 / float64, bool as one byte; `sensaug.logs.DTYPE`).
+pub const RECORD_BYTES: usize = std::mem::size_of::<PackedRow>();
 
-/// Where each column starts in a packed record; the last entry is the
-/// record's size.
-const RECORD_OFFSETS: [usize; COLUMNS.len() + 1] = record_offsets();
-
-const fn record_offsets() -> [usize; COLUMNS.len() + 1] {
-    let mut offsets = [0; COLUMNS.len() + 1];
-    let mut i = 0;
-    while i < COLUMNS.len() {
-        offsets[i + 1] = offsets[i]
-            + match COLUMNS[i].kind {
-                Kind::Bool => 1,
-                Kind::Int | Kind::Float => 8,
-            };
-        i += 1;
-    }
-    offsets
-}
-
-/// Appends `row` to `out` as one packed record ([`RECORD_BYTES`]), for
-/// `ndarray.view(DTYPE)`: records appended to one buffer are the log, with
-/// no per-column arrays to re-interleave in Python.
+/// Appends `row` to `out` as one packed record, for `ndarray.view(DTYPE)`:
+/// records appended to one buffer are the log, with no per-column arrays to
+/// re-interleave in Python.
 pub fn pack_record(row: &Row, out: &mut Vec<u8>) {
-    // Every value is written as 8 bytes at its column's offset (a bool's 7
-    // spare bytes are overwritten by the next column): one store per value,
-    // no branch on the kind for the bytes.
-    let mut record = [0u8; RECORD_BYTES + 7];
-    let values = row.values();
-    // Chunks of 8: the compiler unrolls a loop of 8 (one over all 46
-    // columns it leaves rolled); measured, 7,011 -> 6,698 instructions per
-    // trial tick.
-    let (chunks, offsets) = (
-        values.chunks_exact(8),
-        RECORD_OFFSETS[..COLUMNS.len()].chunks_exact(8),
-    );
-    let (rest, offset_rest) = (chunks.remainder(), offsets.remainder());
-    for (vs, ats) in chunks.zip(offsets) {
-        for (v, &at) in vs.iter().zip(ats) {
-            store_value(v, at, &mut record);
-        }
-    }
-    for (v, &at) in rest.iter().zip(offset_rest) {
-        store_value(v, at, &mut record);
-    }
-    out.extend_from_slice(&record[..RECORD_BYTES]);
-}
-
-/// One value of a record at byte `at` (8 bytes written, see [`pack_record`]).
-#[inline(always)]
-fn store_value(v: &Value, at: usize, record: &mut [u8; RECORD_BYTES + 7]) {
-    let bits = match *v {
-        Value::Int(x) => x as u64,
-        Value::Float(x) => x.to_bits(),
-        Value::Bool(x) => u64::from(x),
-    };
-    record[at..at + 8].copy_from_slice(&bits.to_ne_bytes());
+    out.extend_from_slice(row.packed().as_bytes());
 }
 
 /// Rows from `data[name]` for every column (a numpy structured array or a
