@@ -415,6 +415,12 @@ impl<'a> Rig<'a> {
     /// record).
     pub fn run(&mut self, log: &mut LogSink, stop: &AtomicBool) -> StopReason {
         let timing = Timing::new(&self.settings, self.times.first_command_ns);
+        // The protocol's samples in tick order, each tick's next targets kept
+        // for the following tick (one evaluation a tick): the loop runs from
+        // tick 0 and stays running until it ramps down or stops for good,
+        // so the running ticks take the samples one by one, in order.
+        let protocol = self.protocol;
+        let mut samples = protocol.samples();
         let mut safety = Safety::Running;
         let mut last_torque_nm = 0.0;
         let mut k = 0u64;
@@ -427,7 +433,7 @@ impl<'a> Rig<'a> {
             safety = safety.next(&checks);
             let command = match safety {
                 Safety::Stopped(reason) => break reason,
-                Safety::Running => match self.protocol.sample(k) {
+                Safety::Running => match samples.next() {
                     Some(sample) => self.control(&sample, &sensed),
                     // k < total while running, so the protocol has a sample.
                     None => break StopReason::Completed,
