@@ -12,6 +12,13 @@
 //!   `send` while a thread sleeps in `recv` on the bus, as the virtual
 //!   drive does: the send wakes it (on another CPU: an inter-processor
 //!   interrupt), at 1 kHz like the loop.
+//! - `paced drain` / `paced send` / `paced drain + send`: the loop's bus
+//!   calls alone, at its pace and in its order: at each 1 ms deadline one
+//!   drain (the peer's answer to the last frame and the own frame's echo,
+//!   one `recvmmsg`) then one send, while a peer on the other CPU polls the
+//!   bus as the bench's polling drive does and answers every frame with
+//!   one: what a tick's `sense` and `actuate` cost with no controller
+//!   between them (the floor of `rig_tick -- polling`'s compute).
 //!
 //! `cargo bench -p sensaug-rt --bench bus_floor [-- <calls>]` (default
 //! 5000 per case).
@@ -86,6 +93,65 @@ fn send_waking(calls: usize, receiver_cpu: usize, port: u16, tx: &mut UdpBus) ->
     ns
 }
 
+/// A peer on `cpu` that polls the bus like the polling drive of the rig
+/// bench (`drive::POLL_GAP` of busy-waiting after an empty look) and
+/// answers every frame with one frame, until `stop`.
+fn polling_echo(port: u16, cpu: usize, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<()> {
+    let mut peer = UdpBus::open(port).expect("loopback bus");
+    std::thread::spawn(move || {
+        let _ = os::pin_to_cpu(cpu);
+        let answer = Frame::new(0x181, &[0; 8]).expect("frame");
+        while !stop.load(Ordering::Relaxed) {
+            match peer.recv_ready() {
+                Ok(Some(_)) => peer.send(&answer).expect("send"),
+                _ => {
+                    let looked = std::time::Instant::now();
+                    while looked.elapsed() < drive::POLL_GAP {
+                        std::hint::spin_loop();
+                    }
+                }
+            }
+        }
+    })
+}
+
+/// `calls` ticks at 1 kHz of the loop's bus calls alone: drain, then send,
+/// each timed, with [`polling_echo`] on `peer_cpu` answering every send.
+/// Returns (drain, send, drain + send) in ns.
+fn paced_exchange(
+    calls: usize,
+    peer_cpu: usize,
+    port: u16,
+    tx: &mut UdpBus,
+) -> (Vec<u64>, Vec<u64>, Vec<u64>) {
+    let stop = Arc::new(AtomicBool::new(false));
+    let peer = polling_echo(port, peer_cpu, Arc::clone(&stop));
+    std::thread::sleep(Duration::from_millis(50));
+    drain(tx);
+    let frame = Frame::new(0x201, &[1, 2, 3, 4, 5, 6, 7, 8]).expect("frame");
+    let (mut drains, mut sends, mut both) = (
+        Vec::with_capacity(calls),
+        Vec::with_capacity(calls),
+        Vec::with_capacity(calls),
+    );
+    let mut deadline = os::now_ns();
+    for _ in 0..calls {
+        deadline += 1_000_000;
+        os::sleep_until(deadline);
+        let t0 = os::now_ns();
+        drain(tx);
+        let t1 = os::now_ns();
+        tx.send(&frame).expect("send");
+        let t2 = os::now_ns();
+        drains.push(t1 - t0);
+        sends.push(t2 - t1);
+        both.push(t2 - t0);
+    }
+    stop.store(true, Ordering::Relaxed);
+    peer.join().expect("peer thread");
+    (drains, sends, both)
+}
+
 fn main() {
     let calls = std::env::args()
         .skip(1)
@@ -121,6 +187,19 @@ fn main() {
     }
     let same = send_waking(calls, loop_cpu, port, &mut tx);
     cases.push(summary("send waking a receiver on the same CPU", same));
+
+    if loop_cpu > 0 {
+        let (drains, sends, both) = paced_exchange(calls, 0, port, &mut tx);
+        cases.push(summary(
+            "paced drain (1 kHz, polling peer answering)",
+            drains,
+        ));
+        cases.push(summary("paced send (1 kHz, polling peer answering)", sends));
+        cases.push(summary(
+            "paced drain + send (1 kHz, polling peer answering)",
+            both,
+        ));
+    }
 
     let out = serde_json::json!({
         "caller_cpu": pinned.then_some(loop_cpu),
