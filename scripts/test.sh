@@ -7,5 +7,12 @@ bash scripts/setup.sh
 cargo fmt --all -- --check
 cargo clippy --workspace --all-targets -- -D warnings
 cargo test --workspace --release
-.venv/bin/python -m pytest -q tests
+# can-utils' log2asc is the independent reader of the bus capture in
+# tests/test_capture.py; a fresh machine has it only after test-socketcan.sh
+# below installed it, so install it first (CI runs as root).
+if ! command -v log2asc > /dev/null && [ "$(id -u)" = 0 ]; then
+    apt-get update -q > /dev/null
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends can-utils > /dev/null
+fi
+.venv/bin/python -m pytest -q -rs tests
 SENSAUG_SKIP_SETUP=1 bash scripts/test-socketcan.sh  # the Linux CAN stack in a QEMU VM, ~4 min (docs/socketcan.md)
