@@ -624,6 +624,17 @@ fn propagate<const N: usize, const R: usize, const S: usize>(
     all_finite(&chi_f).then_some(chi_f)
 }
 
+/// `A` as the factorisation reads it: its upper triangle, mirrored into the
+/// lower (`a_ij <- a_ji` for `i > j`).
+#[inline(always)]
+fn mirror_upper<const D: usize>(A: &mut SMatrix<f64, D, D>) {
+    for j in 0..D {
+        for i in j + 1..D {
+            A[(i, j)] = A[(j, i)];
+        }
+    }
+}
+
 /// Re-symmetrisation used by the recovery policy: `A <- (A + A') / 2`.
 pub fn symmetrise<const D: usize>(A: &SMatrix<f64, D, D>) -> SMatrix<f64, D, D> {
     (A + A.transpose()) * 0.5
@@ -639,8 +650,9 @@ enum UpdatePoints {
     /// centre and factor.
     Drawn,
     /// `predict_bilinear` or `predict_linear` left filterpy's re-draw to the
-    /// update that needs it: the generic update draws from `(x-, P-)` (stage `PredictRedraw`),
-    /// the selection update needs no points and no factor.
+    /// update that needs it: the generic update draws from `(x-, P-)`
+    /// (stage `PredictRedraw`), the selection update needs no points and no
+    /// factor.
     Deferred,
 }
 
@@ -925,12 +937,8 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         let mut pending = Pending::default();
         let mut P = self.P;
         let L = self.factor(&mut P, Stage::PredictSigmaPoints, &mut pending);
-        // P as the factor read it: its upper triangle, mirrored.
-        for c in 0..N {
-            for r in c + 1..N {
-                P[(r, c)] = P[(c, r)];
-            }
-        }
+        // P as the factor read it.
+        mirror_upper(&mut P);
         let w = self.Wm[1];
         // p_k = q(L e_k) = sum_j L_{a_j k} L_{b_j k} ; mu = 2 w sum_k p_k
         let l = &L.data.0;
@@ -961,8 +969,9 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
                 }
             }
         }
-        // P- = P + Q, then the moving rows: P-_tt = J P J' + kappa g g' + Q_tt,
-        // P-_tc = (J P)_tc + Q_tc (mirrored).
+        // P- = P + Q, then the moving rows on the upper triangle:
+        // P-_tt = J P J' + kappa g g' + Q_tt, P-_tc = (J P)_tc + Q_tc; then
+        // mirrored (Q need not be symmetric).
         let mut P_prior = P + self.Q;
         for t in 0..R {
             for r in 0..=t {
@@ -970,22 +979,13 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
                 for k in 0..N {
                     jpj += J[r][k] * PJ[t][k];
                 }
-                let v = jpj + kappa * g[r] * g[t] + self.Q[(r, t)];
-                P_prior[(r, t)] = v;
-                P_prior[(t, r)] = v;
+                P_prior[(r, t)] = jpj + kappa * g[r] * g[t] + self.Q[(r, t)];
             }
             for c in R..N {
-                let v = PJ[t][c] + self.Q[(t, c)];
-                P_prior[(t, c)] = v;
-                P_prior[(c, t)] = v;
+                P_prior[(t, c)] = PJ[t][c] + self.Q[(t, c)];
             }
         }
-        // P-_cc = P_cc + Q_cc from the upper triangle (Q need not be symmetric).
-        for c in R..N {
-            for r in c + 1..N {
-                P_prior[(r, c)] = P_prior[(c, r)];
-            }
-        }
+        mirror_upper(&mut P_prior);
         // x-_c is the finite state's x_c: only the moving rows can overflow.
         if !all_finite(&x_t) || !all_finite(&P_prior) {
             return self.reject(UkfError::NonFiniteResult {
@@ -1256,11 +1256,7 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
         let idx = sel.indices();
         // P as the sigma points see it: its upper triangle, mirrored.
         let mut Pu = P;
-        for j in 0..N {
-            for i in j + 1..N {
-                Pu[(i, j)] = Pu[(j, i)];
-            }
-        }
+        mirror_upper(&mut Pu);
         // z_bar = H x
         let z_bar = sel.apply(&self.x);
         // Pxz = P H' (the selected columns) ; S = H P H' + R

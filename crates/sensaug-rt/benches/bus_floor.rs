@@ -94,7 +94,7 @@ fn send_waking(calls: usize, receiver_cpu: usize, port: u16, tx: &mut UdpBus) ->
 }
 
 /// A peer on `cpu` that polls the bus like the polling drive of the rig
-/// bench (`drive::POLL_GAP` of busy-waiting after an empty look) and
+/// bench ([`drive::wait_poll_gap`] after an empty look) and
 /// answers every frame with one frame, until `stop`.
 fn polling_echo(port: u16, cpu: usize, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<()> {
     let mut peer = UdpBus::open(port).expect("loopback bus");
@@ -104,12 +104,7 @@ fn polling_echo(port: u16, cpu: usize, stop: Arc<AtomicBool>) -> std::thread::Jo
         while !stop.load(Ordering::Relaxed) {
             match peer.recv_ready() {
                 Ok(Some(_)) => peer.send(&answer).expect("send"),
-                _ => {
-                    let looked = std::time::Instant::now();
-                    while looked.elapsed() < drive::POLL_GAP {
-                        std::hint::spin_loop();
-                    }
-                }
+                _ => drive::wait_poll_gap(),
             }
         }
     })

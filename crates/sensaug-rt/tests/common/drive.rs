@@ -33,6 +33,15 @@ pub enum DriveWait {
 /// adapter's hardware listens without the host's socket locks).
 pub const POLL_GAP: Duration = Duration::from_micros(20);
 
+/// The polling drive's wait after an empty look: [`POLL_GAP`] of
+/// busy-waiting, never asleep.
+pub fn wait_poll_gap() {
+    let looked = Instant::now();
+    while looked.elapsed() < POLL_GAP {
+        std::hint::spin_loop();
+    }
+}
+
 /// A drive that does just what the loop needs: heartbeats, enable, one
 /// feedback per torque command from the exact plant. It stops answering
 /// commands after `answer_for` of them (a dead drive).
@@ -75,10 +84,7 @@ pub fn drive_waiting(
             };
             let Ok(Some(f)) = received else {
                 if wait == DriveWait::Polling {
-                    let looked = Instant::now();
-                    while looked.elapsed() < POLL_GAP {
-                        std::hint::spin_loop();
-                    }
+                    wait_poll_gap();
                 }
                 continue;
             };
