@@ -7,10 +7,13 @@
 * ``paper`` reproduces the paper's headline numbers in simulation (Hi5 gain
   sweep, trajectory, goal integration, simulation section) as tables.
 * ``run CONFIG.toml`` runs one simulated trial and saves its log (``.csv``,
-  ``sensaug.load_log``; docs/logs.md).
+  ``sensaug.load_log``; docs/logs.md); a trial whose log would not fit in
+  memory (half of what is available, or ``--max-memory GB``) is refused
+  before it runs, naming the fields that make it large.
 * ``rig CONFIG.toml`` runs one trial on the virtual rig.
 * ``preset {hi5,hi5-rig,simulation}`` prints a preset as TOML.
-* ``sweep FILE --grid PATH=V1,V2 --seeds N --out DIR`` runs a grid over seeds.
+* ``sweep FILE --grid PATH=V1,V2 --seeds N --out DIR`` runs a grid over seeds
+  (a seed field in the grid is swept; ``--max-memory GB`` as for ``run``).
 * ``figures --out DIR [--quick]`` writes every computational figure of the
   paper (PNG and PDF, named after its label) and REPORT.md.
 * ``check FILE`` validates a configuration exactly as ``sensaug-rt --check``.
