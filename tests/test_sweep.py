@@ -172,7 +172,7 @@ def test_cli_sweeps_a_seed_grid_and_refuses_one_that_repeats(tmp_path, capsys):
     path = tmp_path / "base.toml"
     base().to_toml(path)
     out = tmp_path / "sweep"
-    assert cli.main(["sweep", str(path), "--grid", "world.seed=1,2", "--seeds", "1", "--out", str(out), "--quiet"]) == 0
+    assert cli.main(["sweep", str(path), "--grid", "world.seed=1,2", "--seeds", "1", "--workers", "1", "--out", str(out), "--quiet"]) == 0
     df = pd.read_csv(out / "results.csv")
     assert list(df["world.seed"]) == [1, 2] and df["rmse_own"].nunique() == 2
     code = cli.main(["sweep", str(path), "--grid", "world.seed=1,2", "--grid", "robot.seed=3", "--seeds", "2",
