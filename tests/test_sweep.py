@@ -3,6 +3,7 @@ numbers whatever executor runs the trials (serial, threads, a Dask cluster)."""
 
 from __future__ import annotations
 
+import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -112,3 +113,115 @@ def test_cli_sweep_writes_results_config_and_grid(tmp_path):
     assert len(df) == 4 and set(df["partner.gains.lhh"]) == {0.5, 2.0}
     assert ScenarioConfig.from_toml(out / "config.toml").to_dict() == base().to_dict()
     assert (out / "grid.json").is_file() and (out / "README.md").is_file()
+
+
+# --- seed fields in the grid: swept, never silently overridden ---------------
+
+
+def _expected(cfg) -> dict:
+    from sensaug import experiment
+    from sensaug.sweep import trial_metrics
+
+    return trial_metrics(experiment.run(cfg))
+
+
+@pytest.mark.parametrize("field", ["world.seed", "robot.seed"])
+def test_a_seed_field_in_the_grid_is_swept(field):
+    """The grid sets the field; the trial seed sets the other seeds only."""
+    df = sweep(base(), {field: [5, 6]}, seeds=[3], progress=False)
+    assert list(df[field]) == [5, 6]
+    assert df.iloc[0]["rmse_own"] != df.iloc[1]["rmse_own"], "the rows differ: the grid's seed took effect"
+    for value, row in zip((5, 6), df.itertuples()):
+        cfg = base()
+        cfg.world.seed, cfg.robot.seed = 3, 3 + ROBOT_SEED_OFFSET
+        set_path(cfg, field, value)
+        assert row.rmse_own == _expected(cfg)["rmse_own"]
+
+
+def test_a_grid_over_every_seed_takes_one_seed():
+    grid = {"world.seed": [1, 2], "robot.seed": [7]}
+    with pytest.raises(ConfigError, match=r"^seeds: the grid sets every seed of the trial \(world\.seed, robot\.seed\), so 2 seeds would repeat identical trials; give one seed"):
+        sweep(base(), grid, seeds=range(2))
+    df = sweep(base(), grid, seeds=[0], progress=False)
+    assert len(df) == 2 and df.iloc[0]["rmse_own"] != df.iloc[1]["rmse_own"]
+
+
+def test_seed_sets_every_seed_as_the_presets_do():
+    """With a goal-integrating partner the trial seed also sets
+    partner.integration.seed: seed s of a sweep is seed s of the preset."""
+    from sensaug import presets
+    from sensaug.sweep import PARTNER_SEED_OFFSET
+
+    def integration(seed=0):
+        cfg = presets.simulation_integration(seed=seed, phase_s=3.0)
+        cfg.robot.gain_window_s = 1.0
+        return cfg
+
+    df = sweep(integration(), {}, seeds=[0, 4], progress=False)
+    for seed, row in zip((0, 4), df.itertuples()):
+        assert integration(seed).partner.integration.seed == seed + PARTNER_SEED_OFFSET
+        assert row.rmse_integrated == _expected(integration(seed))["rmse_integrated"]
+    # Swept by the grid, it is left to the grid.
+    df = sweep(integration(), {"partner.integration.seed": [11, 12]}, seeds=[0], progress=False)
+    assert df.iloc[0]["rmse_integrated"] != df.iloc[1]["rmse_integrated"]
+
+
+def test_cli_sweeps_a_seed_grid_and_refuses_one_that_repeats(tmp_path, capsys):
+    from sensaug import cli
+
+    path = tmp_path / "base.toml"
+    base().to_toml(path)
+    out = tmp_path / "sweep"
+    assert cli.main(["sweep", str(path), "--grid", "world.seed=1,2", "--seeds", "1", "--workers", "1", "--out", str(out), "--quiet"]) == 0
+    df = pd.read_csv(out / "results.csv")
+    assert list(df["world.seed"]) == [1, 2] and df["rmse_own"].nunique() == 2
+    code = cli.main(["sweep", str(path), "--grid", "world.seed=1,2", "--grid", "robot.seed=3", "--seeds", "2",
+                     "--out", str(tmp_path / "no"), "--quiet"])
+    assert code == 2
+    assert "error: seeds: the grid sets every seed of the trial (world.seed, robot.seed)" in capsys.readouterr().err
+    assert not (tmp_path / "no").exists()
+
+
+# --- memory: the largest trial checked before anything runs -----------------
+
+
+def test_a_sweep_whose_trial_does_not_fit_is_refused_before_it_runs():
+    from sensaug.experiment import TrialTooLargeError, trial_memory
+
+    need = trial_memory(base())
+    with pytest.raises(TrialTooLargeError, match=r"^phases\[\*\]\.duration_s, plant\.dt_s: .*shorten the phases, raise plant\.dt_s"):
+        sweep(base(), {"phases[0].duration_s": [6.0, 12.0]}, seeds=[0], memory_budget=need)
+
+
+class _Counting(ThreadPoolExecutor):
+    """A thread pool that records the most trials running at once."""
+
+    def __init__(self, workers: int):
+        super().__init__(workers)
+        self.lock = threading.Lock()
+        self.running = self.most = 0
+
+    def submit(self, fn, *args, **kwargs):
+        def counted(*a, **k):
+            with self.lock:
+                self.running += 1
+                self.most = max(self.most, self.running)
+            try:
+                return fn(*a, **k)
+            finally:
+                with self.lock:
+                    self.running -= 1
+
+        return super().submit(counted, *args, **kwargs)
+
+
+def test_no_more_trials_run_at_once_than_fit_the_budget():
+    from sensaug.experiment import trial_memory
+
+    need = trial_memory(base())
+    for budget, most in ((need, 1), (2 * need, 2)):
+        pool = _Counting(4)
+        df = sweep(base(), {}, seeds=range(4), executor=pool, memory_budget=budget, progress=False)
+        pool.shutdown()
+        assert pool.most <= most, (budget, pool.most)
+        pd.testing.assert_frame_equal(df, sweep(base(), {}, seeds=range(4), progress=False), check_exact=True)

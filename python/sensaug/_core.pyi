@@ -11,10 +11,10 @@ class RiccatiConvergenceError(RuntimeError):
     """The solver did not converge, or its solution failed the residual or closed-loop check."""
 
 def lqr(
-    a: npt.NDArray[np.float64],
-    b: npt.NDArray[np.float64],
-    q: npt.NDArray[np.float64],
-    r: npt.NDArray[np.float64],
+    a: npt.ArrayLike,
+    b: npt.ArrayLike,
+    q: npt.ArrayLike,
+    r: npt.ArrayLike,
     /,
     *,
     discrete: bool = False,
@@ -28,7 +28,8 @@ def lqr(
         a: (n, n), 1 <= n <= 6. b: (n, m), 1 <= m <= n. q: (n, n) PSD. r: (m, m) PD.
 
     Raises:
-        ValueError: bad shape or input, not stabilisable, not detectable.
+        TypeError: an argument that is not real numbers (named).
+        ValueError: bad shape or input, not stabilisable, not detectable (named, with the fix).
         RiccatiConvergenceError: no convergence, residual > 1e-10, or not stabilising.
 
     Returns:
@@ -39,7 +40,9 @@ def agent_gains(*, mass: float, damping: float, q_pos: float, q_vel: float) -> t
     """(k_pos, k_vel) of the reduced 2-state LQR on [x - target, xdot], R = 1.
 
     Raises:
-        ValueError: mass <= 0, damping < 0, q_pos <= 0, q_vel < 0, or non-finite.
+        TypeError: a parameter that is not a real number (named).
+        ValueError: mass <= 0, damping < 0, q_pos <= 0, q_vel < 0, non-finite, or
+            1 / mass or damping / mass overflows (named).
     """
 # --- end riccati ---
 
@@ -59,7 +62,9 @@ class Plant:
         self, *, mass: float, damping: float = 0.0, coulomb: float = 0.0, dt_s: float = 1e-3, x0: float = 0.0, v0: float = 0.0
     ) -> None:
         """Raises:
-        ValueError: a parameter out of range (the message names it).
+        TypeError: a parameter that is not a real number (named).
+        ValueError: a parameter out of range, or one that makes the step
+            overflow (too small a mass for ``dt_s``, ...); the message names it.
         """
     @property
     def x(self) -> float: ...
@@ -69,29 +74,37 @@ class Plant:
         """One period with ``torque`` held; returns ``(x, v)``.
 
         Raises:
-            ValueError: non-finite torque (state unchanged).
+            ValueError: non-finite torque, or a new state that would overflow (state unchanged).
         """
     def run(self, torques: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Every torque in turn; positions and velocities after each step.
 
         Raises:
-            ValueError: ``torques[k]`` non-finite (nothing stepped), or not C-contiguous.
+            ValueError: ``torques[k]`` non-finite (nothing stepped), its step's state would
+                overflow (the steps before it ran), or not C-contiguous.
         """
 
 # --- estimators ---
 
 @final
 class GainEstimator:
-    """Stage 1: the partner's gains from ``y1 = [x - tau, xdot, x - tau_h]`` (6 states, 3 measurements)."""
+    """Stage 1: the partner's gains from ``y1 = [x - tau, xdot, x - tau_h]`` (6 states, 3 measurements).
+
+    The constructors of the three estimators take any array-like of real
+    numbers; ``Q`` and ``R`` must be symmetric positive semidefinite, ``P0``
+    symmetric positive definite. Every error names the argument first and
+    says how to fix it: ``TypeError`` for what is not real numbers,
+    ``ValueError`` for a bad shape or value.
+    """
 
     def __init__(
         self,
         *,
         mass: float,
-        Q: NDArray[np.float64],
-        R: NDArray[np.float64],
-        x0: NDArray[np.float64],
-        P0: NDArray[np.float64],
+        Q: npt.ArrayLike,
+        R: npt.ArrayLike,
+        x0: npt.ArrayLike,
+        P0: npt.ArrayLike,
         damping: float = 0.0,
         dt: float = 1e-3,
         alpha: float = 1.0,
@@ -147,10 +160,10 @@ class TrajectoryEstimator:
         self,
         *,
         mass: float,
-        Q: NDArray[np.float64],
-        R: NDArray[np.float64],
-        x0: NDArray[np.float64],
-        P0: NDArray[np.float64],
+        Q: npt.ArrayLike,
+        R: npt.ArrayLike,
+        x0: npt.ArrayLike,
+        P0: npt.ArrayLike,
         damping: float = 0.0,
         dt: float = 1e-3,
         alpha: float = 1.0,
@@ -191,10 +204,10 @@ class GoalIntegrator:
         self,
         *,
         mass: float,
-        Q: NDArray[np.float64],
-        R: NDArray[np.float64],
-        x0: NDArray[np.float64],
-        P0: NDArray[np.float64],
+        Q: npt.ArrayLike,
+        R: npt.ArrayLike,
+        x0: npt.ArrayLike,
+        P0: npt.ArrayLike,
         damping: float = 0.0,
         dt: float = 1e-3,
         partner_window_s: float = 0.2,
@@ -246,7 +259,15 @@ class GoalIntegrator:
 
 # --- scenario ---
 
-def run_scenario(text: str, /, *, format: str = "toml") -> tuple[NDArray[np.uint8], dict[str, int]]:
+class ConfigError(ValueError):
+    """A configuration error: ``str(e)`` is ``<dotted field path>: <what is wrong and how to fix it>``."""
+
+class TrialTooLargeError(ConfigError):
+    """A simulated trial whose log would not fit the memory it may take; raised before it runs."""
+
+def run_scenario(
+    text: str, /, *, format: str = "toml", memory_budget: int | None = None
+) -> tuple[NDArray[np.uint8], dict[str, int]]:
     """One whole simulated trial from configuration text (``format``:
     ``"toml"`` or ``"json"``; the one schema, ``sensaug.config``).
 
@@ -255,8 +276,23 @@ def run_scenario(text: str, /, *, format: str = "toml") -> tuple[NDArray[np.uint
     float64 native-endian, bool one byte), ``records.view(sensaug.logs.DTYPE)``.
 
     Raises:
-        ValueError: a setting out of range (the message names its path).
+        ConfigError: a setting out of range (the message names its path).
+        TrialTooLargeError: the log needs more than ``memory_budget`` bytes
+            (default ``available_memory()``), before anything runs.
     """
+
+def trial_memory(text: str, /, *, format: str = "toml", memory_budget: int | None = None) -> tuple[int, int]:
+    """``(ticks, log_bytes)`` of the trial the configuration describes.
+
+    Raises:
+        ConfigError: the configuration is invalid.
+        TrialTooLargeError: ``memory_budget`` is given and the log needs more.
+    """
+
+def available_memory() -> int | None:
+    """Bytes a simulated trial's log may take here: half of the memory
+    available (``MemAvailable``, or a cgroup's remaining limit); ``None`` where
+    it cannot be read."""
 
 # --- replay (sensaug.replay, docs/logs.md "Replay") ---
 

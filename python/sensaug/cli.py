@@ -7,10 +7,13 @@
 * ``paper`` reproduces the paper's headline numbers in simulation (Hi5 gain
   sweep, trajectory, goal integration, simulation section) as tables.
 * ``run CONFIG.toml`` runs one simulated trial and saves its log (``.csv``,
-  ``sensaug.load_log``; docs/logs.md).
+  ``sensaug.load_log``; docs/logs.md); a trial whose log would not fit in
+  memory (half of what is available, or ``--max-memory GB``) is refused
+  before it runs, naming the fields that make it large.
 * ``rig CONFIG.toml`` runs one trial on the virtual rig.
 * ``preset {hi5,hi5-rig,simulation}`` prints a preset as TOML.
-* ``sweep FILE --grid PATH=V1,V2 --seeds N --out DIR`` runs a grid over seeds.
+* ``sweep FILE --grid PATH=V1,V2 --seeds N --out DIR`` runs a grid over seeds
+  (a seed field in the grid is swept; ``--max-memory GB`` as for ``run``).
 * ``figures --out DIR [--quick]`` writes every computational figure of the
   paper (PNG and PDF, named after its label) and REPORT.md.
 * ``check FILE`` validates a configuration exactly as ``sensaug-rt --check``.
@@ -225,9 +228,18 @@ def _fmt(v) -> str:
     return "[" + ", ".join(f"{x:.3f}" for x in v) + "]"
 
 
-def run_config(path: Path, out: Path | None) -> int:
+def _budget(gb: float | None) -> int | None:
+    """``--max-memory`` in bytes (None: the default, half the available memory)."""
+    if gb is None:
+        return None
+    if not gb > 0:
+        raise ValueError(f"--max-memory: must be > 0 GB, got {gb:g}")
+    return int(gb * 1e9)
+
+
+def run_config(path: Path, out: Path | None, max_memory_gb: float | None = None) -> int:
     cfg = ScenarioConfig.from_toml(path)
-    trial = experiment.run(cfg)
+    trial = experiment.run(cfg, memory_budget=_budget(max_memory_gb))
     out = trial.save(out or path.with_suffix(".csv"))
     print(f"{len(trial)} ticks; summary {trial.summary}; log -> {out}")
     return 0
@@ -248,11 +260,16 @@ def _grid_values(text: str) -> list[object]:
 
 
 def sweep_command(
-    config: Path, grid_args: list[str], seeds: int, workers: int | None, out: Path, progress: bool | None = None
+    config: Path,
+    grid_args: list[str],
+    seeds: int,
+    workers: int | None,
+    out: Path,
+    progress: bool | None = None,
+    max_memory_gb: float | None = None,
 ) -> int:
     """``sensaug sweep``: results.csv, the base configuration and the grid in ``out``."""
     import json
-    from concurrent.futures import ThreadPoolExecutor
 
     from sensaug.sweep import sweep
 
@@ -265,9 +282,8 @@ def sweep_command(
             raise ValueError(f"--grid {g!r}: write PATH=V1,V2,... (e.g. partner.gains.lhh=0,1,2)")
         grid[path.strip()] = _grid_values(values)
     base = ScenarioConfig.from_toml(config)
-    executor = ThreadPoolExecutor(workers) if workers else None
     t0 = time.perf_counter()
-    df = sweep(base, grid, seeds=range(seeds), executor=executor, progress=progress)
+    df = sweep(base, grid, seeds=range(seeds), progress=progress, workers=workers, memory_budget=_budget(max_memory_gb))
     elapsed = time.perf_counter() - t0
     out.mkdir(parents=True, exist_ok=True)
     df.to_csv(out / "results.csv", index=False)
@@ -277,7 +293,8 @@ def sweep_command(
         "# sensaug sweep\n\n"
         f"`results.csv`: {len(df)} trials, one row each (swept values, seed, headline metrics);\n"
         "`config.toml`: the base configuration; `grid.json`: the grid and the seeds\n"
-        "(each seed sets world.seed and robot.seed = seed + 1000003).\n"
+        "(each seed sets the seed fields the grid does not: world.seed = seed,\n"
+        "robot.seed = seed + 1000003, partner.integration.seed = seed + 2000003).\n"
     )
     keys = list(grid)
     summary = df.groupby(keys)[[c for c in df.columns if c not in (*keys, "seed")]].mean() if keys else df.mean()
@@ -349,6 +366,8 @@ def main(argv: list[str] | None = None) -> int:
     r = sub.add_parser("run", help="run one trial from a TOML configuration")
     r.add_argument("config", type=Path)
     r.add_argument("--out", type=Path, default=None, help="log file (.csv); default next to the config")
+    r.add_argument("--max-memory", type=float, default=None, metavar="GB",
+                   help="the most memory the trial's log may take (default: half of the available memory)")
     p = sub.add_parser("preset", help="print a preset configuration as TOML")
     p.add_argument("name", choices=["hi5", "hi5-rig", "simulation"])
     sw = sub.add_parser("sweep", help="run a configuration over a grid of settings and seeds")
@@ -362,6 +381,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     sw.add_argument("--seeds", type=int, default=12, help="seeds 0..N-1 per grid point (default 12)")
     sw.add_argument("--workers", type=int, default=None, help="threads (default: one per core)")
+    sw.add_argument("--max-memory", type=float, default=None, metavar="GB",
+                    help="the most memory the logs of the trials running at once may take "
+                         "(default: half of the available memory); fewer run at once")
     sw.add_argument("--out", type=Path, default=Path("out/sweep"), help="output folder (default out/sweep)")
     sw.add_argument("--quiet", action="store_true", help="no progress bar (it shows only on a terminal anyway)")
     fg = sub.add_parser("figures", help="every computational figure of the paper (PNG, PDF) and REPORT.md")
@@ -385,9 +407,11 @@ def main(argv: list[str] | None = None) -> int:
                 parser.error("--seeds: must be >= 1")
             return paper(args.seeds, None if args.no_plots else args.plots, _progress(args))
         if args.command == "run":
-            return run_config(args.config, args.out)
+            return run_config(args.config, args.out, args.max_memory)
         if args.command == "sweep":
-            return sweep_command(args.config, args.grid, args.seeds, args.workers, args.out, _progress(args))
+            return sweep_command(
+                args.config, args.grid, args.seeds, args.workers, args.out, _progress(args), args.max_memory
+            )
         if args.command == "figures":
             import matplotlib
 

@@ -20,7 +20,11 @@ import numpy as np
 from sensaug import _core, logs, metrics
 from sensaug.config import ScenarioConfig
 
-__all__ = ["Trial", "run", "FIELDS", "PHASE_KINDS"]
+__all__ = ["Trial", "run", "trial_memory", "TrialTooLargeError", "FIELDS", "PHASE_KINDS"]
+
+#: Raised by :func:`run` (and ``sweep``) before a trial whose log would not fit
+#: in memory; a :class:`~sensaug.config.ConfigError`.
+TrialTooLargeError = _core.TrialTooLargeError
 
 #: Column names of ``Trial.data`` (the one log schema, ``sensaug.logs``).
 FIELDS: tuple[str, ...] = logs.COLUMNS
@@ -109,16 +113,37 @@ class Trial(logs.Log):
         return found[0]
 
 
+def trial_memory(config: ScenarioConfig) -> int:
+    """Bytes the log of ``config``'s trial takes in memory (one record per
+    tick, as :func:`run` keeps it), computed by the core from the
+    configuration, as ``run`` checks it."""
+    return _core.trial_memory(config._toml())[1]
+
+
 @functools.lru_cache(maxsize=1)
 def _git_commit() -> str | None:
     """The git commit of this package's checkout (looked up once per process)."""
     return _core.git_commit(str(Path(__file__).resolve().parent))
 
 
-def run(config: ScenarioConfig) -> Trial:
-    """Runs one whole trial in the compiled core and returns its log."""
+def run(config: ScenarioConfig, *, memory_budget: int | None = None) -> Trial:
+    """Runs one whole trial in the compiled core and returns its log.
+
+    The log is kept whole in memory (one record of ``logs.DTYPE`` per tick),
+    so its size is checked before the trial runs.
+
+    Arguments:
+        config: the trial.
+        memory_budget: the most bytes the log may take; default: half of the
+            memory available (``_core.available_memory()``).
+
+    Raises:
+        TrialTooLargeError: the log would not fit (a ``ConfigError`` naming
+            ``phases[*].duration_s`` and ``plant.dt_s`` and the fix), before
+            anything runs.
+    """
     toml = config._toml()
-    records, summary = _core.run_scenario(toml)
+    records, summary = _core.run_scenario(toml, memory_budget=memory_budget)
     summary = dict(summary)
     robot_gains = np.asarray(summary.pop("robot_gains"), dtype=float)
     partner_gains = np.asarray(summary.pop("partner_gains"), dtype=float)

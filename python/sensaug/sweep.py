@@ -14,6 +14,19 @@ Grid keys are dotted paths of the configuration schema (``docs/config.md``):
 ``phases[*].target_noise_std`` (every phase), and the gain lists by index or by
 name (``partner.gains[2]`` is ``partner.gains.lhh``; ``lhx``, ``lhv``,
 ``lhh``).
+
+Seeds: each trial seed ``s`` sets every noise seed of the configuration
+(:data:`SEED_FIELDS`): ``world.seed = s``, ``robot.seed = s +
+ROBOT_SEED_OFFSET`` and, with a goal-integrating partner,
+``partner.integration.seed = s + PARTNER_SEED_OFFSET`` (as the presets do).
+A seed field in the grid is swept like any other field: the grid sets it and
+the trial seed sets only the others. A grid that sets every seed of the
+trial takes a single seed (more would repeat identical trials).
+
+Memory: a trial keeps its whole log in memory while it runs. The largest
+trial's log is computed from its configuration before anything runs; a
+sweep whose trial would not fit raises ``TrialTooLargeError``, and at most
+as many trials run at once as fit in the memory budget together.
 """
 
 from __future__ import annotations
@@ -24,19 +37,28 @@ import math
 import os
 import re
 from collections.abc import Iterable, Mapping, Sequence
-from concurrent.futures import Executor, ThreadPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, Executor, Future, ThreadPoolExecutor, wait
 from typing import Any
 
 import numpy as np
 
-from sensaug import experiment
+from sensaug import _core, experiment
 from sensaug.config import ConfigError, ScenarioConfig
+from sensaug.presets import PARTNER_SEED_OFFSET
 
-__all__ = ["sweep", "set_path", "trial_metrics", "ROBOT_SEED_OFFSET"]
+__all__ = ["sweep", "set_path", "trial_metrics", "ROBOT_SEED_OFFSET", "PARTNER_SEED_OFFSET", "SEED_FIELDS"]
 
 #: The robot's noise seed is the trial seed plus this (as in the presets), so
 #: world and robot noise streams differ.
 ROBOT_SEED_OFFSET = 1_000_003
+
+#: Every noise seed of a configuration and its offset from the trial seed
+#: (``partner.integration.seed`` only when the partner integrates goals).
+SEED_FIELDS: dict[str, int] = {
+    "world.seed": 0,
+    "robot.seed": ROBOT_SEED_OFFSET,
+    "partner.integration.seed": PARTNER_SEED_OFFSET,
+}
 _GAIN_NAMES = {"lhx": 0, "lhv": 1, "lhh": 2}
 _SEGMENT = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)((?:\[(?:\d+|\*)\])*)")
 
@@ -136,10 +158,65 @@ def trial_metrics(trial: experiment.Trial) -> dict[str, float]:
     return out
 
 
-def _run_one(toml: str) -> dict[str, float]:
+def _run_one(toml: str, memory_budget: int | None = None) -> dict[str, float]:
     """One trial from its configuration text (a top-level function, so that
     process pools and Dask can ship it)."""
-    return trial_metrics(experiment.run(ScenarioConfig.from_toml(toml)))
+    return trial_metrics(experiment.run(ScenarioConfig.from_toml(toml), memory_budget=memory_budget))
+
+
+def _canonical(path: str) -> str:
+    """A grid key as its parsed segments joined by dots, to compare with
+    :data:`SEED_FIELDS` however it was written."""
+    return ".".join(str(s) for s in _segments(path))
+
+
+def _seeded_fields(config: ScenarioConfig, grid_keys: Iterable[str]) -> dict[str, int]:
+    """The seed fields a trial seed sets in ``config``: every one the
+    configuration has (:data:`SEED_FIELDS`), less those the grid sets."""
+    swept = {_canonical(k) for k in grid_keys}
+    present = {k: off for k, off in SEED_FIELDS.items() if k != "partner.integration.seed" or config.partner.integration is not None}
+    return {k: off for k, off in present.items() if k not in swept}
+
+
+def _seed(config: ScenarioConfig, fields: Mapping[str, int], seed: int) -> None:
+    for path, offset in fields.items():
+        set_path(config, path, seed + offset)
+
+
+def _in_flight(jobs: list[str], memory_budget: int | None) -> int:
+    """How many trials may run at once: as many of the largest as fit the
+    budget together (default: ``_core.available_memory()``). Raises
+    ``TrialTooLargeError`` (the core's message) when not even one fits."""
+    budget = _core.available_memory() if memory_budget is None else memory_budget
+    if budget is None:
+        return len(jobs)
+    largest = max(_core.trial_memory(toml, memory_budget=budget)[1] for toml in jobs)
+    return max(1, min(len(jobs), budget // max(1, largest)))
+
+
+def _run_all(pool: Executor, jobs: list[str], in_flight: int, memory_budget: int | None, bar) -> list[dict[str, float]]:
+    """Every job on ``pool``, at most ``in_flight`` at once; results in job order."""
+    results: list[Any] = [None] * len(jobs)
+    pending: dict[Future, int] = {}
+    queue = iter(enumerate(jobs))
+
+    def submit_next() -> None:
+        for i, toml in itertools.islice(queue, 1):
+            pending[pool.submit(_run_one, toml, memory_budget)] = i
+
+    for _ in range(in_flight):
+        submit_next()
+    try:
+        while pending:
+            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for f in done:
+                results[pending.pop(f)] = f.result()
+                bar.update(1)
+                submit_next()
+    finally:
+        for f in pending:
+            f.cancel()
+    return results
 
 
 def _points(grid: Mapping[str, Sequence[Any]]) -> list[dict[str, Any]]:
@@ -161,26 +238,40 @@ def sweep(
     executor: Executor | None = None,
     *,
     progress: bool | None = None,
+    workers: int | None = None,
+    memory_budget: int | None = None,
 ) -> "pandas.DataFrame":  # noqa: F821
     """Runs ``base_config`` at every grid point for every seed.
 
     Arguments:
         base_config: the configuration to vary (not modified).
-        grid: dotted path -> values; the cartesian product is run.
-        seeds: trial seeds; each sets ``world.seed`` and ``robot.seed``
-            (= seed + ``ROBOT_SEED_OFFSET``).
+        grid: dotted path -> values; the cartesian product is run. A seed
+            field (:data:`SEED_FIELDS`) is swept like any other.
+        seeds: trial seeds; each sets every seed field the grid does not:
+            ``world.seed`` (= seed), ``robot.seed`` (= seed +
+            ``ROBOT_SEED_OFFSET``) and ``partner.integration.seed`` (= seed +
+            ``PARTNER_SEED_OFFSET``, with a goal-integrating partner).
         executor: any ``concurrent.futures.Executor`` (e.g. a Dask
             ``distributed.Client(...).get_executor()``); default: a thread pool
-            with one worker per core.
+            with ``workers`` threads.
         progress: show a tqdm progress bar (default: when on a terminal).
+        workers: threads of the default pool (default: one per core).
+        memory_budget: the most bytes the logs of the trials running at once
+            may take (default: half of the memory available on this
+            machine); fewer trials then run at once. Each trial is also
+            checked where it runs (a Dask worker: against its own memory).
 
     Returns:
         A DataFrame with one row per trial: the swept values, ``seed``, and the
         metrics of :func:`trial_metrics`; rows in grid-then-seed order.
 
     Raises:
-        ConfigError: a grid key names no field, or a swept value is invalid
-            (named like ``partner.gains[2]: ...``), before any trial runs.
+        ConfigError: a grid key names no field, a swept value is invalid
+            (named like ``partner.gains[2]: ...``), or the grid sets every
+            seed of the trial and more than one seed is given, before any
+            trial runs.
+        TrialTooLargeError: a trial's log would not fit the memory budget
+            (a ``ConfigError``), before any trial runs.
     """
     import pandas as pd
     from tqdm.auto import tqdm
@@ -189,26 +280,31 @@ def sweep(
     seed_list = [int(s) for s in seeds]
     if not seed_list:
         raise ConfigError("seeds: empty; give at least one seed")
+    if workers is not None and workers < 1:
+        raise ValueError(f"workers: must be >= 1, got {workers}")
     jobs: list[tuple[dict[str, Any], int, str]] = []
     for point in points:
         for seed in seed_list:
             cfg = copy.deepcopy(base_config)
             for path, value in point.items():
                 set_path(cfg, path, value)
-            cfg.world.seed = seed
-            cfg.robot.seed = seed + ROBOT_SEED_OFFSET
+            seeded = _seeded_fields(cfg, point)
+            if not seeded and len(seed_list) > 1:
+                raise ConfigError(
+                    f"seeds: the grid sets every seed of the trial ({', '.join(k for k in point if _canonical(k) in SEED_FIELDS)}), "
+                    f"so {len(seed_list)} seeds would repeat identical trials; give one seed (seeds=[0], --seeds 1)"
+                )
+            _seed(cfg, seeded, seed)
             cfg.validate()
             jobs.append((point, seed, cfg._toml()))
 
+    tomls = [toml for _, _, toml in jobs]
+    in_flight = _in_flight(tomls, memory_budget)
     own = executor is None
-    pool = ThreadPoolExecutor(max_workers=os.cpu_count() or 1) if own else executor
+    pool = ThreadPoolExecutor(max_workers=min(in_flight, workers or os.cpu_count() or 1)) if own else executor
     try:
-        futures = [pool.submit(_run_one, toml) for _, _, toml in jobs]
-        bar = tqdm(total=len(futures), desc="sweep", unit="trial", disable=None if progress is None else not progress)
-        results = []
-        for f in futures:
-            results.append(f.result())
-            bar.update(1)
+        bar = tqdm(total=len(jobs), desc="sweep", unit="trial", disable=None if progress is None else not progress)
+        results = _run_all(pool, tomls, in_flight, memory_budget, bar)
         bar.close()
     finally:
         if own:

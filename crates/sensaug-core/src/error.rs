@@ -81,13 +81,11 @@ impl core::fmt::Display for ScenarioError {
                     "{name}: out of range; finite, and > 0 where it is a limit"
                 )
             }
-            ScenarioError::Plant(_) => write!(
+            ScenarioError::Plant(error) => write!(f, "plant.{error}"),
+            ScenarioError::Estimator { stage, error } => write!(
                 f,
-                "plant: mass > 0, damping and coulomb >= 0, dt_s > 0 (all finite)"
-            ),
-            ScenarioError::Estimator { stage, .. } => write!(
-                f,
-                "robot.{stage}: rejected by the filter; check its covariances and sigma points"
+                "robot.{stage}: rejected by the filter; check its covariances and sigma points \
+                 ({error})"
             ),
             ScenarioError::OutputTooShort { needed, got } => {
                 write!(f, "output: {got} records for a trial of {needed} ticks")

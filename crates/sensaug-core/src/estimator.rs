@@ -12,7 +12,10 @@
 //! computes its command `u_k`, then `predict` with `u_k` and the targets'
 //! increments `tau[k+1] - tau[k]` (0 for a target the agent does not know).
 
-use crate::ukf::{BilinearForm, BilinearProcess, MerweParams, Selection, Status, Ukf, UkfError};
+use crate::linalg::{is_positive_semidefinite, is_symmetric};
+use crate::ukf::{
+    Arg, BilinearForm, BilinearProcess, MerweParams, Selection, Status, Ukf, UkfError,
+};
 use nalgebra::{SMatrix, SVector, Vector2, Vector3};
 
 /// Extended state (eq.state-extended): `[e, v, e_h, Lhx, Lhv, Lhh]` with
@@ -50,6 +53,20 @@ impl HandleModel {
         if !(self.dt_s.is_finite() && self.dt_s > 0.0) {
             return bad("dt_s");
         }
+        // A step whose coefficients overflow would turn every state into
+        // inf or NaN: dt^2 is dt's fault, dt / M and dt^2 / M the mass's,
+        // the rest (dt^2 C / M, dt C / M) the damping's.
+        let dt = self.dt_s;
+        let s = self.step();
+        if !(dt * dt).is_finite() {
+            return bad("dt_s");
+        }
+        if !(s.dx_f.is_finite() && s.v_f.is_finite()) {
+            return bad("mass");
+        }
+        if !(s.dx_v.is_finite() && s.v_v.is_finite()) {
+            return bad("damping");
+        }
         Ok(())
     }
 
@@ -85,13 +102,106 @@ pub struct Step {
     pub v_f: f64,
 }
 
-/// Set-up errors of an estimator.
+/// Set-up errors of an estimator; each names the argument as the
+/// estimator's configuration spells it (`x0`, `P0`, `Q`, `R`, the model's
+/// fields, `alpha`, `beta`, `kappa`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum EstimatorError {
-    /// A field of [`HandleModel`] is out of range.
+    /// A field of [`HandleModel`] (or `partner_window_s`) is out of range,
+    /// or makes the model's step overflow.
     InvalidModel(&'static str),
     /// The underlying UKF rejected its set-up (names the argument).
     Ukf(UkfError),
+    /// A covariance (`P0`, `Q` or `R`) is not symmetric within
+    /// [`SYMMETRY_TOL`](crate::linalg::SYMMETRY_TOL).
+    NotSymmetric(Arg),
+    /// A noise covariance (`Q` or `R`) has a negative eigenvalue (beyond
+    /// [`DEFINITENESS_TOL`](crate::linalg::DEFINITENESS_TOL)): a negative
+    /// variance.
+    NotPositiveSemidefinite(Arg),
+}
+
+impl EstimatorError {
+    /// The estimator's name for a UKF argument: the initial state and
+    /// covariance are `x0` and `P0`.
+    fn arg(which: Arg) -> &'static str {
+        match which {
+            Arg::X => "x0",
+            Arg::P => "P0",
+            other => other.name(),
+        }
+    }
+}
+
+impl core::fmt::Display for EstimatorError {
+    /// The argument first, then what is wrong and how to fix it.
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match *self {
+            EstimatorError::InvalidModel(field) => f.write_str(match field {
+                "mass" => {
+                    "mass: must be finite and > 0 (the handle's inertia), and large enough \
+                     that dt / mass and dt^2 / mass are finite"
+                }
+                "damping" => {
+                    "damping: must be finite and >= 0 (viscous damping), and small enough \
+                     that damping * dt / mass is finite"
+                }
+                "dt_s" => "dt_s: must be finite and > 0 (the step, s), with dt^2 finite",
+                "partner_window_s" => {
+                    "partner_window_s: must be finite and > 0 (the time constant of the \
+                     partner channel's variance estimate, s; 0.2 is the default)"
+                }
+                other => other,
+            }),
+            EstimatorError::Ukf(UkfError::NonFiniteArgument { which }) => {
+                write!(f, "{}: must be finite (no NaN or inf)", Self::arg(which))
+            }
+            EstimatorError::Ukf(UkfError::NotPositiveDefinite { which }) => write!(
+                f,
+                "{}: must be symmetric positive definite; raise its diagonal",
+                Self::arg(which)
+            ),
+            EstimatorError::Ukf(other) => other.fmt(f),
+            EstimatorError::NotSymmetric(which) => write!(
+                f,
+                "{0}: must be symmetric; pass ({0} + {0}.T) / 2",
+                Self::arg(which)
+            ),
+            EstimatorError::NotPositiveSemidefinite(which) => write!(
+                f,
+                "{}: must be positive semidefinite (a covariance: no negative variance, no \
+                 negative eigenvalue); raise its diagonal",
+                Self::arg(which)
+            ),
+        }
+    }
+}
+
+/// The covariances' shape of a UKF set-up the filter itself does not check:
+/// `P0` symmetric (the filter reads one triangle), `Q` and `R` symmetric
+/// and positive semidefinite (the filter accepts any finite `Q`, `R`).
+/// Run after [`Ukf::new`], which checks that all are finite.
+fn check_covariances<const N: usize, const M: usize>(
+    P0: &SMatrix<f64, N, N>,
+    Q: &SMatrix<f64, N, N>,
+    R: &SMatrix<f64, M, M>,
+) -> Result<(), EstimatorError> {
+    if !is_symmetric(P0) {
+        return Err(EstimatorError::NotSymmetric(Arg::P));
+    }
+    if !is_symmetric(Q) {
+        return Err(EstimatorError::NotSymmetric(Arg::Q));
+    }
+    if !is_positive_semidefinite(Q) {
+        return Err(EstimatorError::NotPositiveSemidefinite(Arg::Q));
+    }
+    if !is_symmetric(R) {
+        return Err(EstimatorError::NotSymmetric(Arg::R));
+    }
+    if !is_positive_semidefinite(R) {
+        return Err(EstimatorError::NotPositiveSemidefinite(Arg::R));
+    }
+    Ok(())
 }
 
 impl From<UkfError> for EstimatorError {
@@ -226,6 +336,7 @@ impl GainEstimator {
     pub fn new(model: HandleModel, cfg: &ExtendedFilterConfig<3>) -> Result<Self, EstimatorError> {
         model.validate()?;
         let ukf = Ukf::new(cfg.x0, cfg.P0, cfg.Q, cfg.R, cfg.sigma)?;
+        check_covariances(&cfg.P0, &cfg.Q, &cfg.R)?;
         Ok(GainEstimator {
             step: model.step(),
             ukf,
@@ -274,6 +385,7 @@ impl TrajectoryEstimator {
     pub fn new(model: HandleModel, cfg: &ExtendedFilterConfig<5>) -> Result<Self, EstimatorError> {
         model.validate()?;
         let ukf = Ukf::new(cfg.x0, cfg.P0, cfg.Q, cfg.R, cfg.sigma)?;
+        check_covariances(&cfg.P0, &cfg.Q, &cfg.R)?;
         Ok(TrajectoryEstimator {
             step: model.step(),
             ukf,
@@ -462,6 +574,7 @@ impl GoalIntegrator {
             return Err(EstimatorError::InvalidModel("partner_window_s"));
         }
         let own = Ukf::new(cfg.x0, cfg.P0, cfg.Q, cfg.R_own, cfg.sigma)?;
+        check_covariances(&cfg.P0, &cfg.Q, &cfg.R_own)?;
         let mut r3 = SMatrix::<f64, 3, 3>::zeros();
         r3.fixed_view_mut::<2, 2>(0, 0).copy_from(&cfg.R_own);
         r3[(2, 2)] = cfg.R_own[(0, 0)];

@@ -4,7 +4,7 @@
 //! over `const N: usize` cannot name without typenum where-clauses, so the
 //! one factorisation the Riccati solvers need is written out here.
 
-use nalgebra::{Complex, SMatrix};
+use nalgebra::{Cholesky, Complex, SMatrix};
 
 /// LU factorisation with partial (row) pivoting, `P A = L U`.
 ///
@@ -87,6 +87,37 @@ impl<const N: usize> Lu<N> {
 /// `(M + M') / 2`: removes the rounding asymmetry of a symmetric iterate.
 pub fn symmetrize<const N: usize>(m: &SMatrix<f64, N, N>) -> SMatrix<f64, N, N> {
     (m + m.transpose()) * 0.5
+}
+
+/// A weight or covariance `W` counts as symmetric when
+/// `||W - W'||_F <= SYMMETRY_TOL ||W||_F`.
+pub const SYMMETRY_TOL: f64 = 1e-10;
+
+/// Definiteness margin, relative to `||W||_F`: a symmetric `W` counts as
+/// positive semidefinite when `lambda_min(W) > -DEFINITENESS_TOL ||W||_F`
+/// and as positive definite when `lambda_min(W) > DEFINITENESS_TOL ||W||_F`
+/// (both tested with a Cholesky factorisation of the shifted matrix, no
+/// eigenvalues).
+pub const DEFINITENESS_TOL: f64 = 1e-10;
+
+/// `||W - W'||_F <= SYMMETRY_TOL ||W||_F`.
+pub fn is_symmetric<const K: usize>(w: &SMatrix<f64, K, K>) -> bool {
+    (w - w.transpose()).norm() <= SYMMETRY_TOL * w.norm()
+}
+
+/// `lambda_min(W) > -DEFINITENESS_TOL ||W||_F` for a symmetric `W`: the
+/// Cholesky factorisation of `W + (DEFINITENESS_TOL ||W||_F) I` exists
+/// (`f64::MIN_POSITIVE` more keeps `W = 0`, which is PSD, factorisable).
+pub fn is_positive_semidefinite<const K: usize>(w: &SMatrix<f64, K, K>) -> bool {
+    let shift = DEFINITENESS_TOL * w.norm() + f64::MIN_POSITIVE;
+    Cholesky::new(w + SMatrix::<f64, K, K>::identity() * shift).is_some()
+}
+
+/// `lambda_min(W) > DEFINITENESS_TOL ||W||_F` for a symmetric `W`: the
+/// Cholesky factorisation of `W - (DEFINITENESS_TOL ||W||_F) I` exists.
+pub fn is_positive_definite<const K: usize>(w: &SMatrix<f64, K, K>) -> bool {
+    let shift = DEFINITENESS_TOL * w.norm();
+    Cholesky::new(w - SMatrix::<f64, K, K>::identity() * shift).is_some()
 }
 
 /// True when every entry is finite (no NaN, no infinity).

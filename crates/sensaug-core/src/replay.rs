@@ -141,6 +141,14 @@ pub enum ReplayError {
         /// Its first bad index.
         step: usize,
     },
+    /// Entry `step` of the slice is finite but the state it leads to is not
+    /// (too large for the model); the steps before it have run.
+    Overflow {
+        /// The offending slice.
+        which: ReplayArg,
+        /// The step that would overflow.
+        step: usize,
+    },
 }
 
 impl core::fmt::Display for ReplayError {
@@ -161,6 +169,12 @@ impl core::fmt::Display for ReplayError {
             ReplayError::NonFinite { which, step } => write!(
                 f,
                 "{}[{step}]: must be finite; nothing was stepped",
+                which.name()
+            ),
+            ReplayError::Overflow { which, step } => write!(
+                f,
+                "{}[{step}]: the state would overflow at this step (too large for this model); \
+                 steps 0..{step} were run, this one was not",
                 which.name()
             ),
         }
@@ -338,7 +352,9 @@ impl Replay for GoalReplay<'_> {
 
 /// Steps `plant` through every torque, writing the position and velocity
 /// after each step into `xs` and `vs`. Every torque is checked first: a
-/// non-finite one is an error naming its index and nothing is stepped.
+/// non-finite one is an error naming its index and nothing is stepped; a
+/// step whose state would overflow is an error naming its index, after the
+/// steps before it.
 pub fn simulate(
     plant: &mut Plant,
     torques: &[f64],
@@ -356,7 +372,10 @@ pub fn simulate(
         return Err(bad(step));
     }
     for (k, ((&t, x), v)) in torques.iter().zip(xs).zip(vs).enumerate() {
-        let s = plant.step(t).map_err(|_| bad(k))?;
+        let s = plant.step(t).map_err(|_| ReplayError::Overflow {
+            which: ReplayArg::Torques,
+            step: k,
+        })?;
         (*x, *v) = (s.x, s.v);
     }
     Ok(())

@@ -25,6 +25,7 @@ use nalgebra::allocator::Allocator;
 use nalgebra::{Cholesky, Complex, Const, DefaultAllocator, DimDiff, DimSub, SMatrix, Schur, U1};
 
 use crate::linalg::{all_finite, hermitian_positive_definite, symmetrize, Lu};
+use crate::linalg::{is_positive_definite, is_positive_semidefinite, is_symmetric};
 
 /// Largest state dimension the solvers accept (checked at compile time).
 ///
@@ -36,14 +37,10 @@ pub const MAX_STATES: usize = 6;
 /// [`dare_residual`]).
 pub const RESIDUAL_TOL: f64 = 1e-10;
 
-/// `Q` and `R` count as symmetric when `||W - W'||_F <= SYMMETRY_TOL ||W||_F`.
-pub const SYMMETRY_TOL: f64 = 1e-10;
-
-/// Definiteness margin, relative to `||W||_F`: `Q` is accepted when
-/// `lambda_min(Q) > -DEFINITENESS_TOL ||Q||_F`, `R` when
-/// `lambda_min(R) > DEFINITENESS_TOL ||R||_F` (both tested with a Cholesky
-/// factorisation of the shifted matrix, no eigenvalues).
-pub const DEFINITENESS_TOL: f64 = 1e-10;
+/// `Q` and `R` must be symmetric within [`SYMMETRY_TOL`]; `Q` positive
+/// semidefinite and `R` positive definite within [`DEFINITENESS_TOL`]
+/// (`linalg`'s tests, shared with the estimators' covariances).
+pub use crate::linalg::{DEFINITENESS_TOL, SYMMETRY_TOL};
 
 /// An eigenvalue of `A` is "unstable or marginal" (and gets a PBH test) when
 /// `Re(lambda) >= -MARGINAL_TOL ||A||_F` (continuous) or
@@ -134,17 +131,30 @@ impl fmt::Display for Argument {
 }
 
 impl fmt::Display for RiccatiError {
+    /// The argument at fault first, then what is wrong and how to fix it.
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            RiccatiError::NonFinite(a) => write!(f, "{a}: contains NaN or infinite entries"),
+            RiccatiError::NonFinite(a) => {
+                write!(
+                    f,
+                    "{a}: contains NaN or infinite entries; pass finite values"
+                )
+            }
             RiccatiError::NotSymmetric(a) => write!(
                 f,
-                "{a}: must be symmetric (||{a} - {a}'||_F <= {SYMMETRY_TOL:e} ||{a}||_F)"
+                "{a}: must be symmetric (||{a} - {a}'||_F <= {SYMMETRY_TOL:e} ||{a}||_F); \
+                 pass ({a} + {a}') / 2"
             ),
-            RiccatiError::QNotPositiveSemidefinite => {
-                f.write_str("Q: must be positive semidefinite")
-            }
-            RiccatiError::RNotPositiveDefinite => f.write_str("R: must be positive definite"),
+            RiccatiError::QNotPositiveSemidefinite => write!(
+                f,
+                "Q: must be positive semidefinite (no eigenvalue below \
+                 -{DEFINITENESS_TOL:e} ||Q||_F); raise its diagonal"
+            ),
+            RiccatiError::RNotPositiveDefinite => write!(
+                f,
+                "R: must be positive definite (every eigenvalue above \
+                 {DEFINITENESS_TOL:e} ||R||_F); raise its diagonal"
+            ),
             RiccatiError::NotStabilizable => f.write_str(
                 "(A, B): not stabilisable, an unstable or marginal mode of A is uncontrollable \
                  (PBH test); no stabilising solution exists",
@@ -163,12 +173,20 @@ impl fmt::Display for RiccatiError {
             RiccatiError::NotStabilizing => {
                 f.write_str("solution rejected: closed loop A - BK is not stable")
             }
-            RiccatiError::InvalidAgentParameter(p) => match p {
-                AgentParameter::Mass => f.write_str("mass: must be finite and > 0"),
-                AgentParameter::Damping => f.write_str("damping: must be finite and >= 0"),
-                AgentParameter::QPos => f.write_str("q_pos: must be finite and > 0"),
-                AgentParameter::QVel => f.write_str("q_vel: must be finite and >= 0"),
-            },
+            RiccatiError::InvalidAgentParameter(p) => f.write_str(match p {
+                AgentParameter::Mass => {
+                    "mass: must be finite and > 0 (the handle's inertia), with 1 / mass finite"
+                }
+                AgentParameter::Damping => {
+                    "damping: must be finite and >= 0 (viscous damping; 0 after friction \
+                     compensation), with damping / mass finite"
+                }
+                AgentParameter::QPos => {
+                    "q_pos: must be finite and > 0 (the position weight makes the problem \
+                     detectable)"
+                }
+                AgentParameter::QVel => "q_vel: must be finite and >= 0 (0 is fine)",
+            }),
         }
     }
 }
@@ -554,15 +572,10 @@ fn prepare<const N: usize, const M: usize>(
     let Qs = symmetrize(Q);
     let Rs = symmetrize(R);
     if check {
-        // lambda_min(Q) > -tol ||Q||_F  <=>  Cholesky of Q + tol ||Q||_F I succeeds.
-        // MIN_POSITIVE keeps Q = 0 (which is PSD) factorisable.
-        let shift = DEFINITENESS_TOL * Qs.norm() + f64::MIN_POSITIVE;
-        if Cholesky::new(Qs + SMatrix::<f64, N, N>::identity() * shift).is_none() {
+        if !is_positive_semidefinite(&Qs) {
             return Err(RiccatiError::QNotPositiveSemidefinite);
         }
-        // lambda_min(R) > tol ||R||_F  <=>  Cholesky of R - tol ||R||_F I succeeds.
-        let shift = DEFINITENESS_TOL * Rs.norm();
-        if Cholesky::new(Rs - SMatrix::<f64, M, M>::identity() * shift).is_none() {
+        if !is_positive_definite(&Rs) {
             return Err(RiccatiError::RNotPositiveDefinite);
         }
     }
@@ -588,11 +601,6 @@ fn prepare<const N: usize, const M: usize>(
         }
     }
     Ok(Prepared { Q: Qs, R: Rs, G })
-}
-
-/// `||W - W'||_F <= SYMMETRY_TOL ||W||_F`.
-fn is_symmetric<const K: usize>(W: &SMatrix<f64, K, K>) -> bool {
-    (W - W.transpose()).norm() <= SYMMETRY_TOL * W.norm()
 }
 
 /// Unstable or marginal: continuous `Re(lambda) >= -MARGINAL_TOL ||A||_F`,
@@ -749,6 +757,13 @@ pub fn agent_gains(
     }
     if !(q_vel.is_finite() && q_vel >= 0.0) {
         return Err(RiccatiError::InvalidAgentParameter(AgentParameter::QVel));
+    }
+    // B = 1/M and A's C/M must be finite too.
+    if !(1.0 / mass).is_finite() {
+        return Err(RiccatiError::InvalidAgentParameter(AgentParameter::Mass));
+    }
+    if !(damping / mass).is_finite() {
+        return Err(RiccatiError::InvalidAgentParameter(AgentParameter::Damping));
     }
     let A = SMatrix::<f64, 2, 2>::new(0.0, 1.0, 0.0, -damping / mass);
     let B = SMatrix::<f64, 2, 1>::new(0.0, 1.0 / mass);

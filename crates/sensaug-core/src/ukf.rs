@@ -115,9 +115,13 @@ pub enum UkfError {
         /// The offending argument.
         which: Arg,
     },
-    /// Set-up: `alpha <= 0`, `N + kappa <= 0` (so `N + lambda <= 0`), or a
-    /// parameter is not finite.
-    InvalidSigmaParams,
+    /// Set-up: the named sigma-point parameter is not finite, `alpha <= 0`,
+    /// `N + kappa <= 0`, or `alpha^2 (N + kappa)` (so `N + lambda`) or the
+    /// weights under- or overflow (named `alpha`).
+    InvalidSigmaParams {
+        /// `"alpha"`, `"beta"` or `"kappa"`.
+        name: &'static str,
+    },
     /// Set-up of a model: a model parameter is out of range.
     InvalidModelParameter {
         /// The parameter's name.
@@ -162,6 +166,87 @@ pub enum UkfError {
         /// Given length.
         got: usize,
     },
+}
+
+impl Stage {
+    /// The stage's name in snake case, as status strings and messages spell it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Stage::PredictSigmaPoints => "predict_sigma_points",
+            Stage::PredictRedraw => "predict_redraw",
+            Stage::UpdateSigmaPoints => "update_sigma_points",
+            Stage::InnovationCovariance => "innovation_covariance",
+        }
+    }
+}
+
+impl Phase {
+    /// `"predict"` or `"update"`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Phase::Predict => "predict",
+            Phase::Update => "update",
+        }
+    }
+}
+
+impl core::fmt::Display for UkfError {
+    /// Set-up errors: the argument first (as [`Arg::name`] spells it), then
+    /// what is wrong and how to fix it. Step errors: what was rejected and
+    /// the filter's state afterwards.
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match *self {
+            UkfError::NonFiniteArgument { which } => {
+                write!(f, "{}: must be finite (no NaN or inf)", which.name())
+            }
+            UkfError::NotPositiveDefinite { which } => write!(
+                f,
+                "{0}: must be symmetric positive definite (the Cholesky factor of \
+                 (n + lambda) * {0} does not exist); raise its diagonal",
+                which.name()
+            ),
+            UkfError::InvalidSigmaParams { name } => f.write_str(match name {
+                "beta" => "beta: must be finite (2 is optimal for a Gaussian prior)",
+                "kappa" => "kappa: must be finite with n + kappa > 0 (0 or 3 - n is usual)",
+                _ => {
+                    "alpha: must be finite and > 0, with alpha^2 (n + kappa) and the sigma-point \
+                     weights finite and > 0 (1e-3 to 1 is usual)"
+                }
+            }),
+            UkfError::InvalidModelParameter { name } => write!(
+                f,
+                "{name}: out of range (dt_s, length_m, mass_kg > 0; damping_nms >= 0; all finite)"
+            ),
+            UkfError::NonFiniteMeasurement => {
+                f.write_str("z: must be finite; update rejected, state unchanged")
+            }
+            UkfError::NonFiniteProcess => {
+                f.write_str("process model returned NaN/inf; predict rejected, state unchanged")
+            }
+            UkfError::NonFiniteMeasurementModel => {
+                f.write_str("measurement model returned NaN/inf; update rejected, state unchanged")
+            }
+            UkfError::NonFiniteResult { phase } => write!(
+                f,
+                "{} overflowed to NaN/inf; rejected, state unchanged",
+                phase.name()
+            ),
+            UkfError::CovarianceReset { stage } => write!(
+                f,
+                "covariance not positive definite at {} even after re-symmetrising; P reset to \
+                 the reset covariance (filter valid)",
+                stage.name()
+            ),
+            UkfError::InputLength { which, needed, got } => {
+                write!(f, "{}: expected {needed} values, got {got}", which.name())
+            }
+            UkfError::OutputTooShort { which, needed, got } => write!(
+                f,
+                "{}: needs room for {needed} values, has {got}",
+                which.name()
+            ),
+        }
+    }
 }
 
 /// Outcome of a successful step: never silent about repairs.
@@ -709,14 +794,20 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
     ) -> Result<Self, UkfError> {
         const { assert!(S == 2 * N + 1, "S must equal 2 * N + 1") };
         const { assert!(N >= 1 && M >= 1, "N and M must be at least 1") };
-        let finite =
-            params.alpha.is_finite() && params.beta.is_finite() && params.kappa.is_finite();
-        if !finite || params.alpha <= 0.0 || (N as f64 + params.kappa) <= 0.0 {
-            return Err(UkfError::InvalidSigmaParams);
+        let sigma = |name| Err(UkfError::InvalidSigmaParams { name });
+        if !(params.alpha.is_finite() && params.alpha > 0.0) {
+            return sigma("alpha");
+        }
+        if !params.beta.is_finite() {
+            return sigma("beta");
+        }
+        if !(params.kappa.is_finite() && N as f64 + params.kappa > 0.0) {
+            return sigma("kappa");
         }
         let c = merwe_lambda(N, &params) + N as f64;
-        if !(c > 0.0 && c.is_finite()) {
-            return Err(UkfError::InvalidSigmaParams);
+        let (Wm, Wc) = merwe_weights::<S>(N, &params);
+        if !(c > 0.0 && c.is_finite() && all_finite(&Wm) && all_finite(&Wc)) {
+            return sigma("alpha");
         }
         if !all_finite(&x0) {
             return Err(UkfError::NonFiniteArgument { which: Arg::X });
@@ -728,7 +819,6 @@ impl<const N: usize, const M: usize, const S: usize> Ukf<N, M, S> {
             return Err(UkfError::NonFiniteArgument { which: Arg::R });
         }
         let L0 = Self::check_covariance(&P0, c, Arg::P)?;
-        let (Wm, Wc) = merwe_weights::<S>(N, &params);
         Ok(Self {
             x: x0,
             P: P0,

@@ -168,6 +168,88 @@ pub struct RunSummary {
     pub mirror_errors: u64,
 }
 
+/// The memory a simulated trial's log may take: half of what is available
+/// when it starts. The log is one record per tick, kept whole in memory;
+/// writing it to a file takes a second copy (`sensaug run` peaks at about
+/// 2.1x the log), and the rest of the process and of the machine need room.
+pub fn log_budget(available_bytes: u64) -> u64 {
+    available_bytes / 2
+}
+
+/// A simulated trial whose log would take more memory than it may
+/// ([`check_log_memory`]); names the fields that make it large.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LogTooLarge {
+    /// Phases in the protocol.
+    pub phases: usize,
+    /// The protocol's length (s).
+    pub duration_s: f64,
+    /// Loop period (s).
+    pub dt_s: f64,
+    /// Ticks in the trial.
+    pub ticks: u64,
+    /// Bytes its log needs.
+    pub bytes: u64,
+    /// Bytes it may take; `None`: the system refused to reserve `bytes`.
+    pub budget: Option<u64>,
+}
+
+impl LogTooLarge {
+    /// The trial of `protocol` at `record_bytes` per tick, over `budget`.
+    pub fn new(protocol: &Protocol<'_>, record_bytes: usize, budget: Option<u64>) -> Self {
+        LogTooLarge {
+            phases: protocol.phases().len(),
+            duration_s: protocol.phases().iter().map(|p| p.duration_s).sum(),
+            dt_s: protocol.dt_s(),
+            ticks: protocol.total_ticks(),
+            bytes: log_bytes(protocol, record_bytes),
+            budget,
+        }
+    }
+}
+
+impl core::fmt::Display for LogTooLarge {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        let gb = |b: u64| b as f64 / 1e9;
+        write!(
+            f,
+            "phases[*].duration_s, plant.dt_s: {} phase(s) of {} s in all at plant.dt_s = {} s \
+             are {} ticks, whose log needs {:.2} GB of memory, ",
+            self.phases,
+            self.duration_s,
+            self.dt_s,
+            self.ticks,
+            gb(self.bytes),
+        )?;
+        match self.budget {
+            Some(b) => write!(f, "more than the {:.2} GB this trial may take", gb(b))?,
+            None => f.write_str("which the system refused to reserve")?,
+        }
+        f.write_str("; shorten the phases, raise plant.dt_s, or split the trial into shorter runs")
+    }
+}
+
+/// The bytes of `protocol`'s log kept in memory at `record_bytes` per tick
+/// (saturating at `u64::MAX`).
+pub fn log_bytes(protocol: &Protocol<'_>, record_bytes: usize) -> u64 {
+    protocol.total_ticks().saturating_mul(record_bytes as u64)
+}
+
+/// The bytes of `protocol`'s log at `record_bytes` per tick, checked before
+/// the trial runs: `Err` when more than `budget_bytes`.
+pub fn check_log_memory(
+    protocol: &Protocol<'_>,
+    record_bytes: usize,
+    budget_bytes: u64,
+) -> Result<u64, LogTooLarge> {
+    let e = LogTooLarge::new(protocol, record_bytes, Some(budget_bytes));
+    if e.bytes <= budget_bytes {
+        Ok(e.bytes)
+    } else {
+        Err(e)
+    }
+}
+
 /// The partner agent of a simulated trial.
 // One per trial, built at set-up; without `alloc` there is no box to move
 // the larger variant into, and the size costs nothing per tick.

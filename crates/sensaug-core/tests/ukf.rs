@@ -468,15 +468,15 @@ fn constructor_errors_name_the_argument() {
     let nan = f64::NAN;
     assert_eq!(
         Lin::new(x0(), P0(), Q(), R(), params(0.0, 2.0, 0.0)).unwrap_err(),
-        UkfError::InvalidSigmaParams
+        UkfError::InvalidSigmaParams { name: "alpha" }
     );
     assert_eq!(
         Lin::new(x0(), P0(), Q(), R(), params(1.0, 2.0, -2.0)).unwrap_err(),
-        UkfError::InvalidSigmaParams
+        UkfError::InvalidSigmaParams { name: "kappa" }
     );
     assert_eq!(
         Lin::new(x0(), P0(), Q(), R(), params(1.0, nan, 0.0)).unwrap_err(),
-        UkfError::InvalidSigmaParams
+        UkfError::InvalidSigmaParams { name: "beta" }
     );
     assert_eq!(
         Lin::new(Vector2::new(nan, 0.0), P0(), Q(), R(), p).unwrap_err(),

@@ -1,17 +1,19 @@
 //! The binding's one set of conversions: numpy <-> nalgebra and slices, and
-//! one mapping from every core error to a Python exception naming the argument.
+//! one mapping from every core error to a Python exception naming the argument
+//! (the message is the core error's own `Display`).
 use nalgebra::{SMatrix, SVector};
 use numpy::ndarray::Array2;
-use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray, PyUntypedArrayMethods};
+use numpy::PyUntypedArrayMethods;
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayDyn, PyArrayMethods, PyReadonlyArray};
 use numpy::{PyReadonlyArray1, PyReadonlyArray2};
-use pyo3::exceptions::{PyRuntimeError, PyValueError};
-use pyo3::types::{IntoPyDict, PyDict};
+use pyo3::exceptions::{PyRuntimeError, PyTypeError, PyValueError};
+use pyo3::types::{IntoPyDict, PyBool, PyDict};
 use pyo3::{create_exception, prelude::*};
 use sensaug_core::estimator::EstimatorError;
 use sensaug_core::plant::PlantError;
 use sensaug_core::replay::ReplayError;
 use sensaug_core::riccati::RiccatiError;
-use sensaug_core::ukf::{Arg, Recoveries, RunReport, Status, UkfError};
+use sensaug_core::ukf::{Recoveries, RunReport, Status, UkfError};
 
 create_exception!(
     _core,
@@ -26,15 +28,139 @@ create_exception!(
     "A Riccati solve did not converge or its solution failed the residual or closed-loop check."
 );
 
+/// `obj` as an array of real numbers: a float64 numpy array as it is, else
+/// whatever `numpy.asarray` reads as integers or floats (lists, int or
+/// float32 arrays), converted to float64. Anything else (str, None, bool,
+/// complex, ragged lists) is refused naming the argument `name`.
+pub fn real_array<'py>(
+    obj: &Bound<'py, PyAny>,
+    name: &str,
+) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+    if let Ok(a) = obj.cast::<PyArrayDyn<f64>>() {
+        return Ok(a.clone());
+    }
+    let py = obj.py();
+    let np = PyModule::import(py, "numpy")?;
+    let got = type_name(obj);
+    let arr = np.call_method1("asarray", (obj,)).map_err(|e| {
+        PyValueError::new_err(format!(
+            "{name}: expected an array of real numbers, cannot read this {got} as one ({})",
+            e.value(py)
+        ))
+    })?;
+    let dtype = arr.getattr("dtype")?;
+    let kind: String = dtype.getattr("kind")?.extract()?;
+    if !matches!(kind.as_str(), "f" | "i" | "u") {
+        return Err(PyTypeError::new_err(format!(
+            "{name}: expected real numbers (int or float), got {}",
+            if kind == "O" {
+                got
+            } else {
+                format!("an array of {}", dtype.str()?)
+            }
+        )));
+    }
+    let arr = arr.call_method1("astype", ("float64",))?;
+    Ok(arr.cast_into::<PyArrayDyn<f64>>()?)
+}
+
+/// The type of `obj` as Python names it.
+fn type_name(obj: &Bound<'_, PyAny>) -> String {
+    obj.get_type()
+        .name()
+        .map_or_else(|_| "object".to_owned(), |n| n.to_string())
+}
+
+/// `obj` (any array-like, [`real_array`]) as a 2-D float64 array of any
+/// shape; `name` is the argument in the error.
+pub fn array2<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<PyReadonlyArray2<'py, f64>> {
+    let a = real_array(obj, name)?;
+    if a.ndim() != 2 {
+        return Err(PyValueError::new_err(format!(
+            "{name}: expected a 2-D array, got shape {}",
+            shape(a.shape())
+        )));
+    }
+    Ok(a.cast_into::<PyArray2<f64>>()?.readonly())
+}
+
+/// `obj` (any array-like, [`real_array`]) as a fixed-size matrix; `name` is
+/// the argument in the error.
+pub fn matrix<const R: usize, const C: usize>(
+    obj: &Bound<'_, PyAny>,
+    name: &str,
+) -> PyResult<SMatrix<f64, R, C>> {
+    let a = real_array(obj, name)?.readonly();
+    let v = a.as_array();
+    if v.shape() != [R, C] {
+        return Err(PyValueError::new_err(format!(
+            "{name}: expected shape ({R}, {C}), got {}",
+            shape(v.shape())
+        )));
+    }
+    Ok(SMatrix::from_fn(|i, j| v[[i, j]]))
+}
+
+/// `obj` (any array-like, [`real_array`]) as a fixed-size vector; `name` is
+/// the argument in the error.
+pub fn vector<const D: usize>(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<SVector<f64, D>> {
+    let a = real_array(obj, name)?.readonly();
+    let v = a.as_array();
+    if v.shape() != [D] {
+        return Err(PyValueError::new_err(format!(
+            "{name}: expected shape ({D},), got {}",
+            shape(v.shape())
+        )));
+    }
+    Ok(SVector::from_fn(|i, _| v[[i]]))
+}
+
+/// `obj` as a real number (int, float or a numpy scalar, not bool, str or
+/// complex); `name` is the argument in the error.
+pub fn real(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<f64> {
+    let refused = || {
+        PyTypeError::new_err(format!(
+            "{name}: expected a real number, got {}",
+            type_name(obj)
+        ))
+    };
+    if obj.is_instance_of::<PyBool>() {
+        return Err(refused());
+    }
+    obj.extract::<f64>().map_err(|_| refused())
+}
+
+/// An optional keyword: `None` when not given (its default is the callee's).
+pub type Opt<'a, 'py> = Option<&'a Bound<'py, PyAny>>;
+
+/// `obj` as a real number ([`real`]), or `default` when not given.
+pub fn real_or(obj: Opt<'_, '_>, name: &str, default: f64) -> PyResult<f64> {
+    obj.map_or(Ok(default), |o| real(o, name))
+}
+
+/// A shape as Python prints it: `(3,)`, `(2, 3)`, `()`.
+pub fn shape(s: &[usize]) -> String {
+    match s {
+        [n] => format!("({n},)"),
+        _ => format!(
+            "({})",
+            s.iter()
+                .map(|n| n.to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    }
+}
+
 /// `a` as a fixed-size matrix; `name` is the argument in the error.
 pub fn mat_from<const R: usize, const C: usize>(
     a: &PyReadonlyArray2<'_, f64>,
     name: &str,
 ) -> PyResult<SMatrix<f64, R, C>> {
     if a.shape() != [R, C] {
-        let got = a.shape();
         return Err(PyValueError::new_err(format!(
-            "{name}: expected shape ({R}, {C}), got {got:?}"
+            "{name}: expected shape ({R}, {C}), got {}",
+            shape(a.shape())
         )));
     }
     let v = a.as_array();
@@ -47,9 +173,9 @@ pub fn vec_from<const D: usize>(
     name: &str,
 ) -> PyResult<SVector<f64, D>> {
     if a.shape() != [D] {
-        let got = a.shape();
         return Err(PyValueError::new_err(format!(
-            "{name}: expected shape ({D},), got {got:?}"
+            "{name}: expected shape ({D},), got {}",
+            shape(a.shape())
         )));
     }
     let v = a.as_array();
@@ -86,20 +212,8 @@ pub fn vec_to<'py, const D: usize>(
 pub fn status_str(s: Status) -> String {
     match s {
         Status::Nominal => "nominal".to_owned(),
-        Status::Resymmetrised { stage } => format!("resymmetrised:{}", snake(stage)),
+        Status::Resymmetrised { stage } => format!("resymmetrised:{}", stage.name()),
     }
-}
-
-/// A core enum variant's name in snake case (`PredictRedraw` -> `predict_redraw`).
-fn snake(variant: impl core::fmt::Debug) -> String {
-    let mut out = String::new();
-    for (i, c) in format!("{variant:?}").chars().enumerate() {
-        if c.is_uppercase() && i > 0 {
-            out.push('_');
-        }
-        out.push(c.to_ascii_lowercase());
-    }
-    out
 }
 
 /// A UKF's counters as a dict.
@@ -159,80 +273,45 @@ pub fn py_err(e: impl Into<CoreError>) -> PyErr {
     }
 }
 
+/// The exception kind and the core's own message (its `Display`: the
+/// argument first, then what is wrong and how to fix it).
 fn describe(e: CoreError) -> (Kind, String) {
     use Kind::{Convergence, Step, Value};
     match e {
-        CoreError::Estimator(EstimatorError::Ukf(u)) | CoreError::Setup(u) => match u {
-            UkfError::NotPositiveDefinite { which: Arg::P } => {
-                (Value, "P0: must be symmetric positive definite".into())
-            }
-            UkfError::NonFiniteArgument {
-                which: w @ (Arg::P | Arg::X),
-            } => (Value, format!("{}0: must be finite (no NaN or inf)", w.name())),
-            other => describe(CoreError::Ukf(other)),
-        },
-        CoreError::Estimator(EstimatorError::InvalidModel(name)) => (Value, format!(
-            "{name}: out of range (mass, dt and partner_window_s > 0; damping >= 0; all finite)"
-        )),
-        CoreError::Ukf(e) => match e {
-            UkfError::NonFiniteArgument { which } => {
-                (Value, format!("{}: must be finite (no NaN or inf)", which.name()))
-            }
-            UkfError::NotPositiveDefinite { which } => (Value, format!(
-                "{0}: must be symmetric positive definite (Cholesky of (n + lambda) * {0} failed)",
-                which.name()
-            )),
-            UkfError::InvalidSigmaParams => (Value,
-                "alpha/beta/kappa: need finite values with alpha > 0 and n + kappa > 0".into(),
-            ),
-            UkfError::InvalidModelParameter { name } => (Value, format!(
-                "{name}: out of range (dt_s, length_m, mass_kg > 0; damping_nms >= 0; all finite)"
-            )),
-            // Ukf::run's slice errors: the binding replays through sensaug_core::replay.
-            other @ (UkfError::InputLength { .. } | UkfError::OutputTooShort { .. }) => {
-                (Value, format!("{other:?}"))
-            }
-            UkfError::NonFiniteMeasurement => {
-                (Step, "z: must be finite; update rejected, state unchanged".into())
-            }
-            UkfError::NonFiniteProcess => (Step,
-                "process model returned NaN/inf; predict rejected, state unchanged".into(),
-            ),
-            UkfError::NonFiniteMeasurementModel => (Step,
-                "measurement model returned NaN/inf; update rejected, state unchanged".into(),
-            ),
-            UkfError::NonFiniteResult { phase } => (Step, format!(
-                "{} overflowed to NaN/inf; rejected, state unchanged",
-                snake(phase)
-            )),
-            UkfError::CovarianceReset { stage } => (Step, format!(
-                "covariance not positive definite at {} even after re-symmetrising; P reset to the reset covariance (filter valid)",
-                snake(stage)
-            )),
-        },
-        CoreError::Replay(e) => (Value, e.to_string()),
-        CoreError::Plant(PlantError::InvalidParam(field)) => (Value, format!(
-            "{field}: must be finite and {}",
-            if matches!(field, "mass" | "dt_s") { "> 0" } else { ">= 0" }
-        )),
-        CoreError::Plant(PlantError::NonFiniteTorque) => {
-            (Value, "torque: must be finite (NaN/inf rejected, state unchanged)".into())
+        // A constructor's UKF arguments are the estimators' `x0` and `P0`.
+        CoreError::Setup(u) => (Value, EstimatorError::Ukf(u).to_string()),
+        CoreError::Estimator(e) => (Value, e.to_string()),
+        CoreError::Ukf(e) => {
+            let kind = match e {
+                UkfError::NonFiniteMeasurement
+                | UkfError::NonFiniteProcess
+                | UkfError::NonFiniteMeasurementModel
+                | UkfError::NonFiniteResult { .. }
+                | UkfError::CovarianceReset { .. } => Step,
+                _ => Value,
+            };
+            (kind, e.to_string())
         }
+        CoreError::Replay(e) => (Value, e.to_string()),
+        CoreError::Plant(e) => (Value, e.to_string()),
         CoreError::Riccati(
             e @ (RiccatiError::NoConvergence
             | RiccatiError::ResidualTooLarge { .. }
             | RiccatiError::NotStabilizing),
         ) => (Convergence, e.to_string()),
         CoreError::Riccati(e) => (Value, e.to_string()),
-        CoreError::Run(r) => (Step, match r.first_error {
-            Some(first) => format!(
-                "{} step error(s); first at step {} ({}): {}",
-                r.errors,
-                first.step,
-                snake(first.phase),
-                describe(CoreError::Ukf(first.error)).1
-            ),
-            None => "no step error".into(),
-        }),
+        CoreError::Run(r) => (
+            Step,
+            match r.first_error {
+                Some(first) => format!(
+                    "{} step error(s); first at step {} ({}): {}",
+                    r.errors,
+                    first.step,
+                    first.phase.name(),
+                    first.error
+                ),
+                None => "no step error".into(),
+            },
+        ),
     }
 }

@@ -3,15 +3,18 @@
 //! (`sensaug_core::replay`). Conversion only.
 #![allow(non_snake_case)]
 
-use crate::convert::{mat_from, mat_to, py_err, recoveries_dict, slice, status_str};
-use crate::convert::{vec_from, vec_to};
+use crate::convert::Opt;
+use crate::convert::{mat_to, matrix, py_err, real, real_or, recoveries_dict, slice, status_str};
+use crate::convert::{vec_from, vec_to, vector};
 use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
 use numpy::{PyUntypedArrayMethods, ToPyArray};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use sensaug_core::estimator::TrajectoryEstimator as CoreTrajectory;
-use sensaug_core::estimator::{ExtendedFilterConfig, GoalIntegratorConfig, HandleModel};
+use sensaug_core::estimator::{
+    EstimatorError, ExtendedFilterConfig, GoalIntegratorConfig, HandleModel,
+};
 use sensaug_core::estimator::{GainEstimator as CoreGain, GoalIntegrator as CoreGoal};
 use sensaug_core::replay::{replay, GoalReplay, Posteriors, Recording, Replay};
 use sensaug_core::ukf::MerweParams;
@@ -77,17 +80,41 @@ pub fn run_batch<'py>(
     Ok((xs, pd))
 }
 
-/// Model and sigma points from the constructors' keywords.
-fn model_sigma(mass: f64, damping: f64, dt: f64, sigma: [f64; 3]) -> (HandleModel, MerweParams) {
-    let [alpha, beta, kappa] = sigma;
-    (
-        HandleModel {
-            mass,
-            damping,
-            dt_s: dt,
-        },
-        MerweParams { alpha, beta, kappa },
-    )
+/// The keywords every estimator constructor shares, converted with their
+/// names: the handle model (`mass`, `damping`, `dt`) and the sigma points.
+/// The optional ones come as `None` when not given (their defaults are
+/// here, and in the classes' text signatures).
+struct Common {
+    model: HandleModel,
+    sigma: MerweParams,
+}
+
+impl Common {
+    fn new(mass: &Bound<'_, PyAny>, optional: [Opt<'_, '_>; 5]) -> PyResult<Self> {
+        let [damping, dt, alpha, beta, kappa] = optional;
+        Ok(Common {
+            model: HandleModel {
+                mass: real(mass, "mass")?,
+                damping: real_or(damping, "damping", 0.0)?,
+                dt_s: real_or(dt, "dt", 1e-3)?,
+            },
+            sigma: MerweParams {
+                alpha: real_or(alpha, "alpha", 1.0)?,
+                beta: real_or(beta, "beta", 2.0)?,
+                kappa: real_or(kappa, "kappa", 0.0)?,
+            },
+        })
+    }
+}
+
+/// A constructor's core error: the core calls the model's step `dt_s`,
+/// these classes' keyword is `dt`.
+fn setup_error(e: EstimatorError) -> PyErr {
+    let msg = e.to_string();
+    match msg.strip_prefix("dt_s:") {
+        Some(rest) => PyValueError::new_err(format!("dt:{rest}")),
+        None => py_err(e),
+    }
 }
 
 /// A class over the core estimator `$core` whose UKF `self.inner.$f()` gives
@@ -137,29 +164,30 @@ macro_rules! extended_estimator {
     ($name:ident, $core:ty, $m:literal, $doc:literal, { $($extra:tt)* }) => {
         estimator_class!($name, $core, filter, $doc, {
             #[new]
-            #[pyo3(signature = (*, mass, Q, R, x0, P0, damping = 0.0, dt = 1e-3, alpha = 1.0, beta = 2.0, kappa = 0.0))]
+            #[pyo3(signature = (*, mass, Q, R, x0, P0, damping = None, dt = None, alpha = None, beta = None, kappa = None))]
+            #[pyo3(text_signature = "(*, mass, Q, R, x0, P0, damping=0.0, dt=1e-3, alpha=1.0, beta=2.0, kappa=0.0)")]
             #[allow(clippy::too_many_arguments)]
             fn new(
-                mass: f64,
-                Q: PyReadonlyArray2<'_, f64>,
-                R: PyReadonlyArray2<'_, f64>,
-                x0: PyReadonlyArray1<'_, f64>,
-                P0: PyReadonlyArray2<'_, f64>,
-                damping: f64,
-                dt: f64,
-                alpha: f64,
-                beta: f64,
-                kappa: f64,
+                mass: &Bound<'_, PyAny>,
+                Q: &Bound<'_, PyAny>,
+                R: &Bound<'_, PyAny>,
+                x0: &Bound<'_, PyAny>,
+                P0: &Bound<'_, PyAny>,
+                damping: Opt<'_, '_>,
+                dt: Opt<'_, '_>,
+                alpha: Opt<'_, '_>,
+                beta: Opt<'_, '_>,
+                kappa: Opt<'_, '_>,
             ) -> PyResult<Self> {
-                let (model, sigma) = model_sigma(mass, damping, dt, [alpha, beta, kappa]);
+                let Common { model, sigma } = Common::new(mass, [damping, dt, alpha, beta, kappa])?;
                 let cfg = ExtendedFilterConfig::<$m> {
-                    x0: vec_from(&x0, "x0")?,
-                    P0: mat_from(&P0, "P0")?,
-                    Q: mat_from(&Q, "Q")?,
-                    R: mat_from(&R, "R")?,
+                    x0: vector(x0, "x0")?,
+                    P0: matrix(P0, "P0")?,
+                    Q: matrix(Q, "Q")?,
+                    R: matrix(R, "R")?,
                     sigma,
                 };
-                let inner = <$core>::new(model, &cfg).map_err(py_err)?;
+                let inner = <$core>::new(model, &cfg).map_err(setup_error)?;
                 Ok(Self { inner })
             }
 
@@ -239,31 +267,32 @@ estimator_class!(
     "Stage 3: goal integration on `[x - tau, xdot]`, with and without the partner channel `x - tau_h^`, side by side; `x`, `P` are the integrated filter's.",
     {
     #[new]
-    #[pyo3(signature = (*, mass, Q, R, x0, P0, damping = 0.0, dt = 1e-3, partner_window_s = 0.2, alpha = 1.0, beta = 2.0, kappa = 0.0))]
+    #[pyo3(signature = (*, mass, Q, R, x0, P0, damping = None, dt = None, partner_window_s = None, alpha = None, beta = None, kappa = None))]
+    #[pyo3(text_signature = "(*, mass, Q, R, x0, P0, damping=0.0, dt=1e-3, partner_window_s=0.2, alpha=1.0, beta=2.0, kappa=0.0)")]
     #[allow(clippy::too_many_arguments)]
     fn new(
-        mass: f64,
-        Q: PyReadonlyArray2<'_, f64>,
-        R: PyReadonlyArray2<'_, f64>,
-        x0: PyReadonlyArray1<'_, f64>,
-        P0: PyReadonlyArray2<'_, f64>,
-        damping: f64,
-        dt: f64,
-        partner_window_s: f64,
-        alpha: f64,
-        beta: f64,
-        kappa: f64,
+        mass: &Bound<'_, PyAny>,
+        Q: &Bound<'_, PyAny>,
+        R: &Bound<'_, PyAny>,
+        x0: &Bound<'_, PyAny>,
+        P0: &Bound<'_, PyAny>,
+        damping: Opt<'_, '_>,
+        dt: Opt<'_, '_>,
+        partner_window_s: Opt<'_, '_>,
+        alpha: Opt<'_, '_>,
+        beta: Opt<'_, '_>,
+        kappa: Opt<'_, '_>,
     ) -> PyResult<Self> {
-        let (model, sigma) = model_sigma(mass, damping, dt, [alpha, beta, kappa]);
+        let Common { model, sigma } = Common::new(mass, [damping, dt, alpha, beta, kappa])?;
         let cfg = GoalIntegratorConfig {
-            x0: vec_from(&x0, "x0")?,
-            P0: mat_from(&P0, "P0")?,
-            Q: mat_from(&Q, "Q")?,
-            R_own: mat_from(&R, "R")?,
-            partner_window_s,
+            x0: vector(x0, "x0")?,
+            P0: matrix(P0, "P0")?,
+            Q: matrix(Q, "Q")?,
+            R_own: matrix(R, "R")?,
+            partner_window_s: real_or(partner_window_s, "partner_window_s", 0.2)?,
             sigma,
         };
-        let inner = CoreGoal::new(model, &cfg).map_err(py_err)?;
+        let inner = CoreGoal::new(model, &cfg).map_err(setup_error)?;
         Ok(Self { inner })
     }
 

@@ -1,6 +1,6 @@
 //! `sensaug._core.Plant`: the 1-DoF handle, steppable or run over a whole
 //! torque sequence in one core call. Conversion only.
-use crate::convert::{py_err, slice};
+use crate::convert::{py_err, real, real_or, slice, Opt};
 use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray1};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -23,19 +23,35 @@ pub struct Plant {
 #[pymethods]
 impl Plant {
     #[new]
-    #[pyo3(signature = (*, mass, damping = 0.0, coulomb = 0.0, dt_s = 1e-3, x0 = 0.0, v0 = 0.0))]
-    fn new(mass: f64, damping: f64, coulomb: f64, dt_s: f64, x0: f64, v0: f64) -> PyResult<Self> {
+    #[pyo3(signature = (*, mass, damping = None, coulomb = None, dt_s = None, x0 = None, v0 = None))]
+    #[pyo3(text_signature = "(*, mass, damping=0.0, coulomb=0.0, dt_s=1e-3, x0=0.0, v0=0.0)")]
+    fn new(
+        mass: &Bound<'_, PyAny>,
+        damping: Opt<'_, '_>,
+        coulomb: Opt<'_, '_>,
+        dt_s: Opt<'_, '_>,
+        x0: Opt<'_, '_>,
+        v0: Opt<'_, '_>,
+    ) -> PyResult<Self> {
         let params = PlantParams {
-            mass,
-            damping,
-            coulomb,
-            dt_s,
+            mass: real(mass, "mass")?,
+            damping: real_or(damping, "damping", 0.0)?,
+            coulomb: real_or(coulomb, "coulomb", 0.0)?,
+            dt_s: real_or(dt_s, "dt_s", 1e-3)?,
         };
         let mut inner = CorePlant::new(params).map_err(py_err)?;
-        if !(x0.is_finite() && v0.is_finite()) {
-            return Err(PyValueError::new_err("x0, v0: must be finite"));
+        let state = PlantState {
+            x: real_or(x0, "x0", 0.0)?,
+            v: real_or(v0, "v0", 0.0)?,
+        };
+        for (value, name) in [(state.x, "x0"), (state.v, "v0")] {
+            if !value.is_finite() {
+                return Err(PyValueError::new_err(format!(
+                    "{name}: must be finite (the initial state)"
+                )));
+            }
         }
-        inner.set_state(PlantState { x: x0, v: v0 });
+        inner.set_state(state);
         Ok(Plant { inner })
     }
 

@@ -6,7 +6,7 @@
 //! checks raises `RiccatiConvergenceError` (`crate::convert::py_err`).
 #![allow(non_snake_case)] // paper symbols A, B, Q, R, K, X (STYLE.md (f))
 
-use crate::convert::{mat_from, mat_to, py_err};
+use crate::convert::{array2, mat_from, mat_to, py_err, real, shape};
 use numpy::{PyArray2, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -15,19 +15,36 @@ use sensaug_core::riccati;
 type Arrays<'a, 'py> = [&'a PyReadonlyArray2<'py, f64>; 4];
 type Pair<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>);
 
-/// `(n, m)` from the shapes of `A` and `B`; `Q` and `R` are checked on conversion.
-fn dims([a, b, ..]: Arrays<'_, '_>) -> PyResult<(usize, usize)> {
+/// `(n, m)` from the shapes of `A` and `B`, and `Q`, `R` checked against
+/// them. A mismatch names both arrays: either may be the wrong one.
+fn dims([a, b, q, r]: Arrays<'_, '_>) -> PyResult<(usize, usize)> {
+    let bad = |msg: String| Err(PyValueError::new_err(msg));
     let (n, max) = (a.shape()[0], riccati::MAX_STATES);
     if a.shape() != [n, n] || !(1..=max).contains(&n) {
-        let got = a.shape();
-        let msg = format!("A: expected a square (n, n) array with 1 <= n <= {max}, got {got:?}");
-        return Err(PyValueError::new_err(msg));
+        let got = shape(a.shape());
+        return bad(format!(
+            "A: expected a square (n, n) array with 1 <= n <= {max}, got {got}"
+        ));
     }
-    let (m, max) = (b.shape()[1], n);
-    if b.shape() != [n, m] || !(1..=max).contains(&m) {
-        let got = b.shape();
-        let msg = format!("B: expected shape (n, m) = ({n}, m) with 1 <= m <= {max}, got {got:?}");
-        return Err(PyValueError::new_err(msg));
+    let m = b.shape()[1];
+    if b.shape() != [n, m] || !(1..=n).contains(&m) {
+        let got = shape(b.shape());
+        return bad(format!(
+            "(A, B): B must have as many rows as A: expected shape (n, m) = ({n}, m) with \
+             1 <= m <= {n}, got {got}"
+        ));
+    }
+    if q.shape() != [n, n] {
+        let got = shape(q.shape());
+        return bad(format!(
+            "(A, Q): Q must match A: expected shape (n, n) = ({n}, {n}), got {got}"
+        ));
+    }
+    if r.shape() != [m, m] {
+        let got = shape(r.shape());
+        return bad(format!(
+            "(B, R): R must match B's columns: expected shape (m, m) = ({m}, {m}), got {got}"
+        ));
     }
     Ok((n, m))
 }
@@ -91,19 +108,28 @@ fn solve<'py>(py: Python<'py>, arrays: Arrays<'_, 'py>, discrete: bool) -> PyRes
 #[pyo3(signature = (a, b, q, r, /, *, discrete = false))]
 fn lqr<'py>(
     py: Python<'py>,
-    a: PyReadonlyArray2<'py, f64>,
-    b: PyReadonlyArray2<'py, f64>,
-    q: PyReadonlyArray2<'py, f64>,
-    r: PyReadonlyArray2<'py, f64>,
+    a: &Bound<'py, PyAny>,
+    b: &Bound<'py, PyAny>,
+    q: &Bound<'py, PyAny>,
+    r: &Bound<'py, PyAny>,
     discrete: bool,
 ) -> PyResult<Pair<'py>> {
+    let (a, b) = (array2(a, "A")?, array2(b, "B")?);
+    let (q, r) = (array2(q, "Q")?, array2(r, "R")?);
     solve(py, [&a, &b, &q, &r], discrete)
 }
 
 /// Reduced 2-state agent gains `(k_pos, k_vel)` (eq.LQRrobot / eq.LQRhuman).
 #[pyfunction]
 #[pyo3(signature = (*, mass, damping, q_pos, q_vel))]
-fn agent_gains(mass: f64, damping: f64, q_pos: f64, q_vel: f64) -> PyResult<(f64, f64)> {
+fn agent_gains(
+    mass: &Bound<'_, PyAny>,
+    damping: &Bound<'_, PyAny>,
+    q_pos: &Bound<'_, PyAny>,
+    q_vel: &Bound<'_, PyAny>,
+) -> PyResult<(f64, f64)> {
+    let (mass, damping) = (real(mass, "mass")?, real(damping, "damping")?);
+    let (q_pos, q_vel) = (real(q_pos, "q_pos")?, real(q_vel, "q_vel")?);
     let [kp, kv] = riccati::agent_gains(mass, damping, q_pos, q_vel).map_err(py_err)?;
     Ok((kp, kv))
 }

@@ -9,7 +9,7 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use sensaug_config::{Format, ScenarioSpec};
-use sensaug_core::world::Scenario;
+use sensaug_core::world::{check_log_memory, log_budget, LogTooLarge, Scenario};
 use sensaug_log::Row;
 use std::path::Path;
 
@@ -19,9 +19,21 @@ create_exception!(
     PyValueError,
     "A configuration error: `str(e)` is `<dotted field path>: <what is wrong and how to fix it>`."
 );
+create_exception!(
+    _core,
+    TrialTooLargeError,
+    ConfigError,
+    "A simulated trial whose log would not fit the memory it may take; raised before it runs, naming the fields that make it large."
+);
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("ConfigError", m.py().get_type::<ConfigError>())?;
+    m.add(
+        "TrialTooLargeError",
+        m.py().get_type::<TrialTooLargeError>(),
+    )?;
+    m.add_function(wrap_pyfunction!(trial_memory, m)?)?;
+    m.add_function(wrap_pyfunction!(available_memory, m)?)?;
     m.add_function(wrap_pyfunction!(config_check_file, m)?)?;
     m.add_function(wrap_pyfunction!(config_load, m)?)?;
     m.add_function(wrap_pyfunction!(config_to_toml, m)?)?;
@@ -77,18 +89,79 @@ fn config_schema() -> String {
     serde_json::to_string_pretty(sensaug_config::json_schema()).expect("a schema is JSON")
 }
 
+/// Bytes this process can still take: `MemAvailable` of `/proc/meminfo`,
+/// and under a cgroup (v2) memory limit what is left of it; `None` where
+/// neither can be read (not Linux).
+fn available_bytes() -> Option<u64> {
+    let meminfo = std::fs::read_to_string("/proc/meminfo").ok();
+    let available = meminfo.as_deref().and_then(|text| {
+        let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+        let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+        Some(kib.saturating_mul(1024))
+    });
+    let cgroup = std::fs::read_to_string("/proc/self/cgroup")
+        .ok()
+        .and_then(|text| {
+            let path = text.lines().find_map(|l| l.strip_prefix("0::"))?.to_owned();
+            let dir = Path::new("/sys/fs/cgroup").join(path.trim_start_matches('/'));
+            let read = |f: &str| std::fs::read_to_string(dir.join(f)).ok();
+            let max: u64 = read("memory.max")?.trim().parse().ok()?; // "max": no limit
+            let current: u64 = read("memory.current")?.trim().parse().ok()?;
+            Some(max.saturating_sub(current))
+        });
+    match (available, cgroup) {
+        (Some(a), Some(c)) => Some(a.min(c)),
+        (a, c) => a.or(c),
+    }
+}
+
+/// The memory (bytes) a simulated trial's log may take here: half of what
+/// is available (`sensaug_core::world::log_budget`), or `None` (no check)
+/// where that cannot be read.
+#[pyfunction]
+fn available_memory() -> Option<u64> {
+    available_bytes().map(log_budget)
+}
+
+/// `(ticks, log_bytes)` of the trial a configuration describes: the ticks
+/// of its protocol and the bytes of its log kept in memory. With
+/// `memory_budget` (bytes), raises `TrialTooLargeError` when the log needs
+/// more, as `run_scenario` does before it runs.
+#[pyfunction]
+#[pyo3(signature = (text, /, *, format = "toml", memory_budget = None))]
+fn trial_memory(text: &str, format: &str, memory_budget: Option<u64>) -> PyResult<(u64, u64)> {
+    let spec = load(text, format)?;
+    let resolved = sensaug_config::resolve(&spec).map_err(config_err)?;
+    let protocol = resolved.protocol();
+    let bytes = check_log_memory(&protocol, RECORD_BYTES, memory_budget.unwrap_or(u64::MAX))
+        .map_err(too_large)?;
+    Ok((protocol.total_ticks(), bytes))
+}
+
+fn too_large(e: LogTooLarge) -> PyErr {
+    TrialTooLargeError::new_err(e.to_string())
+}
+
 /// Runs one trial from configuration text. Returns `(records, summary)`:
 /// the log's rows as the bytes of packed records in the log schema's column
 /// order (`log_schema()`; `records.view(sensaug.logs.DTYPE)` is the log).
+///
+/// Before it runs, the log's size is checked against `memory_budget` bytes
+/// (default: [`available_memory`]); a trial that would not fit raises
+/// `TrialTooLargeError` naming the fields that make it large.
 #[pyfunction]
-#[pyo3(signature = (text, /, *, format = "toml"))]
+#[pyo3(signature = (text, /, *, format = "toml", memory_budget = None))]
 fn run_scenario<'py>(
     py: Python<'py>,
     text: &str,
     format: &str,
+    memory_budget: Option<u64>,
 ) -> PyResult<(Bound<'py, numpy::PyArray1<u8>>, Bound<'py, PyDict>)> {
     let spec = load(text, format)?;
     let resolved = sensaug_config::resolve(&spec).map_err(config_err)?;
+    let protocol = resolved.protocol();
+    let budget = memory_budget.or_else(available_memory).unwrap_or(u64::MAX);
+    let bytes = check_log_memory(&protocol, RECORD_BYTES, budget).map_err(too_large)?;
     let mut scenario = Scenario::new(
         &resolved.phases,
         resolved.robot,
@@ -102,8 +175,13 @@ fn run_scenario<'py>(
     })?;
     // Each tick's log row is packed as the tick ends, straight into the
     // buffer numpy takes over without a copy: no buffer of the whole
-    // trial's records in between.
-    let mut records = Vec::with_capacity(scenario.ticks() * RECORD_BYTES);
+    // trial's records in between. Reserved fallibly: where the budget is
+    // unknown, or the system refuses, the trial still fails with a message.
+    let mut records = Vec::new();
+    usize::try_from(bytes)
+        .ok()
+        .and_then(|n| records.try_reserve_exact(n).ok())
+        .ok_or_else(|| too_large(LogTooLarge::new(&protocol, RECORD_BYTES, None)))?;
     let summary = py.detach(|| {
         scenario.run_with(|k, rec| pack_record(&Row::from_tick_record(k, rec), &mut records))
     });
