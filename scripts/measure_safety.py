@@ -20,6 +20,7 @@ process is started and stopped here.
 from __future__ import annotations
 
 import json
+import math
 import signal
 import statistics
 import sys
@@ -35,14 +36,16 @@ from sensaug_bridge.protocol import State  # noqa: E402
 from test_rig import short_config, stall_tolerant  # noqa: E402
 
 
-def reaction(tmp: Path, act, names: set[str], pred=lambda d: True) -> float:
-    """Starts a 10 s trial, waits for its loop, calls ``act(processes)``
-    and returns the ms until the first frame named in ``names`` (and
-    matching ``pred``) is seen on the bus."""
-    pr = f.rig_processes(tmp, short_config(gain_s=10.0))
+def reaction(tmp: Path, act, names: set[str], pred=lambda d: True, after_s: float = 0.0, cfg=None) -> float:
+    """Starts a 10 s trial, waits for its loop (and ``after_s``), calls
+    ``act(processes)`` and returns the ms until the first frame named in
+    ``names`` (and matching ``pred``) is seen on the bus. ``cfg``: the
+    trial (default: the preset's limits, 10 s gain phase)."""
+    pr = f.rig_processes(tmp, cfg or short_config(gain_s=10.0))
     try:
         pr.start_controller()
         f.wait_running(pr)
+        time.sleep(after_s)
         f.latest_feedback(pr)
         t0 = time.monotonic()
         act(pr)
@@ -54,9 +57,11 @@ def reaction(tmp: Path, act, names: set[str], pred=lambda d: True) -> float:
 
 
 def sigterm(tmp: Path) -> dict:
-    """SIGTERM mid-run: time to the controller's disable on the bus."""
+    """SIGTERM 1 s into the run (the handle moving): time to the
+    controller's disable on the bus (the controlled stop's braking
+    included)."""
     ms = reaction(tmp, lambda pr: pr.controller.send_signal(signal.SIGTERM), {"SetState"},
-                  lambda d: not d.message.enable)
+                  lambda d: not d.message.enable, after_s=1.0, cfg=stall_tolerant(short_config(gain_s=10.0)))
     return {"disabled_after_ms": ms}
 
 
@@ -101,8 +106,19 @@ def summarize(name: str, runs: list[dict]) -> list[str]:
 
 
 def controlled_stop(drive: str, amplitude_deg: float, virtual_human: bool):
-    """The controlled stop 10 ms after a target step (SIGTERM)."""
-    return lambda tmp: f.scenario_controlled_stop(tmp, drive, amplitude_deg, virtual_human)
+    """The controlled stop 10 ms after a target step (SIGTERM), with the
+    travel of the stops the loop ran as designed apart (``clean_*``: fresh
+    feedback on every braking tick, a one-tick reaction; NaN otherwise)."""
+
+    def run(tmp: Path) -> dict:
+        figures = f.scenario_controlled_stop(tmp, drive, amplitude_deg, virtual_human)
+        clean = f.clean_stop(figures)
+        figures["clean"] = float(clean)
+        figures["clean_travel_rad"] = figures["travel_rad"] if clean else math.nan
+        figures["clean_rise_after_request_rad_s"] = figures["rise_after_request_rad_s"] if clean else math.nan
+        return figures
+
+    return run
 
 
 def scenarios() -> dict:
