@@ -34,7 +34,6 @@ import pytest
 from sensaug_bridge import protocol as p
 from sensaug_bridge.protocol import FaultFlag, State
 from test_rig import NODE, Processes, short_config, stall_tolerant
-from test_virtual_cia402 import SYNC_COUNTER_OVERFLOW
 
 from sensaug import rig
 from sensaug.config import ScenarioConfig
@@ -299,13 +298,17 @@ class Forger:
         self.pr, self.drive = pr, drive
         self.fb: p.Feedback | None = None
         self.tpdo: dict[int, bytes] = {}
+        #: Every real feedback seen, as its frames' (id, payload).
+        self.seen: list[list[tuple[int, bytes]]] = []
         self.torque_id = p.frame_id("TorqueCommand", NODE)
         self.sent = 0
 
     def next_event(self, timeout: float = 0.05) -> tuple[str, int] | None:
         """Reads one frame: ("feedback", its sequence) for a real feedback
         (CiA 402: its TPDO2), ("command", its sequence) for a command
-        (CiA 402: a SYNC's counter), else None."""
+        (CiA 402: a SYNC's counter), ("disable", 0) for the controller's
+        disable (Hi5 SetState(disable); CiA 402 controlword shutdown), else
+        None."""
         msg = self.pr.monitor.recv(timeout=timeout)
         if msg is None:
             return None
@@ -319,13 +322,21 @@ class Forger:
                 return None
             if d.name == "Feedback":
                 self.fb = d.message
+                self.seen.append([(i, data)])
                 return "feedback", d.message.sequence
+            if d.name == "SetState" and not d.message.enable:
+                return "disable", 0
             return None
         if i in (TPDO1, TPDO2):
             self.tpdo[i] = data
-            return ("feedback", data[-1]) if i == TPDO2 and TPDO1 in self.tpdo else None
+            if i == TPDO2 and TPDO1 in self.tpdo:
+                self.seen.append([(TPDO1, self.tpdo[TPDO1]), (TPDO2, data)])
+                return "feedback", data[-1]
+            return None
         if i == SYNC and data:
             return "command", data[0]
+        if cia_controlword(msg) == CW_SHUTDOWN:
+            return "disable", 0
         return None
 
     def ready(self) -> bool:
@@ -360,18 +371,12 @@ class Forger:
         return at
 
     def replay(self, behind: int) -> None:
-        """The latest real feedback again, as it was (``behind`` 0) or with
-        a sequence (CiA 402: SYNC counter) ``behind`` older."""
-        if self.drive == "hi5":
-            fb = self.fb
-            frames = [p.Feedback(fb.position_rad, fb.velocity_rad_s, (fb.sequence - behind) % 256, fb.state,
-                                 False, False).encode(NODE)]
-        else:
-            frames = [can.Message(arbitration_id=i, data=with_old_sync_counter(self.tpdo[i], behind) if behind
-                                  else self.tpdo[i], is_extended_id=False) for i in (TPDO1, TPDO2)]
-        for f in frames:
-            self.pr.monitor.send(f)
-        self.sent += len(frames)
+        """A real feedback again, exactly as it was: the latest (``behind``
+        0) or the one ``behind`` feedbacks before it (the oldest seen if
+        fewer)."""
+        for i, data in self.seen[max(len(self.seen) - 1 - behind, 0)]:
+            self.pr.monitor.send(can.Message(arbitration_id=i, data=data, is_extended_id=False))
+            self.sent += 1
 
     def next_command(self, timeout: float = 2.0) -> int:
         """The sequence of the next command on the bus (what the monitor had
@@ -384,40 +389,36 @@ class Forger:
                 kind, seq = e
                 if kind == "command" and self.ready():
                     return seq
-        raise AssertionError("no command on the bus")
+        ended = self.pr.controller.poll()
+        raise AssertionError(f"no command on the bus; the controller's exit: {ended}"
+                             + (f", {self.pr.controller.stderr.read()}" if ended is not None else ""))
 
 
-def forge_jump(pr: Processes, drive: str, jump_rad: float) -> float:
-    """Sends a feedback ``jump_rad`` away from the latest one, answering the
-    next command the controller sends (Hi5: a Feedback of its sequence;
-    CiA 402: TPDO1 with the position moved and TPDO2 as last sent, both
-    echoing the SYNC's counter); returns when it was sent. It races the
-    drive's own answer: first, it is a position step; second, a conflict
-    with the drive's."""
+def forge_jump(pr: Processes, drive: str, jump_rad: float, commands: int = 50) -> tuple[float, float | None, int]:
+    """Sends a feedback ``jump_rad`` away from the latest one answering
+    each of the controller's next ``commands`` commands, as soon as the
+    monitor sees it (Hi5: a Feedback of its sequence; CiA 402: TPDO1 with
+    the position moved and TPDO2 as last sent, both echoing the SYNC's
+    counter), until the controller disables the drive (5 s at most).
+    Returns when the first was sent, when the disable was seen (None: not
+    within 5 s) and how many were sent. Each races the drive's own answer:
+    first, it is a position step; second, a conflict with the drive's; later
+    still (a monitor descheduled on a loaded machine: its answer older than
+    the newest), discarded."""
     forger = Forger(pr, drive)
-    return forger.send(forger.next_command(), dx_rad=jump_rad)
-
-
-def latest_tpdos(pr: Processes, last: dict[int, bytes] | None = None) -> dict[int, bytes]:
-    """The latest TPDO1 and TPDO2 payloads the monitor has (draining its
-    queue; waiting up to 1 s for both when ``last`` has none)."""
-    last = dict(last or {})
-    while (msg := pr.monitor.recv(timeout=0)) is not None:
-        if msg.arbitration_id in (TPDO1, TPDO2):
-            last[msg.arbitration_id] = bytes(msg.data)
-    for msg in cia_frames(pr, 0.0 if len(last) == 2 else 1.0):
-        if msg.arbitration_id in (TPDO1, TPDO2):
-            last[msg.arbitration_id] = bytes(msg.data)
-        if len(last) == 2:
-            break
-    assert len(last) == 2, "no TPDOs on the bus"
-    return last
-
-
-def with_old_sync_counter(tpdo: bytes, behind: int) -> bytes:
-    """A TPDO payload whose SYNC counter echo (its last byte, 0x2000) is
-    ``behind`` SYNCs older (counters run 1..240, docs/cia402.md)."""
-    return tpdo[:-1] + bytes([(tpdo[-1] - 1 - behind) % SYNC_COUNTER_OVERFLOW + 1])
+    first = forger.send(forger.next_command(), dx_rad=jump_rad)
+    sent = 1
+    end = first + 5.0
+    while time.monotonic() < end:
+        event = forger.next_event()
+        if event is None:
+            continue
+        if event[0] == "disable":
+            return first, time.monotonic(), sent
+        if event[0] == "command" and sent < commands:
+            forger.send(event[1], dx_rad=jump_rad)
+            sent += 1
+    return first, None, sent
 
 
 #: What an implausible feedback's stop reason says after "implausible feedback: ".
@@ -444,18 +445,17 @@ def assert_torque_off_at_once(log, stats: dict) -> None:
 
 
 def scenario_forged_jump(tmp: Path, drive: str = "hi5") -> dict:
-    """A forged feedback 0.5 rad away from the last one, answering the
-    controller's next command: the controller never acts on it; whether it
-    arrives before the drive's answer (a position step) or after it (two
-    different feedbacks for one command), the torque goes off at once, the
-    drive is disabled, exit 5."""
+    """Forged feedback 0.5 rad away from the last one, answering the
+    controller's next commands (``forge_jump``): the controller never acts
+    on it; whether one arrives before the drive's answer (a position step)
+    or after it (two different feedbacks for one command), the torque goes
+    off at once, the drive is disabled, exit 5."""
     pr = rig_processes(tmp, stall_tolerant(short_config(gain_s=10.0)), drive)
     try:
         pr.start_controller()
         wait_running(pr, drive=drive)
         time.sleep(1.0)
-        sent = forge_jump(pr, drive, 0.5)
-        disabled_at = first_command(pr, drive, 5.0, emergency=False)
+        sent, disabled_at, forged_frames = forge_jump(pr, drive, 0.5)
         assert disabled_at is not None, "the controller did not disable the drive within 5 s"
         code, stats, err = end_of_run(pr)
         assert code == EXIT_IMPLAUSIBLE, err
@@ -466,6 +466,7 @@ def scenario_forged_jump(tmp: Path, drive: str = "hi5") -> dict:
         assert_drive_disabled(pr, drive)
         return {
             "disabled_after_ms": 1e3 * (disabled_at - sent),
+            "forged_answers": forged_frames,
             "refused_as_step": float(kind == "position step"),
             "speed_at_stop_rad_s": stats["stop"]["speed_at_stop_rad_s"],
         }
@@ -563,9 +564,9 @@ def scenario_misscaled_velocity(tmp: Path, drive: str = "hi5", scale: float = 1.
 
 
 def scenario_replayed_feedback(tmp: Path, drive: str = "hi5", replay_s: float = 2.0) -> dict:
-    """After every fourth real feedback, a third node sends it again twice:
-    as it was (a copy) and with a sequence (CiA 402: SYNC counter) 100 older
-    (a late replay). Both are discarded and counted, never used: the run goes
+    """After every fourth real feedback, a third node sends two real
+    feedbacks again, exactly as they were: that one (a copy) and the one 100
+    feedbacks before it (a late replay). Both are discarded and counted, never used: the run goes
     on with fresh feedback until SIGTERM, and its log never jumps back."""
     pr = rig_processes(tmp, stall_tolerant(short_config(gain_s=10.0)), drive)
     try:

@@ -214,18 +214,32 @@ pub trait DriveLink {
 
 // -- feedback order ------------------------------------------------------------------
 
-/// The feedbacks a drive link takes: only answers to commands sent and not
-/// yet answered, newest sequence number first, whatever order they arrive
-/// in. Sequence numbers run modulo `modulus` (Hi5: 256; CiA 402: the SYNC
-/// counter's 240). Allocation-free.
+/// The feedbacks a drive link takes: answers to commands sent, newest
+/// first, whatever order they arrive in. A feedback's sequence number
+/// (Hi5: the command's, modulo 256; CiA 402: the SYNC counter, 1..=240)
+/// names the most recent command sent with that number; it is taken only if
+/// that command is later than the newest one answered. Commands are counted
+/// here, so the order holds across the numbers' wrap (a stall of more than
+/// 256 commands included). The last [`FEEDBACK_HISTORY`] feedbacks taken
+/// are kept: an answer to one of their commands with other values is a
+/// second source (a node that answered first, then the drive). Allocation-free.
 #[derive(Clone, Copy, Debug)]
 pub struct FeedbackOrder {
     modulus: u16,
-    /// The newest feedback taken: its sequence number and values.
-    newest: Option<(u8, f64, f64)>,
-    /// The sequence number of the last command sent.
-    last_sent: Option<u8>,
+    /// Commands sent so far.
+    sent: u64,
+    /// The last command sent: its index (0-based) and sequence number.
+    last_sent: Option<(u64, u8)>,
+    /// The newest feedback taken: its command's index and its values.
+    newest: Option<(u64, f64, f64)>,
+    /// The feedbacks taken, by command index (a ring; `taken` of them so far).
+    history: [(u64, f64, f64); FEEDBACK_HISTORY],
+    taken: usize,
 }
+
+/// Feedbacks [`FeedbackOrder`] remembers to tell a copy from a second
+/// answer: 128 commands (128 ms at 1 kHz; below both profiles' wrap).
+pub const FEEDBACK_HISTORY: usize = 128;
 
 /// Where a feedback stands against the newest one taken
 /// ([`FeedbackOrder::classify`]).
@@ -236,9 +250,11 @@ pub enum Order {
     Newer(u32),
     /// The newest one again, same values: a copy.
     Copy,
-    /// The newest one's sequence number with other values.
+    /// The newest one's command, or a remembered older one's, with other
+    /// values.
     Conflicting,
-    /// Older than the newest, or answering no command sent.
+    /// Older than the newest (and not remembered, or not taken), or no
+    /// command sent yet.
     Stale,
 }
 
@@ -248,19 +264,24 @@ impl FeedbackOrder {
     pub fn new(modulus: u16) -> Self {
         Self {
             modulus,
-            newest: None,
+            sent: 0,
             last_sent: None,
+            newest: None,
+            history: [(u64::MAX, 0.0, 0.0); FEEDBACK_HISTORY],
+            taken: 0,
         }
     }
 
     /// Forget every feedback (a resync: the enable).
     pub fn reset(&mut self) {
         self.newest = None;
+        self.history = [(u64::MAX, 0.0, 0.0); FEEDBACK_HISTORY];
     }
 
     /// A command with sequence number `seq` was sent.
     pub fn sent(&mut self, seq: u8) {
-        self.last_sent = Some(seq);
+        self.last_sent = Some((self.sent, seq));
+        self.sent += 1;
     }
 
     /// `(to - from) mod modulus`.
@@ -268,26 +289,43 @@ impl FeedbackOrder {
         (u16::from(to) + self.modulus - u16::from(from) % self.modulus) % self.modulus
     }
 
-    /// Where feedback `(seq, position, velocity)` stands. Newer: it answers
-    /// a command after the newest answered one and not after the last one
-    /// sent (`0 < seq - newest <= last_sent - newest`, modulo).
+    /// The index of the most recent command sent with sequence `seq`.
+    fn index_of(&self, seq: u8) -> Option<u64> {
+        let (index, last) = self.last_sent?;
+        index.checked_sub(u64::from(self.ahead(seq, last)))
+    }
+
+    /// Where feedback `(seq, position, velocity)` stands.
     pub fn classify(&self, seq: u8, position_rad: f64, velocity_rad_s: f64) -> Order {
-        let Some((newest, x, v)) = self.newest else {
-            return Order::Newer(0);
+        self.classify_part(seq, Some(position_rad), Some(velocity_rad_s))
+    }
+
+    /// [`Self::classify`] for part of a feedback (CiA 402: TPDO1 has the
+    /// position, TPDO2 the velocity): a copy or a conflict is judged on the
+    /// values given.
+    pub fn classify_part(
+        &self,
+        seq: u8,
+        position_rad: Option<f64>,
+        velocity_rad_s: Option<f64>,
+    ) -> Order {
+        let Some(index) = self.index_of(seq) else {
+            return Order::Stale;
         };
-        let ahead = self.ahead(newest, seq);
-        if ahead == 0 {
-            return if (x, v) == (position_rad, velocity_rad_s) {
-                Order::Copy
-            } else {
-                Order::Conflicting
-            };
-        }
-        let outstanding = self.last_sent.map_or(0, |s| self.ahead(newest, s));
-        if ahead <= outstanding {
-            Order::Newer(u32::from(ahead))
-        } else {
-            Order::Stale
+        let same = |taken: f64, got: Option<f64>| got.is_none_or(|g| g == taken);
+        match self.newest {
+            None => Order::Newer(0),
+            Some((newest, ..)) if index > newest => {
+                Order::Newer(u32::try_from(index - newest).unwrap_or(u32::MAX))
+            }
+            // The newest, or an older one remembered: a copy or a second answer.
+            Some(_) => match self.history.iter().find(|(i, ..)| *i == index) {
+                Some((_, x, v)) if same(*x, position_rad) && same(*v, velocity_rad_s) => {
+                    Order::Copy
+                }
+                Some(_) => Order::Conflicting,
+                None => Order::Stale,
+            },
         }
     }
 
@@ -295,7 +333,12 @@ impl FeedbackOrder {
     pub fn absorb(&mut self, seq: u8, position_rad: f64, velocity_rad_s: f64) -> Absorbed {
         match self.classify(seq, position_rad, velocity_rad_s) {
             Order::Newer(steps) => {
-                self.newest = Some((seq, position_rad, velocity_rad_s));
+                if let Some(index) = self.index_of(seq) {
+                    let taken = (index, position_rad, velocity_rad_s);
+                    self.newest = Some(taken);
+                    self.history[self.taken % FEEDBACK_HISTORY] = taken;
+                    self.taken += 1;
+                }
                 Absorbed::Feedback {
                     position_rad,
                     velocity_rad_s,
@@ -307,14 +350,14 @@ impl FeedbackOrder {
         }
     }
 
-    /// The newest feedback taken: `(seq, position, velocity)`.
-    pub fn newest(&self) -> Option<(u8, f64, f64)> {
-        self.newest
+    /// The newest feedback taken: `(position, velocity)`.
+    pub fn newest(&self) -> Option<(f64, f64)> {
+        self.newest.map(|(_, x, v)| (x, v))
     }
 
     /// The newest feedback answers the last command sent.
     pub fn up_to_date(&self) -> bool {
-        matches!((self.newest, self.last_sent), (Some((n, ..)), Some(s)) if n == s)
+        matches!((self.newest, self.last_sent), (Some((n, ..)), Some((s, _))) if n == s)
     }
 }
 
@@ -482,9 +525,7 @@ impl DriveLink for Hi5Link {
     }
 
     fn sample(&mut self, k: u64) -> DriveSample {
-        let answered = hi5_sequence(k.wrapping_sub(1));
-        self.sample.fresh =
-            k == 0 || matches!(self.order.newest(), Some((seq, ..)) if seq == answered);
+        self.sample.fresh = k == 0 || self.order.up_to_date();
         self.sample.enabled = self.state == DriveState::Enabled;
         self.sample.fault = self.state == DriveState::Fault;
         self.sample.state_code = self.state.raw();
@@ -579,8 +620,7 @@ impl Cia402Link {
     fn tpdo1(&mut self) -> Absorbed {
         let fb = self.master.feedback();
         let (counter, x) = (fb.tpdo1_sync_counter, fb.position_rad);
-        let v_newest = self.order.newest().map_or(0.0, |(_, _, v)| v);
-        match self.order.classify(counter, x, v_newest) {
+        match self.order.classify_part(counter, Some(x), None) {
             Order::Newer(_) => {
                 self.pending_tpdo1 = Some((counter, x));
                 Absorbed::Other
@@ -602,14 +642,11 @@ impl Cia402Link {
                 self.pending_tpdo1 = None;
                 self.order.absorb(counter, x, v)
             }
-            _ => {
-                let x_newest = self.order.newest().map_or(0.0, |(_, x, _)| x);
-                match self.order.classify(counter, x_newest, v) {
-                    Order::Newer(_) => Absorbed::Other,
-                    Order::Copy | Order::Stale => Absorbed::StaleFeedback,
-                    Order::Conflicting => Absorbed::ConflictingFeedback { sequence: counter },
-                }
-            }
+            _ => match self.order.classify_part(counter, None, Some(v)) {
+                Order::Newer(_) => Absorbed::Other,
+                Order::Copy | Order::Stale => Absorbed::StaleFeedback,
+                Order::Conflicting => Absorbed::ConflictingFeedback { sequence: counter },
+            },
         }
     }
 
@@ -675,7 +712,7 @@ impl DriveLink for Cia402Link {
         let (position_rad, velocity_rad_s) = self
             .order
             .newest()
-            .map_or((fb.position_rad, fb.velocity_rad_s), |(_, x, v)| (x, v));
+            .unwrap_or((fb.position_rad, fb.velocity_rad_s));
         let fault_code = if fb.drive_heartbeat_lost {
             HEARTBEAT_LOST_CODE
         } else {
@@ -779,7 +816,7 @@ mod tests {
         // 2 arrives before 1 (1 late): 2 is taken, two steps after 0; 1 then is older.
         assert_eq!(o.absorb(2, 0.3, 1.2), fb(0.3, 1.2, 2));
         assert_eq!(o.absorb(1, 0.2, 1.1), Absorbed::StaleFeedback);
-        assert_eq!(o.newest(), Some((2, 0.3, 1.2)));
+        assert_eq!(o.newest(), Some((0.3, 1.2)));
         assert!(!o.up_to_date(), "4 is the last sent");
         assert_eq!(o.absorb(4, 0.5, 1.4), fb(0.5, 1.4, 2));
         assert!(o.up_to_date());
@@ -795,31 +832,59 @@ mod tests {
             Absorbed::ConflictingFeedback { sequence: 1 }
         );
         // The newest is kept.
-        assert_eq!(o.newest(), Some((1, 0.2, 1.1)));
+        assert_eq!(o.newest(), Some((0.2, 1.1)));
+        // A node answered 2 first, then the drive, late, after 3 was taken.
+        assert_eq!(o.absorb(2, 0.9, 0.9), fb(0.9, 0.9, 1));
+        assert_eq!(o.absorb(3, 0.4, 1.3), fb(0.4, 1.3, 1));
+        assert_eq!(
+            o.absorb(2, 0.3, 1.2),
+            Absorbed::ConflictingFeedback { sequence: 2 }
+        );
+        assert_eq!(o.absorb(2, 0.9, 0.9), Absorbed::StaleFeedback, "a replay");
+        // Parts (CiA 402's TPDOs) are judged on what they carry.
+        assert_eq!(o.classify_part(2, Some(0.9), None), Order::Copy);
+        assert_eq!(o.classify_part(2, None, Some(0.9)), Order::Copy);
+        assert_eq!(o.classify_part(2, None, Some(1.0)), Order::Conflicting);
     }
 
     #[test]
     fn a_feedback_for_a_command_not_sent_or_far_behind_is_discarded() {
-        let mut o = hi5_order();
-        assert_eq!(o.absorb(5, 0.6, 1.5), Absorbed::StaleFeedback, "5 not sent");
-        assert_eq!(
-            o.absorb(156, 0.6, 1.5),
-            Absorbed::StaleFeedback,
-            "100 behind"
-        );
+        let o = hi5_order();
+        // 5 is not sent yet: it would answer the command 251 before 4.
+        assert_eq!(o.classify(5, 0.6, 1.5), Order::Stale);
+        assert_eq!(o.classify(156, 0.6, 1.5), Order::Stale, "100 behind");
         assert_eq!(o.classify(4, 0.0, 0.0), Order::Newer(4));
-        // Across the wrap: 254, 255 sent after 253 was answered.
-        let mut w = FeedbackOrder::new(256);
-        w.sent(253);
-        w.absorb(253, 0.0, 0.0);
-        for s in [254, 255, 0, 1] {
-            w.sent(s);
+        // Nothing sent: nothing answered.
+        assert_eq!(FeedbackOrder::new(256).classify(0, 0.0, 0.0), Order::Stale);
+        // After a reset (the enable), the first answer to a command sent is taken.
+        let mut r = hi5_order();
+        r.reset();
+        assert_eq!(r.classify(3, 0.0, 0.0), Order::Newer(0));
+    }
+
+    #[test]
+    fn the_order_holds_across_the_wrap_and_a_long_stall() {
+        let mut o = FeedbackOrder::new(256);
+        for s in 250..=255 {
+            o.sent(s);
         }
-        assert_eq!(w.classify(0, 0.0, 0.0), Order::Newer(3));
-        assert_eq!(w.classify(252, 0.0, 0.0), Order::Stale);
-        // After a reset (the enable), anything is the first.
-        w.reset();
-        assert_eq!(w.classify(77, 0.0, 0.0), Order::Newer(0));
+        o.absorb(253, 0.0, 0.0);
+        for s in 0..=1 {
+            o.sent(s);
+        }
+        assert_eq!(o.classify(0, 0.0, 0.0), Order::Newer(3));
+        assert_eq!(o.classify(252, 0.0, 0.0), Order::Stale);
+        // 300 more commands without a feedback taken (a stalled drive,
+        // within a 300 ms feedback timeout): the answer to the last one
+        // (number 45) is the newest, 304 commands after 253's; one with
+        // 253's number answers the command 256 before the last, not 253.
+        for k in 0..300u64 {
+            o.sent(((2 + k) % 256) as u8);
+        }
+        assert_eq!(o.classify(253, 9.0, 9.0), Order::Newer(256));
+        assert_eq!(o.classify(45, 1.0, 1.0), Order::Newer(304));
+        assert_eq!(o.absorb(45, 1.0, 1.0), fb(1.0, 1.0, 304));
+        assert!(o.up_to_date());
     }
 
     #[test]
