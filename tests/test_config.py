@@ -97,7 +97,8 @@ def test_written_toml_documents_units_and_reads_back():
 def test_schema_bounds_the_safety_settings():
     rig = C.schema()["$defs"]["RigSpec"]["properties"]
     assert rig["watchdog_ms"]["maximum"] <= 300 and rig["watchdog_ms"]["minimum"] >= 5
-    assert rig["ramp_down_s"]["maximum"] <= 2.0
+    assert rig["stop_time_limit_s"]["maximum"] <= 2.0
+    assert rig["stop_torque_limit_nm"]["maximum"] <= 10.0
     assert rig["feedback_timeout_ms"]["maximum"] <= 300.0
     assert rig["torque_limit_nm"]["maximum"] <= 10.0
     assert rig["ring_capacity"]["maximum"] <= 1 << 22

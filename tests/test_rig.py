@@ -367,7 +367,7 @@ def test_a_second_command_source_faults_the_drive(procs):
     assert beats[-1].state == State.FAULT
 
 
-def test_sigterm_ramps_down_disables_and_flushes_the_log(procs):
+def test_sigterm_brakes_disables_and_flushes_the_log(procs):
     pr = procs(short_config(gain_s=10.0))
     pr.start_controller()
     time.sleep(2.0)
@@ -375,15 +375,19 @@ def test_sigterm_ramps_down_disables_and_flushes_the_log(procs):
     code = pr.wait_controller(timeout=20)
     assert code == 1  # not completed
     stats = json.loads(pr.stats.read_text())
-    assert stats["stop_reason"].startswith("signal")
+    assert stats["stop_reason"] == "signal SIGTERM (controlled stop, drive disabled)"
+    assert stats["stop"]["kind"] == "controlled" and stats["stop"]["brake_end"] in ("at_rest", "time_limit")
     log = load_log(pr.log)
     assert len(log) == stats["ticks"] == stats["records_written"]
     np.testing.assert_array_equal(log["tick"], np.arange(len(log)))
-    assert log.complete and log.meta["end"]["stop_reason"].startswith("signal")
-    ramp = log.data[log["ramp"]]
-    assert len(ramp) >= 1 and abs(ramp["torque_nm"][-1]) <= abs(ramp["torque_nm"][0]) + 1e-12
-    # Ramp-down ticks are outside the protocol: unknown phase and guard.
-    assert np.all(ramp["phase"] == logs.UNKNOWN_INT) and np.all(ramp["guard"] == logs.UNKNOWN_INT)
+    assert log.complete and log.meta["end"]["stop_reason"] == stats["stop_reason"]
+    stop = log.data[log["ramp"]]
+    assert len(stop) == stats["stop"]["braking_ticks"]
+    # The brake opposes the measured motion (log units: deg/s), within its bound.
+    assert np.all(stop["torque_nm"] * stop["xdot"] <= 0.0), stop[["xdot", "torque_nm"]]
+    assert np.abs(stop["torque_nm"]).max(initial=0.0) <= 3.0
+    # Stop ticks are outside the protocol: unknown phase and guard.
+    assert np.all(stop["phase"] == logs.UNKNOWN_INT) and np.all(stop["guard"] == logs.UNKNOWN_INT)
     beats = pr.heartbeats(0.5)
     assert beats and beats[-1].state == State.DISABLED, beats[-1:]
 

@@ -50,12 +50,26 @@ pub const HEARTBEAT_LOST_CODE: u16 = 0x8130;
 /// What one received frame was, for the loop's counters and checks.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Absorbed {
-    /// One tick's feedback (Hi5 Feedback; CiA 402 TPDO1 + TPDO2).
+    /// One tick's feedback (Hi5 Feedback; CiA 402 TPDO1 + TPDO2 with one
+    /// SYNC counter), newer than every one before it ([`FeedbackOrder`]).
     Feedback {
         /// Position, rad.
         position_rad: f64,
         /// Velocity, rad/s.
         velocity_rad_s: f64,
+        /// Drive steps (commands answered) since the previous feedback
+        /// taken, from the two sequence numbers (Hi5) or SYNC counters
+        /// (CiA 402); 0 for the first after the enable.
+        steps: u32,
+    },
+    /// A feedback not taken: a copy of the newest, an older one arriving
+    /// after it (a replay, a late frame), or one answering no command sent.
+    StaleFeedback,
+    /// A feedback answering the same command as the newest one with other
+    /// values: two nodes send feedback for this drive (the newest is kept).
+    ConflictingFeedback {
+        /// The command's sequence number (CiA 402: its SYNC counter).
+        sequence: u8,
     },
     /// A command to this drive that this process did not send (transports
     /// never hand a socket its own frames): another controller is on the
@@ -198,6 +212,155 @@ pub trait DriveLink {
     }
 }
 
+// -- feedback order ------------------------------------------------------------------
+
+/// The feedbacks a drive link takes: answers to commands sent, newest
+/// first, whatever order they arrive in. A feedback's sequence number
+/// (Hi5: the command's, modulo 256; CiA 402: the SYNC counter, 1..=240)
+/// names the most recent command sent with that number; it is taken only if
+/// that command is later than the newest one answered. Commands are counted
+/// here, so the order holds across the numbers' wrap (a stall of more than
+/// 256 commands included). The last [`FEEDBACK_HISTORY`] feedbacks taken
+/// are kept: an answer to one of their commands with other values is a
+/// second source (a node that answered first, then the drive). Allocation-free.
+#[derive(Clone, Copy, Debug)]
+pub struct FeedbackOrder {
+    modulus: u16,
+    /// Commands sent so far.
+    sent: u64,
+    /// The last command sent: its index (0-based) and sequence number.
+    last_sent: Option<(u64, u8)>,
+    /// The newest feedback taken: its command's index and its values.
+    newest: Option<(u64, f64, f64)>,
+    /// The feedbacks taken, by command index (a ring; `taken` of them so far).
+    history: [(u64, f64, f64); FEEDBACK_HISTORY],
+    taken: usize,
+}
+
+/// Feedbacks [`FeedbackOrder`] remembers to tell a copy from a second
+/// answer: 128 commands (128 ms at 1 kHz; below both profiles' wrap).
+pub const FEEDBACK_HISTORY: usize = 128;
+
+/// Where a feedback stands against the newest one taken
+/// ([`FeedbackOrder::classify`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Order {
+    /// It answers a command sent after the newest one's: take it. The
+    /// drive steps between the two (0: no feedback taken yet).
+    Newer(u32),
+    /// The newest one again, same values: a copy.
+    Copy,
+    /// The newest one's command, or a remembered older one's, with other
+    /// values.
+    Conflicting,
+    /// Older than the newest (and not remembered, or not taken), or no
+    /// command sent yet.
+    Stale,
+}
+
+impl FeedbackOrder {
+    /// Sequence numbers modulo `modulus` (only their differences count:
+    /// CiA 402's counters 1..=240 are taken as they are).
+    pub fn new(modulus: u16) -> Self {
+        Self {
+            modulus,
+            sent: 0,
+            last_sent: None,
+            newest: None,
+            history: [(u64::MAX, 0.0, 0.0); FEEDBACK_HISTORY],
+            taken: 0,
+        }
+    }
+
+    /// Forget every feedback (a resync: the enable).
+    pub fn reset(&mut self) {
+        self.newest = None;
+        self.history = [(u64::MAX, 0.0, 0.0); FEEDBACK_HISTORY];
+    }
+
+    /// A command with sequence number `seq` was sent.
+    pub fn sent(&mut self, seq: u8) {
+        self.last_sent = Some((self.sent, seq));
+        self.sent += 1;
+    }
+
+    /// `(to - from) mod modulus`.
+    fn ahead(&self, from: u8, to: u8) -> u16 {
+        (u16::from(to) + self.modulus - u16::from(from) % self.modulus) % self.modulus
+    }
+
+    /// The index of the most recent command sent with sequence `seq`.
+    fn index_of(&self, seq: u8) -> Option<u64> {
+        let (index, last) = self.last_sent?;
+        index.checked_sub(u64::from(self.ahead(seq, last)))
+    }
+
+    /// Where feedback `(seq, position, velocity)` stands.
+    pub fn classify(&self, seq: u8, position_rad: f64, velocity_rad_s: f64) -> Order {
+        self.classify_part(seq, Some(position_rad), Some(velocity_rad_s))
+    }
+
+    /// [`Self::classify`] for part of a feedback (CiA 402: TPDO1 has the
+    /// position, TPDO2 the velocity): a copy or a conflict is judged on the
+    /// values given.
+    pub fn classify_part(
+        &self,
+        seq: u8,
+        position_rad: Option<f64>,
+        velocity_rad_s: Option<f64>,
+    ) -> Order {
+        let Some(index) = self.index_of(seq) else {
+            return Order::Stale;
+        };
+        let same = |taken: f64, got: Option<f64>| got.is_none_or(|g| g == taken);
+        match self.newest {
+            None => Order::Newer(0),
+            Some((newest, ..)) if index > newest => {
+                Order::Newer(u32::try_from(index - newest).unwrap_or(u32::MAX))
+            }
+            // The newest, or an older one remembered: a copy or a second answer.
+            Some(_) => match self.history.iter().find(|(i, ..)| *i == index) {
+                Some((_, x, v)) if same(*x, position_rad) && same(*v, velocity_rad_s) => {
+                    Order::Copy
+                }
+                Some(_) => Order::Conflicting,
+                None => Order::Stale,
+            },
+        }
+    }
+
+    /// Takes the feedback if it is [`Order::Newer`]; says what it was.
+    pub fn absorb(&mut self, seq: u8, position_rad: f64, velocity_rad_s: f64) -> Absorbed {
+        match self.classify(seq, position_rad, velocity_rad_s) {
+            Order::Newer(steps) => {
+                if let Some(index) = self.index_of(seq) {
+                    let taken = (index, position_rad, velocity_rad_s);
+                    self.newest = Some(taken);
+                    self.history[self.taken % FEEDBACK_HISTORY] = taken;
+                    self.taken += 1;
+                }
+                Absorbed::Feedback {
+                    position_rad,
+                    velocity_rad_s,
+                    steps,
+                }
+            }
+            Order::Copy | Order::Stale => Absorbed::StaleFeedback,
+            Order::Conflicting => Absorbed::ConflictingFeedback { sequence: seq },
+        }
+    }
+
+    /// The newest feedback taken: `(position, velocity)`.
+    pub fn newest(&self) -> Option<(f64, f64)> {
+        self.newest.map(|(_, x, v)| (x, v))
+    }
+
+    /// The newest feedback answers the last command sent.
+    pub fn up_to_date(&self) -> bool {
+        matches!((self.newest, self.last_sent), (Some((n, ..)), Some((s, _))) if n == s)
+    }
+}
+
 // -- Hi5 ------------------------------------------------------------------------------
 
 /// The Hi5 protocol: SetState/TorqueCommand with sequence numbers, Feedback
@@ -209,7 +372,8 @@ pub struct Hi5Link {
     state: DriveState,
     faults: FaultFlags,
     sample: DriveSample,
-    last_seq: Option<u8>,
+    /// The feedbacks taken: newest sequence number first.
+    order: FeedbackOrder,
     /// Foreign commands seen by set-up's waits.
     foreign_in_setup: u64,
 }
@@ -225,7 +389,7 @@ impl Hi5Link {
             state: DriveState::Boot,
             faults: FaultFlags::empty(),
             sample: DriveSample::default(),
-            last_seq: None,
+            order: FeedbackOrder::new(256),
             foreign_in_setup: 0,
         }
     }
@@ -297,7 +461,7 @@ impl DriveLink for Hi5Link {
                 s.state == DriveState::Disabled
             })?;
         }
-        self.last_seq = None;
+        self.order.reset();
         let enable = Instant::now();
         self.send(
             bus,
@@ -308,15 +472,9 @@ impl DriveLink for Hi5Link {
             },
         )?;
         let first_command = Instant::now();
-        self.send(
-            bus,
-            &Message::TorqueCommand {
-                torque_nm: 0.0,
-                sequence: 255,
-            },
-        )?;
+        self.send_torque(bus, u64::from(u8::MAX), 0.0)?;
         self.wait_for(bus, "ENABLED and the first feedback", |s| {
-            s.last_seq == Some(255) || s.state == DriveState::Fault
+            s.order.up_to_date() || s.state == DriveState::Fault
         })?;
         if self.state == DriveState::Fault {
             return Err(LinkError::Faulted {
@@ -329,6 +487,8 @@ impl DriveLink for Hi5Link {
         })
     }
 
+    /// A Feedback is taken only if it answers a command sent after the
+    /// newest one taken ([`FeedbackOrder`]); its state with it.
     fn absorb(&mut self, f: &Frame) -> Absorbed {
         match decode(self.node, f) {
             Ok(Message::Feedback {
@@ -338,14 +498,13 @@ impl DriveLink for Hi5Link {
                 state,
                 ..
             }) => {
-                self.sample.position_rad = position_rad;
-                self.sample.velocity_rad_s = velocity_rad_s;
-                self.state = state;
-                self.last_seq = Some(sequence);
-                Absorbed::Feedback {
-                    position_rad,
-                    velocity_rad_s,
+                let absorbed = self.order.absorb(sequence, position_rad, velocity_rad_s);
+                if let Absorbed::Feedback { .. } = absorbed {
+                    self.sample.position_rad = position_rad;
+                    self.sample.velocity_rad_s = velocity_rad_s;
+                    self.state = state;
                 }
+                absorbed
             }
             Ok(Message::Heartbeat {
                 state, fault_flags, ..
@@ -366,7 +525,7 @@ impl DriveLink for Hi5Link {
     }
 
     fn sample(&mut self, k: u64) -> DriveSample {
-        self.sample.fresh = k == 0 || self.last_seq == Some(hi5_sequence(k.wrapping_sub(1)));
+        self.sample.fresh = k == 0 || self.order.up_to_date();
         self.sample.enabled = self.state == DriveState::Enabled;
         self.sample.fault = self.state == DriveState::Fault;
         self.sample.state_code = self.state.raw();
@@ -380,11 +539,13 @@ impl DriveLink for Hi5Link {
         k: u64,
         torque_nm: f64,
     ) -> Result<(), LinkError> {
+        let sequence = hi5_sequence(k);
+        self.order.sent(sequence);
         self.send(
             bus,
             &Message::TorqueCommand {
                 torque_nm,
-                sequence: hi5_sequence(k),
+                sequence,
             },
         )
     }
@@ -429,10 +590,17 @@ impl DriveLink for Hi5Link {
 
 // -- CiA 402 ----------------------------------------------------------------------------
 
-/// CiA 402 over CANopen: [`Master`], one RPDO + SYNC per tick.
+/// CiA 402 over CANopen: [`Master`], one RPDO + SYNC per tick. A tick's
+/// feedback is a TPDO1 (position) and a TPDO2 (velocity) echoing one SYNC
+/// counter; pairs are taken newest counter first ([`FeedbackOrder`]).
 pub struct Cia402Link {
     master: Master,
     step: Duration,
+    /// The feedbacks taken, by SYNC counter.
+    order: FeedbackOrder,
+    /// A TPDO1 newer than the newest feedback, waiting for its TPDO2:
+    /// (SYNC counter, position rad).
+    pending_tpdo1: Option<(u8, f64)>,
 }
 
 impl Cia402Link {
@@ -441,7 +609,45 @@ impl Cia402Link {
         Ok(Self {
             master: Master::new(settings)?,
             step,
+            order: FeedbackOrder::new(u16::from(crate::cia402::od::SYNC_COUNTER_OVERFLOW)),
+            pending_tpdo1: None,
         })
+    }
+
+    /// A TPDO1 the master decoded: kept if newer than the newest feedback
+    /// (until its TPDO2); a copy of the newest's is discarded, another
+    /// position for the newest's counter conflicts.
+    fn tpdo1(&mut self) -> Absorbed {
+        let fb = self.master.feedback();
+        let (counter, x) = (fb.tpdo1_sync_counter, fb.position_rad);
+        match self.order.classify_part(counter, Some(x), None) {
+            Order::Newer(_) => {
+                self.pending_tpdo1 = Some((counter, x));
+                Absorbed::Other
+            }
+            Order::Copy | Order::Stale => Absorbed::StaleFeedback,
+            Order::Conflicting => Absorbed::ConflictingFeedback { sequence: counter },
+        }
+    }
+
+    /// A TPDO2 the master decoded: with the pending TPDO1 of its counter,
+    /// one tick's feedback; without one (the TPDO1 lost), nothing; a copy
+    /// of the newest's is discarded, another velocity for the newest's
+    /// counter conflicts.
+    fn tpdo2(&mut self) -> Absorbed {
+        let fb = self.master.feedback();
+        let (counter, v) = (fb.tpdo2_sync_counter, fb.velocity_rad_s);
+        match self.pending_tpdo1 {
+            Some((c, x)) if c == counter => {
+                self.pending_tpdo1 = None;
+                self.order.absorb(counter, x, v)
+            }
+            _ => match self.order.classify_part(counter, None, Some(v)) {
+                Order::Newer(_) => Absorbed::Other,
+                Order::Copy | Order::Stale => Absorbed::StaleFeedback,
+                Order::Conflicting => Absorbed::ConflictingFeedback { sequence: counter },
+            },
+        }
     }
 
     /// The master (units, feedback counters).
@@ -467,7 +673,14 @@ impl DriveLink for Cia402Link {
         self.master.configure(bus)?;
         let enable = Instant::now();
         self.master.enable(bus, self.step)?;
+        // The enable's last SYNC is answered: its feedback is the newest.
+        let counter = self.master.sync_counter();
         let fb = self.master.feedback();
+        self.order.reset();
+        self.pending_tpdo1 = None;
+        self.order.sent(counter);
+        self.order
+            .absorb(counter, fb.position_rad, fb.velocity_rad_s);
         if fb.state == Some(Cia402State::Fault) || fb.drive_heartbeat_lost {
             return Err(LinkError::Faulted {
                 code: self.sample(0).fault_code,
@@ -481,12 +694,9 @@ impl DriveLink for Cia402Link {
 
     fn absorb(&mut self, f: &Frame) -> Absorbed {
         match self.master.absorb(f) {
-            Heard::Tpdo2 => {
-                let fb = self.master.feedback();
-                Absorbed::Feedback {
-                    position_rad: fb.position_rad,
-                    velocity_rad_s: fb.velocity_rad_s,
-                }
+            Heard::Tpdo2 => self.tpdo2(),
+            Heard::Other if f.is_standard_data() && f.id == self.master.settings().node.tpdo1() => {
+                self.tpdo1()
             }
             Heard::ForeignCommand => Absorbed::ForeignCommand,
             Heard::Undecodable => Absorbed::Undecodable,
@@ -494,20 +704,24 @@ impl DriveLink for Cia402Link {
         }
     }
 
-    /// Fresh: the last TPDO1 and TPDO2 both echo the counter of tick
-    /// `k - 1`'s SYNC ([`Master::last_sync_answered`]).
+    /// Fresh: the newest feedback taken echoes the counter of tick `k -
+    /// 1`'s SYNC (a replayed or late TPDO arriving after it is not taken).
     fn sample(&mut self, k: u64) -> DriveSample {
         self.master.check_drive_heartbeat(Instant::now());
         let fb = self.master.feedback();
+        let (position_rad, velocity_rad_s) = self
+            .order
+            .newest()
+            .unwrap_or((fb.position_rad, fb.velocity_rad_s));
         let fault_code = if fb.drive_heartbeat_lost {
             HEARTBEAT_LOST_CODE
         } else {
             fb.last_emcy.map_or(0, |e| e.code)
         };
         DriveSample {
-            position_rad: fb.position_rad,
-            velocity_rad_s: fb.velocity_rad_s,
-            fresh: k == 0 || self.master.last_sync_answered(),
+            position_rad,
+            velocity_rad_s,
+            fresh: k == 0 || self.order.up_to_date(),
             enabled: fb.state == Some(Cia402State::OperationEnabled),
             fault: fb.state == Some(Cia402State::Fault) || fb.drive_heartbeat_lost,
             state_code: fb.state.map_or(u8::MAX, |s| s as u8),
@@ -521,7 +735,9 @@ impl DriveLink for Cia402Link {
         _k: u64,
         torque_nm: f64,
     ) -> Result<(), LinkError> {
-        self.master.tick(bus, torque_nm)?;
+        let sent = self.master.tick(bus, torque_nm);
+        self.order.sent(self.master.sync_counter());
+        sent?;
         Ok(())
     }
 
@@ -568,5 +784,119 @@ impl DriveLink for Cia402Link {
     fn shut_down(&mut self, bus: &mut dyn Transport, _k: u64) -> Result<(), LinkError> {
         self.master.shut_down(bus, self.step)?;
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Commands 0..=4 sent, feedback for 0 taken.
+    fn hi5_order() -> FeedbackOrder {
+        let mut o = FeedbackOrder::new(256);
+        o.sent(0);
+        assert_eq!(o.absorb(0, 0.1, 1.0), fb(0.1, 1.0, 0));
+        for s in 1..=4 {
+            o.sent(s);
+        }
+        o
+    }
+
+    fn fb(position_rad: f64, velocity_rad_s: f64, steps: u32) -> Absorbed {
+        Absorbed::Feedback {
+            position_rad,
+            velocity_rad_s,
+            steps,
+        }
+    }
+
+    #[test]
+    fn the_newest_sequence_wins_whatever_the_order_of_arrival() {
+        let mut o = hi5_order();
+        // 2 arrives before 1 (1 late): 2 is taken, two steps after 0; 1 then is older.
+        assert_eq!(o.absorb(2, 0.3, 1.2), fb(0.3, 1.2, 2));
+        assert_eq!(o.absorb(1, 0.2, 1.1), Absorbed::StaleFeedback);
+        assert_eq!(o.newest(), Some((0.3, 1.2)));
+        assert!(!o.up_to_date(), "4 is the last sent");
+        assert_eq!(o.absorb(4, 0.5, 1.4), fb(0.5, 1.4, 2));
+        assert!(o.up_to_date());
+    }
+
+    #[test]
+    fn a_copy_is_discarded_and_another_answer_to_the_same_command_conflicts() {
+        let mut o = hi5_order();
+        assert_eq!(o.absorb(1, 0.2, 1.1), fb(0.2, 1.1, 1));
+        assert_eq!(o.absorb(1, 0.2, 1.1), Absorbed::StaleFeedback);
+        assert_eq!(
+            o.absorb(1, 0.2, 2.2),
+            Absorbed::ConflictingFeedback { sequence: 1 }
+        );
+        // The newest is kept.
+        assert_eq!(o.newest(), Some((0.2, 1.1)));
+        // A node answered 2 first, then the drive, late, after 3 was taken.
+        assert_eq!(o.absorb(2, 0.9, 0.9), fb(0.9, 0.9, 1));
+        assert_eq!(o.absorb(3, 0.4, 1.3), fb(0.4, 1.3, 1));
+        assert_eq!(
+            o.absorb(2, 0.3, 1.2),
+            Absorbed::ConflictingFeedback { sequence: 2 }
+        );
+        assert_eq!(o.absorb(2, 0.9, 0.9), Absorbed::StaleFeedback, "a replay");
+        // Parts (CiA 402's TPDOs) are judged on what they carry.
+        assert_eq!(o.classify_part(2, Some(0.9), None), Order::Copy);
+        assert_eq!(o.classify_part(2, None, Some(0.9)), Order::Copy);
+        assert_eq!(o.classify_part(2, None, Some(1.0)), Order::Conflicting);
+    }
+
+    #[test]
+    fn a_feedback_for_a_command_not_sent_or_far_behind_is_discarded() {
+        let o = hi5_order();
+        // 5 is not sent yet: it would answer the command 251 before 4.
+        assert_eq!(o.classify(5, 0.6, 1.5), Order::Stale);
+        assert_eq!(o.classify(156, 0.6, 1.5), Order::Stale, "100 behind");
+        assert_eq!(o.classify(4, 0.0, 0.0), Order::Newer(4));
+        // Nothing sent: nothing answered.
+        assert_eq!(FeedbackOrder::new(256).classify(0, 0.0, 0.0), Order::Stale);
+        // After a reset (the enable), the first answer to a command sent is taken.
+        let mut r = hi5_order();
+        r.reset();
+        assert_eq!(r.classify(3, 0.0, 0.0), Order::Newer(0));
+    }
+
+    #[test]
+    fn the_order_holds_across_the_wrap_and_a_long_stall() {
+        let mut o = FeedbackOrder::new(256);
+        for s in 250..=255 {
+            o.sent(s);
+        }
+        o.absorb(253, 0.0, 0.0);
+        for s in 0..=1 {
+            o.sent(s);
+        }
+        assert_eq!(o.classify(0, 0.0, 0.0), Order::Newer(3));
+        assert_eq!(o.classify(252, 0.0, 0.0), Order::Stale);
+        // 300 more commands without a feedback taken (a stalled drive,
+        // within a 300 ms feedback timeout): the answer to the last one
+        // (number 45) is the newest, 304 commands after 253's; one with
+        // 253's number answers the command 256 before the last, not 253.
+        for k in 0..300u64 {
+            o.sent(((2 + k) % 256) as u8);
+        }
+        assert_eq!(o.classify(253, 9.0, 9.0), Order::Newer(256));
+        assert_eq!(o.classify(45, 1.0, 1.0), Order::Newer(304));
+        assert_eq!(o.absorb(45, 1.0, 1.0), fb(1.0, 1.0, 304));
+        assert!(o.up_to_date());
+    }
+
+    #[test]
+    fn cia402_counters_run_1_to_240() {
+        let mut o = FeedbackOrder::new(240);
+        o.sent(239);
+        o.absorb(239, 0.0, 0.0);
+        o.sent(240);
+        o.sent(1);
+        assert_eq!(o.classify(240, 0.0, 0.0), Order::Newer(1));
+        assert_eq!(o.classify(1, 0.0, 0.0), Order::Newer(2));
+        assert_eq!(o.classify(139, 0.0, 0.0), Order::Stale, "100 behind");
+        assert_eq!(o.classify(2, 0.0, 0.0), Order::Stale, "not sent");
     }
 }

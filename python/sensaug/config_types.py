@@ -303,11 +303,17 @@ class RigConfig:
     """
     feedback_timeout_ms: float = 20.0
     """Feedback older than this stops the loop with an emergency stop (ms)."""
+    feedback_velocity_margin_rad_s: float = 0.05
+    """Feedback consistency: a feedback velocity farther from the velocity the position's change
+    implies than the plant allows (its largest acceleration, `torque_limit_nm / plant.mass`,
+    over the time between the two feedbacks) plus this margin (rad/s: encoder quantisation, a
+    drive's velocity filter) stops the loop ("implausible feedback", docs/safety.md).
+    """
     log: str = 'out/rig_log.csv'
     """Log file (CSV with metadata, docs/logs.md)."""
     max_estimator_errors: int = 10
     """Degraded run: more than this many estimator errors (filter recoveries) or non-finite
-    controller outputs ramps down and stops ("degraded").
+    controller outputs stops the run with the controlled stop ("degraded").
     """
     max_feedback_velocity_rad_s: float = 8.0
     """Feedback plausibility: a feedback velocity beyond this (rad/s, the drive's velocity limit;
@@ -316,11 +322,12 @@ class RigConfig:
     """
     max_missing_feedback_fraction: float = 0.5
     """Degraded run: more than this fraction of ticks without fresh feedback (over the run so
-    far, the first second counted as a whole second) ramps down and stops ("degraded").
+    far, the first second counted as a whole second) turns the torque off and stops
+    ("degraded").
     """
     max_stale_feedback_ticks: int = 100
-    """Degraded run: more than this many consecutive ticks without fresh feedback ramps down and
-    stops ("degraded").
+    """Degraded run: more than this many consecutive ticks without fresh feedback turns the
+    torque off and stops ("degraded").
     """
     node_id: int = 1
     """Drive node id (CiA 402: 1..15, node 0 is NMT broadcast)."""
@@ -328,14 +335,30 @@ class RigConfig:
     """Unit of the controller's positions; the drive speaks rad and N m, and torque is scaled by
     the same factor (docs/model.md, Units).
     """
-    ramp_down_s: float = 0.2
-    """Ramp from the last command to zero on SIGINT/SIGTERM (s)."""
     realtime: RealtimeConfig = field(default_factory=lambda: RealtimeConfig.from_dict({'mlockall': True, 'spin_us': 0}))
     """Thread settings."""
     ring_capacity: int = 65536
     """Log ring capacity (records)."""
     stats: str = 'out/rig_stats.json'
     """Loop statistics (JSON)."""
+    stop_rest_velocity_rad_s: float = 0.01
+    """The controlled stop ends (the drive is disabled) once the measured speed is below this
+    (rad/s).
+    """
+    stop_time_constant_s: float = 0.004
+    """The controlled stop's velocity time constant (s): the brake is a damping torque
+    `-(plant.mass / stop_time_constant_s) v` on the measured velocity, so the handle's speed
+    decays by `dt / stop_time_constant_s` of itself per tick. At least two loop periods
+    (stable with one period of feedback delay).
+    """
+    stop_time_limit_s: float = 0.2
+    """The controlled stop (every stop but an emergency stop; docs/safety.md, "The controlled
+    stop"): the longest it brakes before the drive is disabled (s). 0: torque off at once.
+    """
+    stop_torque_limit_nm: float = 3.0
+    """The controlled stop's largest brake torque (N m); every command is also clamped at
+    `torque_limit_nm`.
+    """
     torque_limit_nm: float = 3.0
     """Torque limit at the drive (N m)."""
     virtual_human: bool = True
@@ -522,7 +545,7 @@ class ScenarioConfig:
     """The partner: the virtual human (simulation, and inside the rig loop)."""
     plant: PlantConfig = field(default_factory=lambda: PlantConfig.from_dict({'coulomb': 0.0, 'damping': 0.0, 'dt_s': 0.001, 'mass': 0.0035}))
     """The handle as the controller models it."""
-    rig: RigConfig = field(default_factory=lambda: RigConfig.from_dict({'can': 'udp:47100', 'drive': 'hi5', 'feedback_step_margin_rad': 0.01, 'feedback_timeout_ms': 20.0, 'log': 'out/rig_log.csv', 'max_estimator_errors': 10, 'max_feedback_velocity_rad_s': 8.0, 'max_missing_feedback_fraction': 0.5, 'max_stale_feedback_ticks': 100, 'node_id': 1, 'position_unit': 'deg', 'ramp_down_s': 0.2, 'realtime': {'mlockall': True, 'spin_us': 0}, 'ring_capacity': 65536, 'stats': 'out/rig_stats.json', 'torque_limit_nm': 3.0, 'virtual_human': True, 'watchdog_ms': 50}))
+    rig: RigConfig = field(default_factory=lambda: RigConfig.from_dict({'can': 'udp:47100', 'drive': 'hi5', 'feedback_step_margin_rad': 0.01, 'feedback_timeout_ms': 20.0, 'feedback_velocity_margin_rad_s': 0.05, 'log': 'out/rig_log.csv', 'max_estimator_errors': 10, 'max_feedback_velocity_rad_s': 8.0, 'max_missing_feedback_fraction': 0.5, 'max_stale_feedback_ticks': 100, 'node_id': 1, 'position_unit': 'deg', 'realtime': {'mlockall': True, 'spin_us': 0}, 'ring_capacity': 65536, 'stats': 'out/rig_stats.json', 'stop_rest_velocity_rad_s': 0.01, 'stop_time_constant_s': 0.004, 'stop_time_limit_s': 0.2, 'stop_torque_limit_nm': 3.0, 'torque_limit_nm': 3.0, 'virtual_human': True, 'watchdog_ms': 50}))
     """The real-time loop and its CAN link (`sensaug-rt`; the simulation ignores it)."""
     robot: RobotConfig = field(default_factory=lambda: RobotConfig.from_dict({'gain_window_s': 8.0, 'integrate': True, 'q_pos': 1.0, 'q_vel': 0.0, 'seed': 1, 'sigma': {'alpha': 1.0, 'beta': 2.0, 'kappa': 0.0}, 'stage1': {'P0': [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0], 'Q': [0.01, 0.01, 0.01, 0.01, 0.01, 0.01], 'R': [1e-07, 1e-07, 1e-07], 'gains0': [0.0, 0.0, 0.0]}, 'stage2': {'P0': [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0], 'Q': [0.01, 0.01, 0.01, 0.01, 0.01, 0.01], 'R': [1e-07, 1e-07, 1e-07, 1e-07, 1e-07], 'gains0': [0.0, 0.0, 0.0]}, 'stage3': {'P0': [0.01, 0.01], 'Q': [0.01, 0.01], 'R_sensor': [1e-07, 1e-07], 'partner_window_s': 0.2}, 'torque_limit': 1000.0}))
     """The robot's controller and estimators."""

@@ -30,12 +30,12 @@ ESTIMATE_COLUMNS: tuple[str, ...] = (
     "e_hat_own", "e_hat_fused", "e_hat_own_var", "e_hat_fused_var", "partner_var",
 )  # fmt: skip
 #: The columns a replay reads: the measurement the robot received, whether
-#: it was new that tick, the tick number, and the rig's ramp-down flag.
+#: it was new that tick, the tick number, and the rig's controlled-stop flag (``ramp``).
 NEEDED_COLUMNS: tuple[str, ...] = ("tick", "x_meas", "xdot_meas", "fresh", "ramp")
 
 
 def _controlled_ticks(log: Log) -> int:
-    """Ticks the controller ran: the rows before the first ramp-down row.
+    """Ticks the controller ran: the rows before the first controlled-stop row.
     Checks the columns and that the ticks are 0, 1, 2... without gaps."""
     missing = [c for c in NEEDED_COLUMNS + ESTIMATE_COLUMNS if c not in log.columns]
     if missing:
@@ -54,7 +54,7 @@ def _controlled_ticks(log: Log) -> int:
     ramp = np.flatnonzero(log["ramp"])
     n = int(ramp[0]) if ramp.size else len(log)
     if ramp.size and not log["ramp"][n:].all():
-        raise ValueError(f"log.ramp: controller ticks after the ramp-down began at tick {n}; the log is not one run")
+        raise ValueError(f"log.ramp: controller ticks after the controlled stop began at tick {n}; the log is not one run")
     return n
 
 
@@ -69,7 +69,7 @@ def replay(log: str | Path | Log, config: ScenarioConfig | None = None) -> Log:
 
     Returns:
         A :class:`Log`: the input's rows with :data:`ESTIMATE_COLUMNS`
-        recomputed. Rows of a rig's ramp-down (``ramp``; the controller did
+        recomputed. Rows of a rig's controlled stop (``ramp``; the controller did
         not run) keep ``phase`` -1 and NaN estimates, as the rig logs them.
         ``meta["replay"]`` holds the robot's counters (e.g.
         ``missing_measurements``, the ticks without a fresh measurement).

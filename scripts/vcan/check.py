@@ -242,7 +242,7 @@ def check_hi5_run(name: str, out: Path, env: dict[str, str], cfg: ScenarioConfig
     scale = db.get_message_by_name("TorqueCommand").get_signal_by_name("torque").scale
     matched = match_commands(commands, log, scale)
     c.expect(len(matched) == ticks, f"every tick's command is on the bus, in order, torque within half a raw step ({len(matched)}/{ticks})")
-    drive = np.load(d / "drive.npz")
+    drive = commanded_steps(d / "drive.npz")
     c.expect(bool(np.all(np.abs(drive["torque_nm"]) <= cfg.rig.torque_limit_nm + 1e-12)), "the drive never applied more than the limit")
     summary["drive"] = drive_summary(d / "drive.stderr")
     if fuzz:
@@ -285,6 +285,15 @@ def check_hi5_run(name: str, out: Path, env: dict[str, str], cfg: ScenarioConfig
     idx = np.array([fb_of[j] for j in matched[:-1]])  # command of tick k-1 -> its Feedback
     check_feedback_used(log, unit, pos[idx], vel[idx], can["missing_feedback"], "Feedback", c)
     return summary
+
+
+def commanded_steps(path: Path) -> dict[str, np.ndarray]:
+    """The virtual drive's record (``--log``) without the free handle's
+    steps (the handle coasting while the drive is not enabled): one row per
+    command it applied."""
+    record = np.load(path)
+    commanded = ~record["free"]
+    return {k: record[k][commanded] for k in record.files if record[k].ndim == 1}
 
 
 def check_feedback_used(log: Any, unit: float, pos: np.ndarray, vel: np.ndarray, missing: int, what: str, c: Checks) -> None:
@@ -363,7 +372,7 @@ def check_cia402_run(name: str, out: Path, env: dict[str, str], cfg: ScenarioCon
     summary["capture"] = {"frames": len(run.frames), **{k: len(v) for k, v in by_kind.items()}, "unknown": unknown}
     c.expect(unknown == 0, f"every data frame is a CiA 402 frame of node {node} or the master ({unknown} others)")
     check_outcomes(name, cfg, stats, log, by_kind["master"], by_kind["drive"], summary, c)
-    drive = np.load(run.dir / "drive.npz")
+    drive = commanded_steps(run.dir / "drive.npz")
     ds = drive_summary(run.dir / "drive.stderr") or {}
     summary["drive"] = ds
 

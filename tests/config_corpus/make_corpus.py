@@ -38,7 +38,8 @@ TABLES = {
     "robot.stage3": "Q = [0.01, 0.01]\nR_sensor = [1e-7, 1e-7]\nP0 = [0.01, 0.01]\npartner_window_s = 0.2\n",
     "partner": "gains = [0.0, 0.0, 2.0]\ntorque_limit = 1000.0\nestimates_robot = false\n",
     "rig": 'can = "udp:47100"\nnode_id = 1\nposition_unit = "deg"\ntorque_limit_nm = 3.0\nwatchdog_ms = 50\n'
-    'feedback_timeout_ms = 20.0\nramp_down_s = 0.2\nvirtual_human = true\nlog = "out/rig_log.csv"\n'
+    'feedback_timeout_ms = 20.0\nstop_time_limit_s = 0.2\nstop_time_constant_s = 0.004\n'
+    'stop_torque_limit_nm = 3.0\nstop_rest_velocity_rad_s = 0.01\nvirtual_human = true\nlog = "out/rig_log.csv"\n'
     'stats = "out/rig_stats.json"\nring_capacity = 65536\n',
     "rig.realtime": "mlockall = true\n",
 }
@@ -74,8 +75,11 @@ case("valid_lqr_partner", full({"partner": "q_pos = 20000.0\nq_vel = 2.0\n"}), "
 case("valid_full_cov", setting("robot.stage3", "Q", "[[0.01, 0.001], [0.001, 0.01]]"), "valid")
 case("valid_watchdog_min", setting("rig", "watchdog_ms", "5"), "valid")
 case("valid_watchdog_max", setting("rig", "watchdog_ms", "200"), "valid")
-case("valid_ramp_zero", setting("rig", "ramp_down_s", "0.0"), "valid")
-case("valid_ramp_max", setting("rig", "ramp_down_s", "2.0"), "valid")
+case("valid_stop_time_limit_zero", setting("rig", "stop_time_limit_s", "0.0"), "valid")
+case("valid_stop_time_limit_max", setting("rig", "stop_time_limit_s", "2.0"), "valid")
+case("valid_stop_time_constant_two_periods", setting("rig", "stop_time_constant_s", "0.002"), "valid")
+case("valid_stop_torque_max", setting("rig", "stop_torque_limit_nm", "10.0"), "valid")
+case("valid_velocity_margin_zero", setting("rig", "feedback_velocity_margin_rad_s", "0.0"), "valid")
 case("valid_torque_max", setting("rig", "torque_limit_nm", "10.0"), "valid")
 case("valid_ring_min", setting("rig", "ring_capacity", "1024"), "valid")
 case("valid_feedback_velocity_max", setting("rig", "max_feedback_velocity_rad_s", "8.388607"), "valid")
@@ -85,7 +89,8 @@ case("valid_stale_ticks_min", setting("rig", "max_stale_feedback_ticks", "1"), "
 case("valid_estimator_errors_zero", setting("rig", "max_estimator_errors", "0"), "valid")
 case("valid_socketcan", setting("rig", "can", '"socketcan:vcan0"'), "valid")
 case("valid_udp_max_port", setting("rig", "can", '"udp:65535"'), "valid")
-case("valid_dt_10ms", full({"plant": "dt_s = 0.01\n", "rig": "watchdog_ms = 200\nfeedback_timeout_ms = 100.0\n"}), "valid")
+case("valid_dt_10ms", full({"plant": "dt_s = 0.01\n",
+     "rig": "watchdog_ms = 200\nfeedback_timeout_ms = 100.0\nstop_time_constant_s = 0.02\n"}), "valid")
 case("valid_fifo", setting("rig.realtime", "fifo_priority", "80"), "valid")
 case("valid_spin", setting("rig.realtime", "spin_us", "100"), "valid")
 case("valid_spin_below_half_period", setting("rig.realtime", "spin_us", "499"), "valid")
@@ -221,9 +226,17 @@ for table, key, value, name in [
     ("rig", "feedback_timeout_ms", "1e300", "feedback_timeout_1e300"),
     ("rig", "feedback_timeout_ms", "0.0", "feedback_timeout_zero"),
     ("rig", "feedback_timeout_ms", "nan", "feedback_timeout_nan"),
-    ("rig", "ramp_down_s", "1e300", "ramp_1e300"),
-    ("rig", "ramp_down_s", "-0.1", "ramp_negative"),
-    ("rig", "ramp_down_s", "inf", "ramp_inf"),
+    ("rig", "stop_time_limit_s", "1e300", "stop_time_limit_1e300"),
+    ("rig", "stop_time_limit_s", "-0.1", "stop_time_limit_negative"),
+    ("rig", "stop_time_limit_s", "inf", "stop_time_limit_inf"),
+    ("rig", "stop_time_constant_s", "0.0", "stop_time_constant_zero"),
+    ("rig", "stop_time_constant_s", "nan", "stop_time_constant_nan"),
+    ("rig", "stop_torque_limit_nm", "0.0", "stop_torque_zero"),
+    ("rig", "stop_torque_limit_nm", "50.0", "stop_torque_huge"),
+    ("rig", "stop_rest_velocity_rad_s", "0.0", "stop_rest_velocity_zero"),
+    ("rig", "stop_rest_velocity_rad_s", "-0.01", "stop_rest_velocity_negative"),
+    ("rig", "feedback_velocity_margin_rad_s", "-0.1", "velocity_margin_negative"),
+    ("rig", "feedback_velocity_margin_rad_s", "inf", "velocity_margin_inf"),
     ("rig", "ring_capacity", "1000000000000", "ring_1e12"),
     ("rig", "ring_capacity", "1023", "ring_small"),
     ("rig", "node_id", "16", "node_16"),
@@ -283,6 +296,11 @@ case("range_timeout_below_period", full({"plant": "dt_s = 0.01\n", "rig": "watch
      "rig.feedback_timeout_ms")
 case("range_watchdog_below_two_periods", full({"plant": "dt_s = 0.01\n", "rig": "watchdog_ms = 15\nfeedback_timeout_ms = 50.0\n"}),
      "rig.watchdog_ms")
+# Within the schema's bounds but shorter than two loop periods (the brake would oscillate).
+case("range_stop_time_constant_one_period", setting("rig", "stop_time_constant_s", "0.001"),
+     "rig.stop_time_constant_s")
+case("range_stop_time_constant_at_10ms", full({"plant": "dt_s = 0.01\n",
+     "rig": "watchdog_ms = 200\nfeedback_timeout_ms = 100.0\n"}), "rig.stop_time_constant_s")
 # Within the schema's 0..900 us but not below half the 1 ms period (500 us).
 case("range_spin_half_period", setting("rig.realtime", "spin_us", "500"), "rig.realtime.spin_us")
 case("range_spin_over_half_period", setting("rig.realtime", "spin_us", "600"), "rig.realtime.spin_us")

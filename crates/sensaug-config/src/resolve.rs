@@ -256,6 +256,20 @@ fn rig_timing(rig: &RigSpec, dt_s: f64) -> Result<(), ConfigError> {
             ),
         ));
     }
+    // The brake's gain per tick is dt / stop_time_constant_s: at most 1/2
+    // keeps it stable with one tick of feedback delay (docs/safety.md).
+    if rig.stop_time_constant_s < 2.0 * dt_s {
+        return Err(ConfigError::new(
+            "rig.stop_time_constant_s",
+            format!(
+                "{} s is shorter than two loop periods (plant.dt_s = {} s); the brake would \
+                 oscillate; use at least {} s",
+                num(rig.stop_time_constant_s),
+                num(dt_s),
+                num(2.0 * dt_s)
+            ),
+        ));
+    }
     // The period in whole ns, as the loop derives it. A spin of half the
     // period or more would leave the tick less time to run than it spins.
     let period_ns = (dt_s * 1e9).round() as u64;

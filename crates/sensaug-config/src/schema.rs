@@ -602,9 +602,26 @@ pub struct RigSpec {
     /// Feedback older than this stops the loop with an emergency stop (ms).
     #[schemars(range(min = 1.0, max = 300.0))]
     pub feedback_timeout_ms: f64,
-    /// Ramp from the last command to zero on SIGINT/SIGTERM (s).
+    /// The controlled stop (every stop but an emergency stop; docs/safety.md,
+    /// "The controlled stop"): the longest it brakes before the drive is
+    /// disabled (s). 0: torque off at once.
     #[schemars(range(min = 0.0, max = 2.0))]
-    pub ramp_down_s: f64,
+    pub stop_time_limit_s: f64,
+    /// The controlled stop's velocity time constant (s): the brake is a
+    /// damping torque `-(plant.mass / stop_time_constant_s) v` on the
+    /// measured velocity, so the handle's speed decays by `dt /
+    /// stop_time_constant_s` of itself per tick. At least two loop periods
+    /// (stable with one period of feedback delay).
+    #[schemars(range(min = 0.0001, max = 1.0))]
+    pub stop_time_constant_s: f64,
+    /// The controlled stop's largest brake torque (N m); every command is
+    /// also clamped at `torque_limit_nm`.
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = TORQUE_NM_MAX))]
+    pub stop_torque_limit_nm: f64,
+    /// The controlled stop ends (the drive is disabled) once the measured
+    /// speed is below this (rad/s).
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = 1.0))]
+    pub stop_rest_velocity_rad_s: f64,
     /// Run the virtual human inside the loop (false: a person holds the handle).
     pub virtual_human: bool,
     /// Log file (CSV with metadata, docs/logs.md).
@@ -624,18 +641,26 @@ pub struct RigSpec {
     /// margin (rad) stops the loop ("implausible feedback").
     #[schemars(range(min = 0.0, max = 1.0))]
     pub feedback_step_margin_rad: f64,
+    /// Feedback consistency: a feedback velocity farther from the velocity
+    /// the position's change implies than the plant allows (its largest
+    /// acceleration, `torque_limit_nm / plant.mass`, over the time between
+    /// the two feedbacks) plus this margin (rad/s: encoder quantisation,
+    /// a drive's velocity filter) stops the loop ("implausible feedback",
+    /// docs/safety.md).
+    #[schemars(range(min = 0.0, max = 8.0))]
+    pub feedback_velocity_margin_rad_s: f64,
     /// Degraded run: more than this fraction of ticks without fresh
     /// feedback (over the run so far, the first second counted as a whole
-    /// second) ramps down and stops ("degraded").
+    /// second) turns the torque off and stops ("degraded").
     #[schemars(range(min = 0.0, max = 1.0))]
     pub max_missing_feedback_fraction: f64,
     /// Degraded run: more than this many consecutive ticks without fresh
-    /// feedback ramps down and stops ("degraded").
+    /// feedback turns the torque off and stops ("degraded").
     #[schemars(range(min = 1, max = 100000))]
     pub max_stale_feedback_ticks: u64,
     /// Degraded run: more than this many estimator errors (filter
-    /// recoveries) or non-finite controller outputs ramps down and stops
-    /// ("degraded").
+    /// recoveries) or non-finite controller outputs stops the run with the
+    /// controlled stop ("degraded").
     #[schemars(range(max = 1000000))]
     pub max_estimator_errors: u64,
     /// Thread settings.
@@ -652,13 +677,17 @@ impl Default for RigSpec {
             torque_limit_nm: 3.0,
             watchdog_ms: 50,
             feedback_timeout_ms: 20.0,
-            ramp_down_s: 0.2,
+            stop_time_limit_s: 0.2,
+            stop_time_constant_s: 0.004,
+            stop_torque_limit_nm: 3.0,
+            stop_rest_velocity_rad_s: 0.01,
             virtual_human: true,
             log: "out/rig_log.csv".into(),
             stats: "out/rig_stats.json".into(),
             ring_capacity: 1 << 16,
             max_feedback_velocity_rad_s: 8.0,
             feedback_step_margin_rad: 0.01,
+            feedback_velocity_margin_rad_s: 0.05,
             max_missing_feedback_fraction: 0.5,
             max_stale_feedback_ticks: 100,
             max_estimator_errors: 10,

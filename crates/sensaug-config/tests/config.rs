@@ -74,12 +74,16 @@ fn published_bounds_are_enforced() {
     let rig = &json_schema()["$defs"]["RigSpec"]["properties"];
     for key in [
         "watchdog_ms",
-        "ramp_down_s",
+        "stop_time_limit_s",
+        "stop_time_constant_s",
+        "stop_torque_limit_nm",
+        "stop_rest_velocity_rad_s",
         "feedback_timeout_ms",
         "ring_capacity",
         "torque_limit_nm",
         "max_feedback_velocity_rad_s",
         "feedback_step_margin_rad",
+        "feedback_velocity_margin_rad_s",
         "max_missing_feedback_fraction",
         "max_stale_feedback_ticks",
         "max_estimator_errors",
@@ -111,6 +115,34 @@ fn oversized_text_is_refused_before_parsing() {
     let text = "#".repeat((1 << 20) + 1);
     let err = load_str(&text, Format::Toml).unwrap_err();
     assert!(err.message.contains("1 MiB"), "{err}");
+}
+
+/// `rig.stop_time_constant_s`: at least two loop periods (the brake's
+/// gain per tick at most 1/2), named with the fix.
+#[test]
+fn the_brakes_time_constant_is_at_least_two_periods() {
+    let with = |dt_s: &str, tc: &str| {
+        load_str(
+            &format!("{MINIMAL}\n[plant]\ndt_s = {dt_s}\n[rig]\nstop_time_constant_s = {tc}\n"),
+            Format::Toml,
+        )
+    };
+    assert_eq!(
+        with("0.001", "0.002").unwrap().rig.stop_time_constant_s,
+        0.002
+    );
+    let short = with("0.002", "0.003").unwrap_err();
+    assert_eq!(short.field, "rig.stop_time_constant_s");
+    assert_eq!(
+        short.message,
+        "0.003 s is shorter than two loop periods (plant.dt_s = 0.002 s); the brake would \
+         oscillate; use at least 0.004 s"
+    );
+    let default = load_str(MINIMAL, Format::Toml).unwrap().rig;
+    assert_eq!(
+        (default.stop_time_constant_s, default.stop_time_limit_s),
+        (0.004, 0.2)
+    );
 }
 
 /// `rig.realtime.spin_us`: the schema's 0..=900, and below half the loop

@@ -175,7 +175,7 @@ macro_rules! schema {
 schema! {
     tick: Int, "1", "tick number, 0 at the first tick of the run";
     t: Float, "s", "time of the tick, tick * dt_s";
-    phase: Int, "1", "phase kind of the tick: an index of meta.phase_names; -1 outside the protocol (the rig's ramp-down)";
+    phase: Int, "1", "phase kind of the tick: an index of meta.phase_names; -1 outside the protocol (the rig's controlled stop)";
     x: Float, "pos", "handle position: the true one (simulation), the drive's last feedback (rig)";
     xdot: Float, "pos/s", "handle velocity: the true one (simulation), the drive's last feedback (rig)";
     x_meas: Float, "pos", "position measurement the controller received this tick";
@@ -218,8 +218,8 @@ schema! {
     compute_us: Float, "us", "rig: wake-up to command sent (NaN in simulations)";
     feedback_age_ticks: Int, "1", "ticks since the last feedback (0 in simulations: a measurement every tick)";
     drive_state: Int, "1", "rig: drive state 0 boot, 1 disabled, 2 enabled, 3 fault (-1 in simulations)";
-    guard: Int, "1", "rig: the drive-torque guard 0 passed, 1 clamped, 2 non-finite (-1 ramp-down and simulations)";
-    ramp: Bool, "1", "rig: ramping down after a stop request (false in simulations)";
+    guard: Int, "1", "rig: the drive-torque guard 0 passed, 1 clamped, 2 non-finite (-1 controlled stop and simulations)";
+    ramp: Bool, "1", "rig: the controlled stop's ticks, braking after a stop request (false in simulations)";
 }
 
 /// The `phase` column's value for a controller log line (its code is a

@@ -36,7 +36,7 @@ use sensaug_rt::config::drive_link;
 use sensaug_rt::control::Rig;
 use sensaug_rt::log;
 use std::path::Path;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
 
 fn main() {
@@ -79,7 +79,7 @@ fn main() {
     let meta = serde_json::json!({"source": "rig"});
     let (mut sink, writer) = log::start(&dir.join("log.csv"), 1 << 14, &meta).expect("log");
     let pinned = others_free && sensaug_rt::os::pin_to_cpu(loop_cpu).is_ok();
-    let reason = rig.run(&mut sink, &AtomicBool::new(false));
+    let reason = rig.run(&mut sink, &AtomicUsize::new(0));
     drop(sink);
     let written = writer.finish(serde_json::Map::new());
     drive_stop.store(true, Ordering::Relaxed);

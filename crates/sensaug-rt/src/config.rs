@@ -1,7 +1,7 @@
 //! The loop's settings from a resolved configuration (`sensaug-config`, the
 //! one schema the Python API and this binary share).
 
-use crate::control::LoopSettings;
+use crate::control::{LoopSettings, StopSettings};
 use sensaug_bridge::cia402::{CanopenNode, MasterSettings};
 use sensaug_bridge::drive_link::{Cia402Link, DriveLink, Hi5Link};
 use sensaug_bridge::protocol::NodeId;
@@ -39,10 +39,15 @@ pub fn drive_link(s: &LoopSettings) -> Result<Box<dyn DriveLink + Send>, ConfigE
     })
 }
 
-/// The loop's settings: the `[rig]` table and the controller's period, unit
-/// and virtual human (zero gains when a person holds the handle).
+/// The loop's settings: the `[rig]` table, the controller's period, unit
+/// and virtual human (zero gains when a person holds the handle), and the
+/// plant's inertia (the brake's damping, the feedback's largest
+/// acceleration).
 pub fn loop_settings(resolved: &Resolved<'_>) -> Result<LoopSettings, ConfigError> {
     let rig = &resolved.spec.rig;
+    // The handle's inertia (kg m^2): the model's mass is the same number in
+    // rad and N m whatever rig.position_unit (torque scales as position).
+    let mass = resolved.spec.plant.mass;
     let node =
         NodeId::new(rig.node_id).map_err(|e| ConfigError::new("rig.node_id", e.to_string()))?;
     Ok(LoopSettings {
@@ -53,7 +58,12 @@ pub fn loop_settings(resolved: &Resolved<'_>) -> Result<LoopSettings, ConfigErro
         torque_limit_nm: rig.torque_limit_nm,
         watchdog_ms: rig.watchdog_ms as u16,
         feedback_timeout_ms: rig.feedback_timeout_ms,
-        ramp_down_s: rig.ramp_down_s,
+        stop: StopSettings {
+            time_limit_s: rig.stop_time_limit_s,
+            damping_nm_s_per_rad: mass / rig.stop_time_constant_s,
+            torque_limit_nm: rig.stop_torque_limit_nm,
+            rest_velocity_rad_s: rig.stop_rest_velocity_rad_s,
+        },
         partner_gains: if rig.virtual_human {
             resolved.partner.gains
         } else {
@@ -62,6 +72,8 @@ pub fn loop_settings(resolved: &Resolved<'_>) -> Result<LoopSettings, ConfigErro
         partner_torque_limit: resolved.partner.torque_limit,
         max_feedback_velocity_rad_s: rig.max_feedback_velocity_rad_s,
         feedback_step_margin_rad: rig.feedback_step_margin_rad,
+        max_acceleration_rad_s2: rig.torque_limit_nm / mass,
+        feedback_velocity_margin_rad_s: rig.feedback_velocity_margin_rad_s,
         max_missing_feedback_fraction: rig.max_missing_feedback_fraction,
         max_stale_feedback_ticks: rig.max_stale_feedback_ticks,
         max_estimator_errors: rig.max_estimator_errors,

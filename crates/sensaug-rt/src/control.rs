@@ -8,8 +8,8 @@
 //!
 //! A tick reads sense -> decide -> actuate -> record; the decision starts
 //! with the loop's [`Safety`] state, a small state machine
-//! ([`Safety::next`]) that says whether the controller commands, the torque
-//! ramps down, or the loop stops.
+//! ([`Safety::next`]) that says whether the controller commands, the
+//! controlled stop brakes the handle, or the loop stops.
 
 use crate::log::{LogRecord, LogSink};
 use crate::os;
@@ -24,10 +24,14 @@ use sensaug_core::controller::{Robot, RobotTick};
 use sensaug_core::protocol::{Protocol, Sample};
 use sensaug_core::ScenarioError;
 use std::fmt;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicUsize, Ordering};
 
-use crate::safety::{degradation, plausible_feedback, DegradedLimits, Health, Implausible};
-pub use crate::safety::{Checks, Safety, StopReason};
+use crate::safety::{
+    brake_torque_nm, degradation, DegradedLimits, FeedbackLimits, Health, Implausible, Previous,
+    Reading,
+};
+pub use crate::safety::{Checks, Safety, StopKind, StopReason};
+use crate::stats::StopReport;
 use std::time::{Duration, Instant};
 
 /// `t` on the `CLOCK_MONOTONIC` ns scale of [`os::now_ns`].
@@ -46,7 +50,8 @@ struct Timing {
     spin_ns: u64,
     /// Feedback older than this many ticks trips the timeout.
     timeout_ticks: u64,
-    ramp_ticks: u64,
+    /// The controlled stop's time limit (ticks).
+    stop_ticks: u64,
 }
 
 impl Timing {
@@ -60,7 +65,7 @@ impl Timing {
             period_ns,
             spin_ns: u64::from(s.spin_us) * 1000,
             timeout_ticks: (s.feedback_timeout_ms * 1e-3 / s.dt_s).ceil() as u64,
-            ramp_ticks: (s.ramp_down_s / s.dt_s).round() as u64,
+            stop_ticks: (s.stop.time_limit_s / s.dt_s).round() as u64,
         }
     }
 }
@@ -80,7 +85,7 @@ struct Sensed {
 }
 
 /// What a tick decided: the torque to send and the controller's part of the
-/// log record (NaN while ramping down).
+/// log record (NaN during the controlled stop).
 #[derive(Clone, Copy, Debug)]
 struct Command {
     torque_nm: f64,
@@ -92,11 +97,11 @@ struct Command {
 }
 
 impl Command {
-    /// Tick `i` of a ramp of `ramp_ticks` from `from_torque_nm`:
-    /// `from (1 - (i + 1) / ramp_ticks)`.
-    fn ramp(from_torque_nm: f64, i: u64, ramp_ticks: u64) -> Command {
+    /// A tick of the controlled stop: `torque_nm` from the brake (zero on
+    /// a tick without fresh feedback), no controller.
+    fn stopping(torque_nm: f64) -> Command {
         Command {
-            torque_nm: from_torque_nm * (1.0 - (i + 1) as f64 / ramp_ticks.max(1) as f64),
+            torque_nm,
             robot: RobotTick {
                 u: f64::NAN,
                 ..RobotTick::NONE
@@ -167,8 +172,8 @@ pub struct LoopSettings {
     pub watchdog_ms: u16,
     /// Feedback timeout (ms).
     pub feedback_timeout_ms: f64,
-    /// Ramp-down on a signal (s).
-    pub ramp_down_s: f64,
+    /// The controlled stop.
+    pub stop: StopSettings,
     /// Virtual human gains over `xi` (zeros: no virtual human).
     pub partner_gains: [f64; 3],
     /// Virtual human torque limit (model units).
@@ -177,6 +182,11 @@ pub struct LoopSettings {
     pub max_feedback_velocity_rad_s: f64,
     /// Feedback plausibility: position step margin (rad).
     pub feedback_step_margin_rad: f64,
+    /// Feedback consistency: the plant's largest acceleration under the
+    /// torque limit, `torque_limit_nm / plant.mass` (rad/s^2).
+    pub max_acceleration_rad_s2: f64,
+    /// Feedback consistency: velocity margin (rad/s).
+    pub feedback_velocity_margin_rad_s: f64,
     /// Degraded run: largest fraction of ticks without fresh feedback.
     pub max_missing_feedback_fraction: f64,
     /// Degraded run: longest run of ticks without fresh feedback.
@@ -196,6 +206,16 @@ impl LoopSettings {
         Duration::from_millis(u64::from(self.watchdog_ms) * QUIET_WATCHDOG_PERIODS)
     }
 
+    fn feedback_limits(&self) -> FeedbackLimits {
+        FeedbackLimits {
+            max_velocity_rad_s: self.max_feedback_velocity_rad_s,
+            step_margin_rad: self.feedback_step_margin_rad,
+            dt_s: self.dt_s,
+            max_acceleration_rad_s2: self.max_acceleration_rad_s2,
+            velocity_margin_rad_s: self.feedback_velocity_margin_rad_s,
+        }
+    }
+
     fn degraded_limits(&self) -> DegradedLimits {
         DegradedLimits {
             missing_fraction: self.max_missing_feedback_fraction,
@@ -208,6 +228,20 @@ impl LoopSettings {
 
 /// Drive watchdog periods of listening for another controller before enabling.
 pub const QUIET_WATCHDOG_PERIODS: u64 = 3;
+
+/// The controlled stop's settings (`rig.stop_*`, docs/safety.md).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StopSettings {
+    /// The longest it brakes before disabling (s).
+    pub time_limit_s: f64,
+    /// The brake's damping, `plant.mass / rig.stop_time_constant_s`
+    /// (N m s/rad).
+    pub damping_nm_s_per_rad: f64,
+    /// The brake's largest torque (N m).
+    pub torque_limit_nm: f64,
+    /// At rest below this speed (rad/s).
+    pub rest_velocity_rad_s: f64,
+}
 
 /// When set-up talked to the drive (ns, `CLOCK_MONOTONIC`), for the start
 /// gap in the statistics.
@@ -235,6 +269,7 @@ pub struct Rig<'a> {
     settings: LoopSettings,
     /// From `settings`, built once at start (not in every tick).
     degraded_limits: DegradedLimits,
+    feedback_limits: FeedbackLimits,
     link: Box<dyn DriveLink + Send>,
     transport: Box<dyn Transport + Send>,
     robot: Robot<'a>,
@@ -259,6 +294,8 @@ pub struct Rig<'a> {
     stale_run: u64,
     longest_stale_run: u64,
     times: StartTimes,
+    /// How the stop went (filled in by [`Rig::run`]).
+    stop: StopReport,
 }
 
 impl<'a> Rig<'a> {
@@ -279,6 +316,7 @@ impl<'a> Rig<'a> {
             .map_err(StartError::Scenario)?;
         let mut rig = Rig {
             degraded_limits: settings.degraded_limits(),
+            feedback_limits: settings.feedback_limits(),
             settings,
             link,
             transport,
@@ -306,6 +344,14 @@ impl<'a> Rig<'a> {
             stale_run: 0,
             longest_stale_run: 0,
             times: StartTimes::default(),
+            stop: StopReport {
+                kind: StopKind::Completed,
+                tick: 0,
+                braking_ticks: 0,
+                brake_end: None,
+                speed_at_stop_rad_s: f64::NAN,
+                speed_at_end_rad_s: f64::NAN,
+            },
         };
         rig.link
             .connect(rig.transport.as_mut())
@@ -329,7 +375,14 @@ impl<'a> Rig<'a> {
         rig.times.first_command_ns = instant_ns(times.first_command);
         // The enable's feedback: the first one, seen by tick 0.
         let first = rig.link.sample(0);
-        rig.check_plausible(first.position_rad, first.velocity_rad_s, 0);
+        rig.check_plausible(
+            Reading {
+                x_rad: first.position_rad,
+                v_rad_s: first.velocity_rad_s,
+            },
+            0,
+            0,
+        );
         rig.drive.sample = first;
         rig.drive.x_rad = first.position_rad;
         rig.drive.v_rad_s = first.velocity_rad_s;
@@ -347,20 +400,30 @@ impl<'a> Rig<'a> {
         }
     }
 
-    /// Takes one received frame through the link; counts what the loop
-    /// watches (foreign commands, undecodable frames) and checks feedback
-    /// against physics.
+    /// Takes one received frame through the link (which takes only
+    /// feedback newer than the newest: [`DriveLink::absorb`]); counts what
+    /// the loop watches (foreign commands, undecodable and discarded
+    /// frames) and checks feedback against physics.
     fn absorb(&mut self, frame: &Frame, tick: u64) {
         match self.link.absorb(frame) {
             Absorbed::Feedback {
                 position_rad,
                 velocity_rad_s,
+                steps,
             } => {
-                self.check_plausible(position_rad, velocity_rad_s, tick);
+                let reading = Reading {
+                    x_rad: position_rad,
+                    v_rad_s: velocity_rad_s,
+                };
+                self.check_plausible(reading, steps, tick);
                 self.drive.x_rad = position_rad;
                 self.drive.v_rad_s = velocity_rad_s;
                 self.drive.had_feedback = true;
                 self.drive.last_feedback_tick = tick;
+            }
+            Absorbed::StaleFeedback => self.can.feedback_discarded += 1,
+            Absorbed::ConflictingFeedback { sequence } => {
+                self.implausible_feedback(Implausible::Conflicting { sequence })
             }
             Absorbed::ForeignCommand => self.can.foreign_commands += 1,
             Absorbed::Undecodable => self.can.decode_errors += 1,
@@ -368,27 +431,26 @@ impl<'a> Rig<'a> {
         }
     }
 
-    /// Checks a feedback against physics (after the first one); keeps the
-    /// first violation.
-    fn check_plausible(&mut self, x_rad: f64, v_rad_s: f64, tick: u64) {
-        let s = &self.settings;
-        let prev = self.drive.had_feedback.then(|| {
-            (
-                self.drive.x_rad,
-                tick.saturating_sub(self.drive.last_feedback_tick),
-            )
+    /// Checks a feedback against physics and against the one before it
+    /// (`steps` drive steps earlier, 0: unknown; [`FeedbackLimits::check`]).
+    fn check_plausible(&mut self, reading: Reading, steps: u32, tick: u64) {
+        let prev = self.drive.had_feedback.then(|| Previous {
+            reading: Reading {
+                x_rad: self.drive.x_rad,
+                v_rad_s: self.drive.v_rad_s,
+            },
+            ticks_apart: tick.saturating_sub(self.drive.last_feedback_tick),
+            steps,
         });
-        if let Err(why) = plausible_feedback(
-            x_rad,
-            v_rad_s,
-            prev,
-            s.max_feedback_velocity_rad_s,
-            s.dt_s,
-            s.feedback_step_margin_rad,
-        ) {
-            self.can.implausible_feedback += 1;
-            self.implausible.get_or_insert(why);
+        if let Err(why) = self.feedback_limits.check(reading, prev) {
+            self.implausible_feedback(why);
         }
+    }
+
+    /// Counts an implausible feedback and keeps the first.
+    fn implausible_feedback(&mut self, why: Implausible) {
+        self.can.implausible_feedback += 1;
+        self.implausible.get_or_insert(why);
     }
 
     /// Drains every frame already received, without waiting
@@ -407,30 +469,32 @@ impl<'a> Rig<'a> {
     }
 
     /// The real-time loop. Runs every tick of the protocol unless `stop` is
-    /// raised (ramp down), feedback times out or the drive faults.
+    /// raised (a terminating signal's number: the controlled stop),
+    /// feedback times out, the drive faults or another safety check fires.
     ///
     /// Each tick: wait for its deadline, **sense** (drain the feedback, its
     /// freshness and age), **decide** (the safety state, then the controller
-    /// or the ramp), **actuate** (one torque command), **record** (one log
+    /// or the brake), **actuate** (one torque command), **record** (one log
     /// record).
-    pub fn run(&mut self, log: &mut LogSink, stop: &AtomicBool) -> StopReason {
+    pub fn run(&mut self, log: &mut LogSink, stop: &AtomicUsize) -> StopReason {
         let timing = Timing::new(&self.settings, self.times.first_command_ns);
         // The protocol's samples in tick order, each tick's next targets kept
         // for the following tick (one evaluation a tick): the loop runs from
-        // tick 0 and stays running until it ramps down or stops for good,
+        // tick 0 and stays running until it stops or brakes,
         // so the running ticks take the samples one by one, in order.
         let protocol = self.protocol;
         let mut samples = protocol.samples();
         let mut safety = Safety::Running;
-        let mut last_torque_nm = 0.0;
         let mut k = 0u64;
         let faults_before = os::thread_page_faults();
         let reason = loop {
             let wake = self.wait_for_tick(&timing, k);
             let sensed = self.sense(k, wake);
             let sensed_ns = os::now_ns();
-            let checks = self.checks(&timing, k, &sensed, stop, log.failed(), last_torque_nm);
-            safety = safety.next(&checks);
+            let checks = self.checks(&timing, k, &sensed, stop, log.failed());
+            let next = safety.next(&checks);
+            self.note_stop(safety, next, &checks);
+            safety = next;
             let command = match safety {
                 Safety::Stopped(reason) => break reason,
                 Safety::Running => match samples.next() {
@@ -438,11 +502,7 @@ impl<'a> Rig<'a> {
                     // k < total while running, so the protocol has a sample.
                     None => break StopReason::Completed,
                 },
-                Safety::RampingDown {
-                    from_tick,
-                    from_torque_nm,
-                    ..
-                } => Command::ramp(from_torque_nm, k - from_tick, timing.ramp_ticks),
+                Safety::Braking { .. } => self.brake(&sensed),
             };
             let decided_ns = os::now_ns();
             self.actuate(k, command.torque_nm);
@@ -450,7 +510,6 @@ impl<'a> Rig<'a> {
             if k == 0 {
                 self.times.first_tick_ns = sent_ns;
             }
-            last_torque_nm = command.torque_nm;
             self.parts
                 .record_compute(wake.woke_ns, sensed_ns, decided_ns, sent_ns);
             self.record(log, k, &sensed, &command, safety, sent_ns);
@@ -461,8 +520,57 @@ impl<'a> Rig<'a> {
         };
         self.page_faults = os::thread_page_faults().saturating_sub(faults_before);
         self.ticks_run = k;
+        self.stop.speed_at_end_rad_s = self.drive.v_rad_s.abs();
         self.shut_down(reason);
         reason
+    }
+
+    /// Keeps how the stop goes for the report ([`StopReport`]): when it was
+    /// decided and the speed then, the braking ticks, why braking ended.
+    fn note_stop(&mut self, from: Safety, to: Safety, c: &Checks) {
+        let speed_rad_s = self.drive.v_rad_s.abs();
+        match (from, to) {
+            (Safety::Running, Safety::Braking { .. } | Safety::Stopped(_)) => {
+                self.stop.tick = c.tick;
+                self.stop.speed_at_stop_rad_s = speed_rad_s;
+            }
+            (Safety::Braking { from_tick, .. }, Safety::Stopped(_)) => {
+                self.stop.brake_end = c.brake_end(from_tick);
+            }
+            _ => {}
+        }
+        match to {
+            Safety::Braking { .. } => self.stop.braking_ticks += 1,
+            Safety::Stopped(reason) => {
+                self.stop.kind = reason.stop_kind();
+                if from == Safety::Running && reason.brakes() {
+                    // A controlled stop that ended in its first tick.
+                    self.stop.brake_end = c.brake_end(c.tick);
+                }
+            }
+            Safety::Running => {}
+        }
+    }
+
+    /// Decide, during the controlled stop: the brake on the measured
+    /// velocity when this tick's feedback is fresh, zero torque when it is
+    /// not (never a stale command); no virtual human.
+    fn brake(&mut self, sensed: &Sensed) -> Command {
+        let stop = &self.settings.stop;
+        let torque_nm = if sensed.fresh {
+            brake_torque_nm(
+                self.drive.v_rad_s,
+                stop.damping_nm_s_per_rad,
+                stop.torque_limit_nm,
+            )
+        } else {
+            0.0
+        };
+        let (torque_nm, g) = guard_torque(torque_nm, self.settings.torque_limit_nm);
+        if g == Guard::NonFinite {
+            self.non_finite += 1;
+        }
+        Command::stopping(torque_nm)
     }
 
     /// Waits for tick `k`'s absolute deadline (a sleep, then the spin if
@@ -509,9 +617,8 @@ impl<'a> Rig<'a> {
         timing: &Timing,
         k: u64,
         sensed: &Sensed,
-        stop: &AtomicBool,
+        stop: &AtomicUsize,
         log_failed: bool,
-        last_torque_nm: f64,
     ) -> Checks {
         let robot = self.robot.counters();
         let health = Health {
@@ -532,10 +639,14 @@ impl<'a> Rig<'a> {
             implausible: self.implausible,
             log_failed,
             degraded: degradation(&health, &self.degraded_limits),
-            stop_requested: stop.load(Ordering::Relaxed),
+            signal: match stop.load(Ordering::Relaxed) {
+                0 => None,
+                n => Some(i32::try_from(n).unwrap_or(i32::MAX)),
+            },
             protocol_done: k >= self.protocol.total_ticks(),
-            last_torque_nm,
-            ramp_ticks: timing.ramp_ticks,
+            at_rest: sensed.fresh
+                && self.drive.v_rad_s.abs() < self.settings.stop.rest_velocity_rad_s,
+            stop_ticks: timing.stop_ticks,
         }
     }
 
@@ -606,7 +717,7 @@ impl<'a> Rig<'a> {
             feedback_age_ticks: sensed.age_ticks,
             drive_state: self.drive.sample.state_code,
             guard: command.guard,
-            ramp: matches!(safety, Safety::RampingDown { .. }),
+            ramp: matches!(safety, Safety::Braking { .. }),
         });
     }
 
@@ -615,10 +726,7 @@ impl<'a> Rig<'a> {
     /// move until set up again: no controller can drive the motor), else
     /// zero torque; then disable ([`DriveLink::stop`]).
     fn shut_down(&mut self, reason: StopReason) {
-        let emergency = matches!(
-            reason,
-            StopReason::FeedbackTimeout | StopReason::ForeignCommand
-        );
+        let emergency = reason.stop_kind() == StopKind::EmergencyStop;
         // The command after the loop's last one (tick k - 1).
         if self
             .link
@@ -642,6 +750,7 @@ impl<'a> Rig<'a> {
         LoopReport {
             ticks: self.ticks_run,
             stop_reason: reason.to_string(),
+            stop: self.stop,
             wake_latency: self.wake.summary(),
             sleep_latency: self.sleep.summary(),
             compute: self.compute.summary(),

@@ -12,7 +12,7 @@
 //! SIGKILL loses at most the records of the last pass; the loader ignores a
 //! partial last line. A failed write is counted and its message kept; from
 //! then on the file stays a valid prefix and later records are counted lost,
-//! and the loop sees the failure ([`LogSink::failed`]) and ramps down.
+//! and the loop sees the failure ([`LogSink::failed`]) and stops under control.
 //!
 //! An old log is not replaced by a run that never starts: set-up writes
 //! `<log>.partial` (which also proves the path writable before the drive is
@@ -49,15 +49,15 @@ pub struct LogRecord {
     pub v: f64,
     /// The feedback was new this tick (the controller updated with it).
     pub fresh: bool,
-    /// Robot target (NaN while ramping down).
+    /// Robot target (NaN during the controlled stop).
     pub tau: f64,
-    /// Partner target (NaN while ramping down).
+    /// Partner target (NaN during the controlled stop).
     pub tau_h: f64,
-    /// Virtual human torque (model units; NaN while ramping down).
+    /// Virtual human torque (model units; NaN during the controlled stop).
     pub u_h: f64,
     /// Torque sent to the drive (N m).
     pub torque_nm: f64,
-    /// The controller's log line (its `u` is NaN while ramping down).
+    /// The controller's log line (its `u` is NaN during the controlled stop).
     pub robot: RobotTick,
     /// Wake-up latency: the tick's start after its deadline (us).
     pub wake_latency_us: f64,
@@ -70,9 +70,9 @@ pub struct LogRecord {
     pub feedback_age_ticks: u64,
     /// Drive state (raw).
     pub drive_state: u8,
-    /// What the drive-torque guard did (`None` while ramping down).
+    /// What the drive-torque guard did (`None` during the controlled stop).
     pub guard: Option<Guard>,
-    /// Ramping down after a stop request.
+    /// The controlled stop's ticks (braking after a stop request).
     pub ramp: bool,
 }
 

@@ -16,7 +16,7 @@ use sensaug_rt::control::{LoopSettings, Rig, StartError, StopReason};
 use sensaug_rt::{log, os};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::AtomicUsize;
 use std::sync::Arc;
 
 /// The 1 kHz real-time loop of sensaug: the paper's three-phase experiment
@@ -67,14 +67,22 @@ fn main() -> ExitCode {
     match run(&spec) {
         Ok(StopReason::Completed) => ExitCode::SUCCESS,
         Ok(reason) => {
-            eprintln!("stopped: {reason}");
+            say(&mut std::io::stderr(), &format!("stopped: {reason}"));
             ExitCode::from(reason.exit_code())
         }
         Err(e) => {
-            eprintln!("error: {e}");
+            say(&mut std::io::stderr(), &format!("error: {e}"));
             ExitCode::from(e.exit_code())
         }
     }
+}
+
+/// Writes one line to an end-of-run stream, ignoring a failure: with the
+/// terminal or SSH session gone (SIGHUP, then EPIPE or EIO) the run's
+/// outcome is in the statistics, the log's end line and the exit code,
+/// which a failed print must not change (`println!` would panic).
+fn say(stream: &mut dyn std::io::Write, line: &str) {
+    let _ = writeln!(stream, "{line}");
 }
 
 /// Why a run did not reach its loop, or failed to report it.
@@ -164,15 +172,12 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, RunError> {
         .map_err(|e| format!("rig.can: {e}"))?;
 
     // A file-size limit (RLIMIT_FSIZE) makes a write fail (EFBIG) instead of
-    // killing the process, so the loop can ramp down.
+    // killing the process, so the loop can stop under control.
     if let Err(e) = os::ignore_file_size_signal() {
         eprintln!("warning: SIGXFSZ not ignored ({e})");
     }
-    let stop = Arc::new(AtomicBool::new(false));
-    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        signal_hook::flag::register(sig, Arc::clone(&stop))
-            .map_err(|e| format!("signal handler: {e}"))?;
-    }
+    let stop = Arc::new(AtomicUsize::new(0));
+    os::register_stop_signals(&stop).map_err(|e| format!("signal handler: {e}"))?;
     let log_path = PathBuf::from(&rig.log);
     let stats_path = PathBuf::from(&rig.stats);
     let meta = log_metadata(&resolved, &settings);
@@ -274,9 +279,12 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, RunError> {
     end.insert("exit_code".into(), reason.exit_code().into());
     let written = writer.finish(end);
     if let Some(e) = &written.error {
-        eprintln!(
-            "warning: rig.log: {e}; {} records lost after the failure",
-            written.records_lost
+        say(
+            &mut std::io::stderr(),
+            &format!(
+                "warning: rig.log: {e}; {} records lost after the failure",
+                written.records_lost
+            ),
         );
     }
     report.records_written = written.records_written;
@@ -286,7 +294,7 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, RunError> {
     let json = serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?;
     write_stats(stats_file, &stats_path, &json)
         .map_err(|e| format!("rig.stats: {}: {e}", stats_path.display()))?;
-    println!("{json}");
+    say(&mut std::io::stdout(), &json);
     Ok(reason)
 }
 
@@ -317,12 +325,17 @@ fn log_metadata(resolved: &Resolved<'_>, s: &LoopSettings) -> serde_json::Value 
             "torque_limit_nm": s.torque_limit_nm,
             "watchdog_ms": s.watchdog_ms,
             "feedback_timeout_ms": s.feedback_timeout_ms,
-            "ramp_down_s": s.ramp_down_s,
+            "stop_time_limit_s": s.stop.time_limit_s,
+            "stop_damping_nm_s_per_rad": s.stop.damping_nm_s_per_rad,
+            "stop_torque_limit_nm": s.stop.torque_limit_nm,
+            "stop_rest_velocity_rad_s": s.stop.rest_velocity_rad_s,
             "partner_gains": s.partner_gains,
             "partner_torque_limit": s.partner_torque_limit,
             "ring_capacity": spec.rig.ring_capacity,
             "max_feedback_velocity_rad_s": s.max_feedback_velocity_rad_s,
             "feedback_step_margin_rad": s.feedback_step_margin_rad,
+            "max_acceleration_rad_s2": s.max_acceleration_rad_s2,
+            "feedback_velocity_margin_rad_s": s.feedback_velocity_margin_rad_s,
             "max_missing_feedback_fraction": s.max_missing_feedback_fraction,
             "max_stale_feedback_ticks": s.max_stale_feedback_ticks,
             "max_estimator_errors": s.max_estimator_errors,

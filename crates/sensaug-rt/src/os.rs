@@ -4,6 +4,8 @@
 //! continues (a VM or an unprivileged user gets a best-effort loop).
 
 use std::io;
+use std::sync::atomic::AtomicUsize;
+use std::sync::Arc;
 
 /// Nanoseconds on CLOCK_MONOTONIC.
 pub fn now_ns() -> u64 {
@@ -111,6 +113,48 @@ pub fn ignore_file_size_signal() -> io::Result<()> {
         return Err(io::Error::last_os_error());
     }
     Ok(())
+}
+
+/// The signals that stop the loop as SIGTERM does (the controlled stop,
+/// the statistics, the log's end line): an interrupt (SIGINT), a polite
+/// kill (SIGTERM), a closed terminal or a dropped SSH session (SIGHUP),
+/// Ctrl-\\ (SIGQUIT, no core dump), the user signals (SIGUSR1, SIGUSR2,
+/// whose default action would kill the process without a word) and a
+/// reader gone from a pipe (SIGPIPE; a write to it then fails with EPIPE
+/// instead).
+pub const STOP_SIGNALS: [libc::c_int; 7] = [
+    libc::SIGINT,
+    libc::SIGTERM,
+    libc::SIGHUP,
+    libc::SIGQUIT,
+    libc::SIGUSR1,
+    libc::SIGUSR2,
+    libc::SIGPIPE,
+];
+
+/// Makes each of [`STOP_SIGNALS`] store its number in `flag` (0: none
+/// yet) instead of its default action; the loop reads the flag once per
+/// tick.
+pub fn register_stop_signals(flag: &Arc<AtomicUsize>) -> io::Result<()> {
+    for sig in STOP_SIGNALS {
+        signal_hook::flag::register_usize(sig, Arc::clone(flag), sig as usize)?;
+    }
+    Ok(())
+}
+
+/// The name of a signal number (`SIGTERM`), for the stop reason;
+/// "(another signal)" for one not in [`STOP_SIGNALS`].
+pub fn signal_name(signal: i32) -> &'static str {
+    match signal {
+        libc::SIGINT => "SIGINT",
+        libc::SIGTERM => "SIGTERM",
+        libc::SIGHUP => "SIGHUP",
+        libc::SIGQUIT => "SIGQUIT",
+        libc::SIGUSR1 => "SIGUSR1",
+        libc::SIGUSR2 => "SIGUSR2",
+        libc::SIGPIPE => "SIGPIPE",
+        _ => "(another signal)",
+    }
 }
 
 /// Keeps the calling thread off `cpu`: its affinity becomes every CPU it may

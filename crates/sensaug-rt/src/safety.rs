@@ -1,7 +1,9 @@
 //! The loop's safety decisions: why it stops ([`StopReason`], each with its
 //! own exit code), the state machine that decides who sets the next torque
-//! command ([`Safety::next`]), and the per-tick checks it looks at: feedback
-//! plausibility ([`plausible_feedback`]) and run health ([`degradation`]).
+//! command ([`Safety::next`]: the controller, the controlled stop's brake,
+//! or no one), the brake itself ([`brake_torque_nm`]), and the per-tick
+//! checks it looks at: feedback plausibility and consistency
+//! ([`FeedbackLimits::check`]) and run health ([`degradation`]).
 //! `docs/safety.md` lists every fault, its safe state and the measured time
 //! to reach it.
 
@@ -9,7 +11,8 @@ use sensaug_bridge::protocol::FaultFlags;
 use std::fmt;
 
 /// A feedback that physics rules out (`rig.max_feedback_velocity_rad_s`,
-/// `rig.feedback_step_margin_rad`).
+/// `rig.feedback_step_margin_rad`, `rig.feedback_velocity_margin_rad_s`),
+/// or that two sources sent.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Implausible {
     /// `|v| > limit` (rad/s).
@@ -25,6 +28,23 @@ pub enum Implausible {
         step_rad: f64,
         /// The largest step the velocity limit allows ([`max_step_rad`]).
         allowed_rad: f64,
+    },
+    /// The velocities disagree with the position's change:
+    /// `|(v_prev + v) / 2 - (x - x_prev) / T| > allowed`
+    /// ([`FeedbackLimits::max_velocity_mismatch_rad_s`]).
+    Inconsistent {
+        /// The mean of the two feedbacks' velocities (rad/s).
+        reported_rad_s: f64,
+        /// The mean velocity the position's change implies (rad/s).
+        implied_rad_s: f64,
+        /// The largest difference physics allows (rad/s).
+        allowed_rad_s: f64,
+    },
+    /// Two different feedbacks answer the same command (its sequence
+    /// number; CiA 402: its SYNC counter): a second node sends feedback.
+    Conflicting {
+        /// The command's sequence number.
+        sequence: u8,
     },
 }
 
@@ -46,6 +66,23 @@ impl fmt::Display for Implausible {
                 "position step {step_rad:.4} rad > {allowed_rad:.4} rad allowed \
                  (rig.max_feedback_velocity_rad_s x time since the last feedback \
                  + rig.feedback_step_margin_rad)"
+            ),
+            Implausible::Inconsistent {
+                reported_rad_s,
+                implied_rad_s,
+                allowed_rad_s,
+            } => write!(
+                f,
+                "velocity inconsistent with the position: {reported_rad_s:.4} rad/s reported, \
+                 {implied_rad_s:.4} rad/s from the position's change, more than \
+                 {allowed_rad_s:.4} rad/s apart (the plant's largest acceleration, \
+                 rig.torque_limit_nm / plant.mass, over the time between the feedbacks \
+                 + rig.feedback_velocity_margin_rad_s)"
+            ),
+            Implausible::Conflicting { sequence } => write!(
+                f,
+                "two different feedbacks answer command {sequence}: another node sends \
+                 feedback for this drive"
             ),
         }
     }
@@ -136,8 +173,9 @@ impl fmt::Display for Degradation {
 pub enum StopReason {
     /// Every tick of the protocol ran.
     Completed,
-    /// SIGINT or SIGTERM: torque ramped to zero, drive disabled.
-    Signal,
+    /// A terminating signal (its number: SIGINT, SIGTERM, SIGHUP, SIGQUIT,
+    /// SIGUSR1, SIGUSR2, SIGPIPE): the controlled stop, drive disabled.
+    Signal(i32),
     /// No feedback for longer than `rig.feedback_timeout_ms`: emergency stop sent.
     FeedbackTimeout,
     /// The drive reported FAULT (flags).
@@ -145,12 +183,13 @@ pub enum StopReason {
     /// A command frame for this node that this process did not send (a
     /// second controller on the bus): emergency stop sent.
     ForeignCommand,
-    /// A feedback physics rules out: ramped down, drive disabled.
+    /// A feedback physics rules out, or two feedbacks for one command:
+    /// torque off at once, drive disabled.
     ImplausibleFeedback(Implausible),
-    /// Missing feedback or estimator health past its threshold: ramped
-    /// down, drive disabled.
+    /// Missing feedback (torque off at once) or estimator health (the
+    /// controlled stop) past its threshold; drive disabled.
     Degraded(Degradation),
-    /// The log writer failed (e.g. a full disk): ramped down, drive
+    /// The log writer failed (e.g. a full disk): the controlled stop, drive
     /// disabled; the log keeps what was written.
     LogWriteFailed,
 }
@@ -163,21 +202,73 @@ impl StopReason {
     pub fn exit_code(&self) -> u8 {
         match self {
             StopReason::Completed => 0,
-            StopReason::Signal | StopReason::FeedbackTimeout | StopReason::DriveFault(_) => 1,
+            StopReason::Signal(_) | StopReason::FeedbackTimeout | StopReason::DriveFault(_) => 1,
             StopReason::ForeignCommand => 4,
             StopReason::ImplausibleFeedback(_) => 5,
             StopReason::Degraded(_) => 6,
             StopReason::LogWriteFailed => 7,
         }
     }
+
+    /// The stop brakes the handle on its feedback (the controlled stop): a
+    /// signal, a log failure, estimator trouble. Not when feedback cannot be
+    /// trusted (implausible, or missing past a threshold): then torque off
+    /// at once; nor for the immediate stops and completion.
+    pub fn brakes(&self) -> bool {
+        self.stop_kind() == StopKind::Controlled
+    }
+
+    /// How the drive is brought to its safe state for this reason
+    /// (`stats.json` `stop.kind`).
+    pub fn stop_kind(&self) -> StopKind {
+        match self {
+            StopReason::Completed => StopKind::Completed,
+            StopReason::FeedbackTimeout | StopReason::ForeignCommand => StopKind::EmergencyStop,
+            StopReason::Signal(_)
+            | StopReason::LogWriteFailed
+            | StopReason::Degraded(Degradation::Estimator { .. }) => StopKind::Controlled,
+            StopReason::DriveFault(_)
+            | StopReason::ImplausibleFeedback(_)
+            | StopReason::Degraded(_) => StopKind::TorqueOff,
+        }
+    }
+
+    /// What the Display text says about the safe state.
+    fn safe_state(&self) -> &'static str {
+        match self.stop_kind() {
+            StopKind::Controlled => "controlled stop, drive disabled",
+            StopKind::TorqueOff => "torque off at once, drive disabled",
+            StopKind::EmergencyStop => "emergency stop sent",
+            StopKind::Completed => "",
+        }
+    }
+}
+
+/// How a stop brings the drive to its safe state (docs/safety.md).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StopKind {
+    /// The protocol's end: zero torque, disable.
+    Completed,
+    /// Safe stop 1: brake on fresh feedback until at rest or the time
+    /// limit, then zero torque and disable.
+    Controlled,
+    /// Zero torque and disable at once (feedback not trusted, or the drive
+    /// already faulted).
+    TorqueOff,
+    /// The profile's emergency stop (Hi5 EmergencyStop, CiA 402 quick stop).
+    EmergencyStop,
 }
 
 impl fmt::Display for StopReason {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let safe = self.safe_state();
         match self {
             StopReason::Completed => write!(f, "completed"),
-            StopReason::Signal => write!(f, "signal (ramped down, drive disabled)"),
-            StopReason::FeedbackTimeout => write!(f, "feedback timeout (emergency stop sent)"),
+            StopReason::Signal(n) => {
+                write!(f, "signal {} ({safe})", crate::os::signal_name(*n))
+            }
+            StopReason::FeedbackTimeout => write!(f, "feedback timeout ({safe})"),
             StopReason::DriveFault(flags) => {
                 write!(f, "drive fault {:?}", FaultFlags::from_bits_retain(*flags))
             }
@@ -185,18 +276,15 @@ impl fmt::Display for StopReason {
                 f,
                 "foreign command: a command frame for this node that this process did not \
                  send; another controller (a second sensaug-rt?) is on the same bus and node \
-                 (emergency stop sent)"
+                 ({safe})"
             ),
-            StopReason::ImplausibleFeedback(why) => write!(
-                f,
-                "implausible feedback: {why} (ramped down, drive disabled)"
-            ),
-            StopReason::Degraded(why) => {
-                write!(f, "degraded: {why} (ramped down, drive disabled)")
+            StopReason::ImplausibleFeedback(why) => {
+                write!(f, "implausible feedback: {why} ({safe})")
             }
+            StopReason::Degraded(why) => write!(f, "degraded: {why} ({safe})"),
             StopReason::LogWriteFailed => write!(
                 f,
-                "log write failed (ramped down, drive disabled; the log keeps what was written)"
+                "log write failed ({safe}; the log keeps what was written)"
             ),
         }
     }
@@ -209,36 +297,108 @@ pub fn max_step_rad(v_max_rad_s: f64, ticks_apart: u64, dt_s: f64, margin_rad: f
     v_max_rad_s * (ticks_apart.max(1) + 1) as f64 * dt_s + margin_rad
 }
 
-/// A feedback `(x, v)` against physics: `|v| <= v_max` and, after a previous
-/// feedback `x_prev` received `ticks_apart` ticks earlier,
-/// `|x - x_prev| <= max_step_rad(..)`. Non-finite values are implausible.
-pub fn plausible_feedback(
-    x_rad: f64,
-    v_rad_s: f64,
-    prev: Option<(f64, u64)>,
-    v_max_rad_s: f64,
-    dt_s: f64,
-    margin_rad: f64,
-) -> Result<(), Implausible> {
-    // A NaN compares as neither: implausible.
-    let within = |a: f64, limit: f64| a.abs() <= limit;
-    if !within(v_rad_s, v_max_rad_s) {
-        return Err(Implausible::Velocity {
-            v_rad_s,
-            limit_rad_s: v_max_rad_s,
-        });
+/// One feedback: position (rad) and velocity (rad/s).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Reading {
+    /// Position (rad).
+    pub x_rad: f64,
+    /// Velocity (rad/s).
+    pub v_rad_s: f64,
+}
+
+/// The feedback before this one, as [`FeedbackLimits::check`] compares.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Previous {
+    /// Its reading.
+    pub reading: Reading,
+    /// Loop ticks between the two receptions.
+    pub ticks_apart: u64,
+    /// Drive steps (commands answered) between the two, from their
+    /// sequence numbers; 0 when unknown (then `ticks_apart`, at least 1).
+    pub steps: u32,
+}
+
+/// What physics allows a feedback (`[rig]` and `[plant]`, docs/safety.md).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FeedbackLimits {
+    /// `rig.max_feedback_velocity_rad_s`.
+    pub max_velocity_rad_s: f64,
+    /// `rig.feedback_step_margin_rad`.
+    pub step_margin_rad: f64,
+    /// The loop period (s): one drive step.
+    pub dt_s: f64,
+    /// The plant's largest acceleration under the torque limit,
+    /// `rig.torque_limit_nm / plant.mass` (rad/s^2).
+    pub max_acceleration_rad_s2: f64,
+    /// `rig.feedback_velocity_margin_rad_s`.
+    pub velocity_margin_rad_s: f64,
+}
+
+impl FeedbackLimits {
+    /// The largest `|(v0 + v1) / 2 - (x1 - x0) / T|` physics allows over an
+    /// interval `T` (s): `a_max T / 4 + margin`. For any motion with
+    /// `|a| <= a_max`, `(v0 + v1) / 2 - (x1 - x0) / T = (1/T) int_0^T a(s)
+    /// (s - T/2) ds`, at most `a_max T / 4` in size (0 under a constant
+    /// torque, as in one exact zero-order-hold step); the margin covers the
+    /// encoder's quantisation of both positions and a drive's velocity
+    /// filter.
+    pub fn max_velocity_mismatch_rad_s(&self, interval_s: f64) -> f64 {
+        self.max_acceleration_rad_s2 * interval_s / 4.0 + self.velocity_margin_rad_s
     }
-    if let Some((x_prev, ticks_apart)) = prev {
-        let step_rad = (x_rad - x_prev).abs();
-        let allowed_rad = max_step_rad(v_max_rad_s, ticks_apart, dt_s, margin_rad);
+
+    /// A feedback against physics: `|v| <= v_max`; after a previous one,
+    /// `|x - x_prev| <= max_step_rad(..)` and the two velocities agree with
+    /// the position's change over the drive steps between them
+    /// ([`Self::max_velocity_mismatch_rad_s`]). Non-finite values are
+    /// implausible.
+    pub fn check(&self, now: Reading, prev: Option<Previous>) -> Result<(), Implausible> {
+        // A NaN compares as neither: implausible.
+        let within = |a: f64, limit: f64| a.abs() <= limit;
+        if !within(now.v_rad_s, self.max_velocity_rad_s) {
+            return Err(Implausible::Velocity {
+                v_rad_s: now.v_rad_s,
+                limit_rad_s: self.max_velocity_rad_s,
+            });
+        }
+        let Some(p) = prev else { return Ok(()) };
+        let step_rad = (now.x_rad - p.reading.x_rad).abs();
+        let allowed_rad = max_step_rad(
+            self.max_velocity_rad_s,
+            p.ticks_apart,
+            self.dt_s,
+            self.step_margin_rad,
+        );
         if !within(step_rad, allowed_rad) {
             return Err(Implausible::Step {
                 step_rad,
                 allowed_rad,
             });
         }
+        let steps = if p.steps > 0 {
+            u64::from(p.steps)
+        } else {
+            p.ticks_apart.max(1)
+        };
+        let interval_s = steps as f64 * self.dt_s;
+        let reported_rad_s = 0.5 * (p.reading.v_rad_s + now.v_rad_s);
+        let implied_rad_s = (now.x_rad - p.reading.x_rad) / interval_s;
+        let allowed_rad_s = self.max_velocity_mismatch_rad_s(interval_s);
+        if !within(reported_rad_s - implied_rad_s, allowed_rad_s) {
+            return Err(Implausible::Inconsistent {
+                reported_rad_s,
+                implied_rad_s,
+                allowed_rad_s,
+            });
+        }
+        Ok(())
     }
-    Ok(())
+}
+
+/// The controlled stop's brake (N m): a damping torque on the measured
+/// velocity, bounded, `clamp(-damping v, -limit, limit)`; opposes the
+/// motion, so it only takes energy out of the handle.
+pub fn brake_torque_nm(v_rad_s: f64, damping_nm_s_per_rad: f64, limit_nm: f64) -> f64 {
+    (-damping_nm_s_per_rad * v_rad_s).clamp(-limit_nm, limit_nm)
 }
 
 /// The first degraded-run threshold `h` crosses, if any:
@@ -273,19 +433,33 @@ pub fn degradation(h: &Health, l: &DegradedLimits) -> Option<Degradation> {
 pub enum Safety {
     /// The protocol runs: the controller commands.
     Running,
-    /// A stop was requested at `from_tick`: the command ramps linearly from
-    /// `from_torque_nm` (the last command sent) to 0, then the loop stops
-    /// for `reason`.
-    RampingDown {
-        /// First tick of the ramp.
+    /// The controlled stop, requested at `from_tick`: the brake commands
+    /// ([`brake_torque_nm`] on fresh feedback, zero torque on a tick
+    /// without), until the handle is at rest, the time limit passes or a
+    /// feedback is implausible; then the loop stops for `reason`.
+    Braking {
+        /// First tick of the stop.
         from_tick: u64,
-        /// The last command before the ramp (N m).
-        from_torque_nm: f64,
-        /// Why the loop stops at the ramp's end.
+        /// Why the loop stops.
         reason: StopReason,
     },
-    /// The loop ends for this reason.
+    /// The loop ends for this reason (zero torque and disable, or the
+    /// emergency stop).
     Stopped(StopReason),
+}
+
+/// Why the controlled stop ended (`stats.json` `stop.brake_end`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BrakeEnd {
+    /// The measured speed fell below `rig.stop_rest_velocity_rad_s`.
+    AtRest,
+    /// `rig.stop_time_limit_s` passed.
+    TimeLimit,
+    /// A feedback was implausible: torque off at once.
+    ImplausibleFeedback,
+    /// An immediate stop (feedback timeout, drive fault, foreign command).
+    Interrupted,
 }
 
 /// What the safety state machine looks at in one tick.
@@ -305,63 +479,88 @@ pub struct Checks {
     pub log_failed: bool,
     /// The run crossed a degraded-run threshold.
     pub degraded: Option<Degradation>,
-    /// SIGINT/SIGTERM (the stop flag).
-    pub stop_requested: bool,
+    /// The terminating signal received, if any (the stop flag).
+    pub signal: Option<i32>,
     /// Every tick of the protocol ran.
     pub protocol_done: bool,
-    /// The last command sent (N m).
-    pub last_torque_nm: f64,
-    /// Length of the ramp-down (ticks).
-    pub ramp_ticks: u64,
+    /// This tick's feedback is fresh and its speed below
+    /// `rig.stop_rest_velocity_rad_s`.
+    pub at_rest: bool,
+    /// The controlled stop's time limit (ticks).
+    pub stop_ticks: u64,
 }
 
 impl Checks {
-    /// Why the loop must ramp down, if it must: implausible feedback, then a
-    /// log failure, then a degraded run, then a stop request.
-    fn ramp_reason(&self) -> Option<StopReason> {
+    /// Why the loop must stop after running, if it must: implausible
+    /// feedback, then a log failure, then a degraded run, then a signal.
+    fn stop_reason(&self) -> Option<StopReason> {
         self.implausible
             .map(StopReason::ImplausibleFeedback)
             .or(self.log_failed.then_some(StopReason::LogWriteFailed))
             .or(self.degraded.map(StopReason::Degraded))
-            .or(self.stop_requested.then_some(StopReason::Signal))
+            .or(self.signal.map(StopReason::Signal))
+    }
+
+    /// An immediate stop, whatever the state: a feedback timeout, then a
+    /// drive fault, then a foreign command.
+    fn immediate(&self) -> Option<StopReason> {
+        if self.feedback_timed_out {
+            return Some(StopReason::FeedbackTimeout);
+        }
+        if let Some(flags) = self.drive_fault {
+            return Some(StopReason::DriveFault(flags));
+        }
+        self.foreign_command.then_some(StopReason::ForeignCommand)
+    }
+
+    /// Whether the controlled stop begun at `from_tick` ends this tick, and
+    /// why: an implausible feedback, then at rest, then the time limit.
+    pub fn brake_end(&self, from_tick: u64) -> Option<BrakeEnd> {
+        if self.immediate().is_some() {
+            Some(BrakeEnd::Interrupted)
+        } else if self.implausible.is_some() {
+            Some(BrakeEnd::ImplausibleFeedback)
+        } else if self.at_rest {
+            Some(BrakeEnd::AtRest)
+        } else if self.tick - from_tick >= self.stop_ticks {
+            Some(BrakeEnd::TimeLimit)
+        } else {
+            None
+        }
     }
 }
 
 impl Safety {
     /// The state for this tick. A feedback timeout, then a drive fault, then
-    /// a foreign command stop at once; implausible feedback, a log failure,
-    /// a degraded run or a stop request start the ramp (they win over
-    /// completion); the ramp stops after `ramp_ticks`; the protocol's end
-    /// completes.
+    /// a foreign command stop at once, even while braking; implausible
+    /// feedback, a log failure, a degraded run or a signal end the run (they
+    /// win over completion): with torque off at once when the feedback is
+    /// not trusted ([`StopReason::brakes`]), else with the controlled stop,
+    /// which ends ([`Checks::brake_end`]) with the reason that began it;
+    /// the protocol's end completes.
     pub fn next(self, c: &Checks) -> Safety {
         if let Safety::Stopped(_) = self {
             return self;
         }
-        if c.feedback_timed_out {
-            return Safety::Stopped(StopReason::FeedbackTimeout);
-        }
-        if let Some(flags) = c.drive_fault {
-            return Safety::Stopped(StopReason::DriveFault(flags));
-        }
-        if c.foreign_command {
-            return Safety::Stopped(StopReason::ForeignCommand);
+        if let Some(reason) = c.immediate() {
+            return Safety::Stopped(reason);
         }
         let state = match self {
-            Safety::Running => match c.ramp_reason() {
-                Some(reason) => Safety::RampingDown {
+            Safety::Running => match c.stop_reason() {
+                Some(reason) if reason.brakes() => Safety::Braking {
                     from_tick: c.tick,
-                    from_torque_nm: c.last_torque_nm,
                     reason,
                 },
-                None if c.protocol_done => Safety::Stopped(StopReason::Completed),
-                None => Safety::Running,
+                Some(reason) => return Safety::Stopped(reason),
+                None if c.protocol_done => return Safety::Stopped(StopReason::Completed),
+                None => return Safety::Running,
             },
             other => other,
         };
         match state {
-            Safety::RampingDown {
-                from_tick, reason, ..
-            } if c.tick - from_tick >= c.ramp_ticks => Safety::Stopped(reason),
+            Safety::Braking { from_tick, reason } if c.brake_end(from_tick).is_some() => {
+                Safety::Stopped(reason)
+            }
             other => other,
         }
     }
@@ -371,7 +570,9 @@ impl Safety {
 mod tests {
     use super::*;
 
-    /// Tick 10 of a running protocol, nothing wrong, a 5-tick ramp.
+    const SIGTERM: i32 = 15;
+
+    /// Tick 10 of a running protocol, nothing wrong, a 5-tick stop limit.
     fn calm() -> Checks {
         Checks {
             tick: 10,
@@ -381,17 +582,16 @@ mod tests {
             implausible: None,
             log_failed: false,
             degraded: None,
-            stop_requested: false,
+            signal: None,
             protocol_done: false,
-            last_torque_nm: 0.7,
-            ramp_ticks: 5,
+            at_rest: false,
+            stop_ticks: 5,
         }
     }
 
-    const RAMP: Safety = Safety::RampingDown {
+    const BRAKING: Safety = Safety::Braking {
         from_tick: 8,
-        from_torque_nm: 0.5,
-        reason: StopReason::Signal,
+        reason: StopReason::Signal(SIGTERM),
     };
 
     const JUMP: Implausible = Implausible::Step {
@@ -402,20 +602,20 @@ mod tests {
     #[test]
     fn running_stays_running_when_nothing_happens() {
         assert_eq!(Safety::Running.next(&calm()), Safety::Running);
-        assert_eq!(RAMP.next(&calm()), RAMP);
+        assert_eq!(BRAKING.next(&calm()), BRAKING);
     }
 
     #[test]
-    fn a_timeout_then_a_fault_then_a_foreign_command_stop_at_once_even_while_ramping() {
+    fn a_timeout_then_a_fault_then_a_foreign_command_stop_at_once_even_while_braking() {
         let all = Checks {
             feedback_timed_out: true,
             drive_fault: Some(3),
             foreign_command: true,
             implausible: Some(JUMP),
-            stop_requested: true,
+            signal: Some(SIGTERM),
             ..calm()
         };
-        for s in [Safety::Running, RAMP] {
+        for s in [Safety::Running, BRAKING] {
             let timeout = Safety::Stopped(StopReason::FeedbackTimeout);
             assert_eq!(s.next(&all), timeout);
             let fault = Checks {
@@ -431,83 +631,153 @@ mod tests {
                 s.next(&foreign),
                 Safety::Stopped(StopReason::ForeignCommand)
             );
+            assert_eq!(foreign.brake_end(8), Some(BrakeEnd::Interrupted));
         }
     }
 
     #[test]
-    fn a_stop_request_ramps_from_the_last_command_and_wins_over_completion() {
+    fn a_signal_brakes_and_wins_over_completion() {
         let stop = Checks {
-            stop_requested: true,
+            signal: Some(SIGTERM),
             protocol_done: true,
             ..calm()
         };
-        let ramp = Safety::Running.next(&stop);
+        let braking = Safety::Running.next(&stop);
         assert_eq!(
-            ramp,
-            Safety::RampingDown {
+            braking,
+            Safety::Braking {
                 from_tick: 10,
-                from_torque_nm: 0.7,
-                reason: StopReason::Signal,
+                reason: StopReason::Signal(SIGTERM),
             }
         );
-        // A second request does not restart the ramp.
-        let later = Checks { tick: 12, ..stop };
-        assert_eq!(ramp.next(&later), ramp);
+        // A second signal does not restart the stop, nor change its reason.
+        let later = Checks {
+            tick: 12,
+            signal: Some(1),
+            ..stop
+        };
+        assert_eq!(braking.next(&later), braking);
     }
 
     #[test]
-    fn implausible_feedback_then_log_failure_then_degradation_ramp_with_their_reason() {
-        let degraded = Degradation::StaleRun {
+    fn untrusted_feedback_turns_the_torque_off_at_once_the_rest_brake() {
+        let stale = Degradation::StaleRun {
             ticks: 101,
             limit: 100,
+        };
+        let estimator = Degradation::Estimator {
+            errors: 11,
+            limit: 10,
         };
         let all = Checks {
             implausible: Some(JUMP),
             log_failed: true,
-            degraded: Some(degraded),
-            stop_requested: true,
+            degraded: Some(estimator),
+            signal: Some(SIGTERM),
             protocol_done: true,
             ..calm()
         };
-        let reason = |c: &Checks| match Safety::Running.next(c) {
-            Safety::RampingDown { reason, .. } => reason,
-            other => panic!("{other:?}"),
-        };
-        assert_eq!(reason(&all), StopReason::ImplausibleFeedback(JUMP));
+        assert_eq!(
+            Safety::Running.next(&all),
+            Safety::Stopped(StopReason::ImplausibleFeedback(JUMP))
+        );
         let no_jump = Checks {
             implausible: None,
             ..all
         };
-        assert_eq!(reason(&no_jump), StopReason::LogWriteFailed);
+        let braking = |reason| Safety::Braking {
+            from_tick: 10,
+            reason,
+        };
+        assert_eq!(
+            Safety::Running.next(&no_jump),
+            braking(StopReason::LogWriteFailed)
+        );
         let only_degraded = Checks {
             log_failed: false,
             ..no_jump
         };
-        assert_eq!(reason(&only_degraded), StopReason::Degraded(degraded));
-        // The ramp ends with the reason that started it, not a later one.
-        let ramp = Safety::Running.next(&Checks {
-            stop_requested: false,
-            ..only_degraded
-        });
         assert_eq!(
-            ramp.next(&Checks { tick: 15, ..all }),
-            Safety::Stopped(StopReason::Degraded(degraded))
+            Safety::Running.next(&only_degraded),
+            braking(StopReason::Degraded(estimator))
+        );
+        let missing = Checks {
+            degraded: Some(stale),
+            ..only_degraded
+        };
+        assert_eq!(
+            Safety::Running.next(&missing),
+            Safety::Stopped(StopReason::Degraded(stale))
+        );
+        let fraction = Degradation::MissingFeedback {
+            missing: 600,
+            ticks: 1000,
+            limit: 0.5,
+        };
+        assert!(!StopReason::Degraded(fraction).brakes());
+        assert_eq!(StopReason::Degraded(stale).stop_kind(), StopKind::TorqueOff);
+        assert_eq!(
+            StopReason::Signal(SIGTERM).stop_kind(),
+            StopKind::Controlled
+        );
+        // The stop ends with the reason that began it, not a later one.
+        let b = braking(StopReason::Degraded(estimator));
+        assert_eq!(
+            b.next(&Checks { tick: 15, ..all }),
+            Safety::Stopped(StopReason::Degraded(estimator))
         );
     }
 
     #[test]
-    fn the_ramp_ends_after_ramp_ticks_and_a_zero_ramp_at_once() {
+    fn the_brake_ends_at_rest_at_the_time_limit_or_on_an_implausible_feedback() {
         let at = |tick| Checks { tick, ..calm() };
-        assert_eq!(RAMP.next(&at(12)), RAMP);
-        assert_eq!(RAMP.next(&at(13)), Safety::Stopped(StopReason::Signal));
+        assert_eq!(BRAKING.next(&at(12)), BRAKING);
+        assert_eq!(at(12).brake_end(8), None);
+        assert_eq!(
+            BRAKING.next(&at(13)),
+            Safety::Stopped(StopReason::Signal(SIGTERM))
+        );
+        assert_eq!(at(13).brake_end(8), Some(BrakeEnd::TimeLimit));
+        let rest = Checks {
+            at_rest: true,
+            ..at(9)
+        };
+        assert_eq!(rest.brake_end(8), Some(BrakeEnd::AtRest));
+        assert_eq!(
+            BRAKING.next(&rest),
+            Safety::Stopped(StopReason::Signal(SIGTERM))
+        );
+        let implausible = Checks {
+            implausible: Some(JUMP),
+            at_rest: true,
+            ..at(9)
+        };
+        assert_eq!(
+            implausible.brake_end(8),
+            Some(BrakeEnd::ImplausibleFeedback)
+        );
+        assert_eq!(
+            BRAKING.next(&implausible),
+            Safety::Stopped(StopReason::Signal(SIGTERM))
+        );
+        // A zero time limit, or a handle already at rest: stopped at once.
         let zero = Checks {
-            stop_requested: true,
-            ramp_ticks: 0,
+            signal: Some(SIGTERM),
+            stop_ticks: 0,
             ..calm()
         };
         assert_eq!(
             Safety::Running.next(&zero),
-            Safety::Stopped(StopReason::Signal)
+            Safety::Stopped(StopReason::Signal(SIGTERM))
+        );
+        let resting = Checks {
+            signal: Some(SIGTERM),
+            at_rest: true,
+            ..calm()
+        };
+        assert_eq!(
+            Safety::Running.next(&resting),
+            Safety::Stopped(StopReason::Signal(SIGTERM))
         );
     }
 
@@ -521,34 +791,149 @@ mod tests {
             Safety::Running.next(&done),
             Safety::Stopped(StopReason::Completed)
         );
-        // While ramping, the protocol's end does not cut the ramp short.
-        assert_eq!(RAMP.next(&done), RAMP);
+        // While braking, the protocol's end does not cut the stop short.
+        assert_eq!(BRAKING.next(&done), BRAKING);
         // A stopped loop stays stopped.
         let stopped = Safety::Stopped(StopReason::Completed);
         assert_eq!(stopped.next(&calm()), stopped);
     }
 
     #[test]
+    fn the_brake_opposes_the_motion_within_its_bound() {
+        assert_eq!(brake_torque_nm(1.0, 0.875, 3.0), -0.875);
+        assert_eq!(brake_torque_nm(-2.0, 0.875, 3.0), 1.75);
+        assert_eq!(brake_torque_nm(8.0, 0.875, 3.0), -3.0);
+        assert_eq!(brake_torque_nm(-8.0, 0.875, 3.0), 3.0);
+        assert_eq!(brake_torque_nm(0.0, 0.875, 3.0), 0.0);
+    }
+
+    /// The brake with the defaults (time constant 4 ms, bound 3 N m) on the
+    /// exact zero-order-hold plant (0.0035 kg m^2, 1 ms), acting on the
+    /// velocity `delay` ticks old: (travel rad, ticks to 0.01 rad/s, the
+    /// largest speed after the first brake command).
+    fn brake_from(v0: f64, delay: usize) -> (f64, u64, f64) {
+        let (m, dt) = (0.0035, 1e-3);
+        let (mut x, mut v, mut n) = (0.0, v0, 0u64);
+        let mut seen = vec![v0; delay + 1];
+        let mut peak: f64 = 0.0;
+        while v.abs() >= 0.01 || seen.iter().any(|s| s.abs() >= 0.01) {
+            let a = brake_torque_nm(seen[0], m / 0.004, 3.0) / m;
+            (x, v) = (x + v * dt + 0.5 * a * dt * dt, v + a * dt);
+            seen.remove(0);
+            seen.push(v);
+            peak = peak.max(v.abs());
+            n += 1;
+            assert!(n < 1000, "the brake does not settle");
+        }
+        (x, n, peak)
+    }
+
+    #[test]
+    fn the_default_brake_stops_the_fastest_plausible_handle_within_0_05_rad() {
+        // From the feedback's velocity limit (8 rad/s): 42.5 mrad, 26 ticks
+        // (docs/safety.md; scripts/measure_safety.py --brake-model).
+        let (travel, ticks, peak) = brake_from(8.0, 0);
+        assert!(travel <= 0.05 && ticks == 26, "{travel} rad, {ticks} ticks");
+        assert!(peak < 8.0);
+        // With one tick of feedback delay it still settles without a speed
+        // increase nor reversal beyond the rest speed.
+        let (travel, ticks, peak) = brake_from(2.0, 1);
+        assert!(
+            travel <= 0.05 && ticks < 60 && peak <= 2.0,
+            "{travel} {ticks} {peak}"
+        );
+    }
+
+    /// The virtual Hi5's plant: 3 N m over 0.0035 kg m^2, 1 ms ticks.
+    const LIMITS: FeedbackLimits = FeedbackLimits {
+        max_velocity_rad_s: 8.0,
+        step_margin_rad: 0.01,
+        dt_s: 1e-3,
+        max_acceleration_rad_s2: 3.0 / 0.0035,
+        velocity_margin_rad_s: 0.05,
+    };
+
+    fn prev(x_rad: f64, v_rad_s: f64, ticks_apart: u64, steps: u32) -> Option<Previous> {
+        Some(Previous {
+            reading: Reading { x_rad, v_rad_s },
+            ticks_apart,
+            steps,
+        })
+    }
+
+    fn at(x_rad: f64, v_rad_s: f64) -> Reading {
+        Reading { x_rad, v_rad_s }
+    }
+
+    #[test]
     fn feedback_plausibility() {
-        let check = |x, v, prev| plausible_feedback(x, v, prev, 8.0, 1e-3, 0.01);
-        // 8 rad/s for 2 ms + 10 mrad = 26 mrad per tick apart.
-        assert_eq!(check(0.02, 7.9, Some((0.0, 1))), Ok(()));
+        let check = |x, v, p| LIMITS.check(at(x, v), p);
+        // 8 rad/s for 2 ms + 10 mrad = 26 mrad per tick apart (the step
+        // check); velocities consistent with the position's change.
+        assert_eq!(check(0.0079, 7.9, prev(0.0, 7.9, 1, 0)), Ok(()));
         assert_eq!(check(-0.02, -8.0, None), Ok(()));
         assert!(matches!(
             check(0.0, 8.01, None),
             Err(Implausible::Velocity { .. })
         ));
         assert!(check(0.0, f64::NAN, None).is_err());
-        assert!(check(f64::NAN, 0.0, Some((0.0, 1))).is_err());
-        let jump = check(0.5, 0.0, Some((0.0, 1))).unwrap_err();
+        assert!(check(f64::NAN, 0.0, prev(0.0, 0.0, 1, 1)).is_err());
+        let jump = check(0.5, 0.0, prev(0.0, 0.0, 1, 1)).unwrap_err();
         assert!(
             matches!(jump, Implausible::Step { step_rad, allowed_rad }
                 if step_rad == 0.5 && (allowed_rad - 0.026).abs() < 1e-12),
             "{jump:?}"
         );
-        // Two feedbacks in one tick count as one tick apart; 40 ticks allow 0.338 rad.
-        assert_eq!(check(0.03, 0.0, Some((0.005, 0))), Ok(()));
-        assert_eq!(check(0.3, 0.0, Some((0.0, 40))), Ok(()));
+        // 40 ticks apart allow 0.338 rad (at 7.5 rad/s over 40 steps: consistent).
+        assert_eq!(check(0.3, 7.5, prev(0.0, 7.5, 40, 40)), Ok(()));
+    }
+
+    /// One exact zero-order-hold step of the plant under a constant torque.
+    fn zoh_step(x: f64, v: f64, torque_nm: f64) -> (f64, f64) {
+        let a = torque_nm / 0.0035;
+        let dt = 1e-3;
+        (x + v * dt + 0.5 * a * dt * dt, v + a * dt)
+    }
+
+    #[test]
+    fn true_motion_at_the_torque_limit_is_consistent_and_forged_velocities_are_not() {
+        // The plant's own steps, at the torque limit, pass with no margin at
+        // all (the mean of the two velocities is the step's mean velocity).
+        let exact = FeedbackLimits {
+            velocity_margin_rad_s: 0.0,
+            ..LIMITS
+        };
+        let (mut x, mut v) = (0.1, -2.0);
+        for k in 0..200 {
+            let torque = if (k / 7) % 2 == 0 { 3.0 } else { -3.0 };
+            let (x1, v1) = zoh_step(x, v, torque);
+            assert_eq!(
+                exact.check(at(x1, v1), prev(x, v, 1, 1)),
+                Ok(()),
+                "step {k}"
+            );
+            (x, v) = (x1, v1);
+        }
+        // A torque changing within the interval (two steps seen as one):
+        // within a_max T / 4.
+        let (x1, v1) = zoh_step(0.0, 1.0, 3.0);
+        let (x2, v2) = zoh_step(x1, v1, -3.0);
+        assert_eq!(LIMITS.check(at(x2, v2), prev(0.0, 1.0, 2, 2)), Ok(()));
+        // A velocity doubled (x copied, v forged) at 1 rad/s: 1 rad/s off,
+        // allowed 0.264 rad/s (857 x 1 ms / 4 + 0.05).
+        let (x1, v1) = zoh_step(0.0, 1.0, 0.0);
+        let doubled = LIMITS.check(at(x1, 2.0 * v1), prev(0.0, 2.0, 1, 1));
+        assert!(
+            matches!(doubled, Err(Implausible::Inconsistent { allowed_rad_s, .. })
+                if (allowed_rad_s - (3.0 / 0.0035 * 1e-3 / 4.0 + 0.05)).abs() < 1e-12),
+            "{doubled:?}"
+        );
+        // Scaled by 1.5 at 1 rad/s: 0.5 rad/s off.
+        assert!(LIMITS.check(at(x1, 1.5), prev(0.0, 1.5, 1, 1)).is_err());
+        // A velocity that oscillates while the handle rests.
+        assert!(LIMITS.check(at(0.0, 0.4), prev(0.0, 0.3, 1, 1)).is_err());
+        // Steps unknown: the ticks apart stand in.
+        assert!(LIMITS.check(at(x1, 2.0), prev(0.0, 2.0, 1, 0)).is_err());
     }
 
     #[test]

@@ -2,6 +2,7 @@
 //! sample is one counter increment) of wake-up latency, sleep latency and
 //! tick compute time, and the loop's error counters.
 
+use crate::safety::{BrakeEnd, StopKind};
 use serde::Serialize;
 
 /// A histogram of durations with 1 us bins up to `max_us`, plus an overflow
@@ -171,8 +172,32 @@ pub struct CanCounters {
     /// Command frames for this node that this process did not send (another
     /// controller on the bus).
     pub foreign_commands: u64,
-    /// Feedbacks that failed the plausibility check.
+    /// Feedbacks that failed the plausibility or consistency check, or
+    /// conflicted with another for the same command.
     pub implausible_feedback: u64,
+    /// Feedbacks discarded unused: a copy of the newest, an older one
+    /// arriving after it (a replay, a late frame), or one answering no
+    /// command sent (docs/safety.md, "Feedback order").
+    pub feedback_discarded: u64,
+}
+
+/// How the run's stop went (`stats.json` `stop`; docs/safety.md).
+#[derive(Clone, Copy, Debug, Serialize, PartialEq)]
+pub struct StopReport {
+    /// How the drive was brought to its safe state.
+    pub kind: StopKind,
+    /// The tick the stop was decided in (the last tick run for an
+    /// immediate stop; the first braking tick for the controlled stop).
+    pub tick: u64,
+    /// Ticks the controlled stop braked (commands sent by the brake).
+    pub braking_ticks: u64,
+    /// Why the controlled stop ended (none for other stops).
+    pub brake_end: Option<BrakeEnd>,
+    /// The measured speed when the stop was decided (rad/s).
+    pub speed_at_stop_rad_s: f64,
+    /// The measured speed of the last feedback before the drive was
+    /// disabled (rad/s).
+    pub speed_at_end_rad_s: f64,
 }
 
 /// The gaps the drive's watchdog sees at the start (us): from the enable
@@ -210,6 +235,8 @@ pub struct LoopReport {
     pub ticks: u64,
     /// Why the loop stopped.
     pub stop_reason: String,
+    /// How the stop went.
+    pub stop: StopReport,
     /// Wake-up latency: each tick's start after its absolute deadline
     /// (after the spin, with `rig.realtime.spin_us`): what the controller
     /// sees.

@@ -12,7 +12,7 @@ use sensaug_log::{parse_row, Row};
 use sensaug_rt::config::drive_link;
 use sensaug_rt::control::{LoopSettings, Rig, StopReason};
 use sensaug_rt::log;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -78,12 +78,12 @@ fn run_loop(answer_for: u64, stop_after: Option<Duration>, spin_us: u32) -> Outc
     let dir = std::env::temp_dir().join(format!("sensaug-rt-test-{port}"));
     let meta = serde_json::json!({"source": "rig"});
     let (mut sink, writer) = log::start(&dir.join("log.csv"), 1 << 14, &meta).unwrap();
-    let stop = Arc::new(AtomicBool::new(false));
+    let stop = Arc::new(AtomicUsize::new(0));
     if let Some(after) = stop_after {
         let s = Arc::clone(&stop);
         std::thread::spawn(move || {
             std::thread::sleep(after);
-            s.store(true, Ordering::Relaxed);
+            s.store(libc::SIGTERM as usize, Ordering::Relaxed);
         });
     }
     let mut reason = StopReason::Completed;
@@ -148,9 +148,10 @@ fn a_whole_trial_completes_without_allocating_and_logs_every_tick() {
 }
 
 #[test]
-fn the_stop_flag_ramps_down_and_stops() {
+fn the_stop_flag_brakes_without_allocating_and_stops() {
     let o = run_loop(u64::MAX, Some(Duration::from_millis(700)), 0);
-    assert_eq!(o.reason, StopReason::Signal);
+    assert_eq!(o.reason, StopReason::Signal(libc::SIGTERM));
+    assert_eq!(o.allocations, 0, "the loop allocated");
     assert!(o.ticks < 3500);
     assert_eq!(o.records, o.ticks);
 }

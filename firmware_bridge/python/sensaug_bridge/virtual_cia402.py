@@ -26,6 +26,9 @@ virtual Hi5 drive (``virtual_hi5.new_plant``, ``encoder_counts``,
   Overspeed after a step: FAULT, EMCY 0x8400. Quick stop: torque 0 at once,
   QUICK_STOP_ACTIVE until "disable voltage". NMT leaving OPERATIONAL while
   enabled: FAULT, EMCY 0x8100. Faults latch until a fault reset.
+* The handle: outside OPERATION_ENABLED the plant keeps moving at zero torque
+  in real time (``virtual_hi5.coast``); with ``log`` every step is recorded,
+  commanded or free (``DriveLog``).
 """
 
 from __future__ import annotations
@@ -48,6 +51,7 @@ from sensaug_bridge.virtual_hi5 import (
     DriveConfig,
     DriveLog,
     add_drive_args,
+    coast,
     drive_config_fields,
     encoder_counts,
     new_plant,
@@ -217,6 +221,8 @@ class VirtualCia402:
         #: What only this drive sends: EMCY, TPDO1, TPDO2, SDO response, heartbeat.
         self._own_ids = {0x080 + n, 0x180 + n, 0x280 + n, 0x580 + n, 0x700 + n}
         self.log: Optional[DriveLog] = DriveLog() if log else None
+        #: The handle coasts (zero torque, real time) from here while not OPERATION_ENABLED.
+        self._coast_s = 0.0
 
     # -- dictionary --------------------------------------------------------------------
 
@@ -269,6 +275,9 @@ class VirtualCia402:
     def start(self) -> None:
         """NMT boot-up, PRE-OPERATIONAL (heartbeat producer on), SWITCH_ON_DISABLED."""
         self._t0 = self._clock()
+        self._coast_s = self._t0
+        if self.log is not None:
+            self.log.t0_monotonic_s = self._t0
         self.node.nmt.state = "INITIALISING"  # sends the boot-up frame
         self.node.nmt.state = "PRE-OPERATIONAL"  # starts the heartbeat (0x1017)
         self._set_state(Cia402State.SWITCH_ON_DISABLED)
@@ -302,8 +311,11 @@ class VirtualCia402:
                 self.handle(msg, self._clock())
 
     def poll(self, now: float) -> None:
-        """Heartbeat consumer check and the heartbeat producer."""
+        """Heartbeat consumer check, the free handle and the heartbeat producer."""
         self._check_consumer(now)
+        if self.state != Cia402State.OPERATION_ENABLED:
+            self._coast_s = coast(self.plant, self._coast_s, now, self.config.dt_s, self.log, self._t0,
+                                  self._encoder)
         for task in list(self._tasks):
             if now >= task.next_s:
                 self.network.send_message(task.can_id, task.data)
@@ -410,6 +422,8 @@ class VirtualCia402:
     def _set_state(self, state: Cia402State) -> None:
         if state != Cia402State.OPERATION_ENABLED:
             self.torque_per_mille = 0
+            if self.state == Cia402State.OPERATION_ENABLED:
+                self._coast_s = self._clock()  # the handle coasts from now
         self.state = state
         self._store(0x6041, 0, self.statusword())
 
@@ -465,14 +479,12 @@ class VirtualCia402:
         self._store(0x6041, 0, self.statusword())
         self._send_tpdos()
         if stepped and self.log is not None:
-            log = self.log
-            log.t_s.append(timestamp - self._t0)
-            log.sequence.append(self.syncs & 0xFF)
-            log.torque_cmd_nm.append(self._to_nm(cmd))
-            log.torque_nm.append(self._to_nm(applied))
-            log.position_rad.append(encoder_counts(x, self.config.encoder_counts_per_rev) * self._rad_per_count)
-            log.velocity_rad_s.append(v)
-            log.latency_s.append(time.perf_counter() - t_rx)
+            self.log.add(timestamp - self._t0, self.syncs & 0xFF, self._to_nm(cmd), self._to_nm(applied),
+                         self._encoder(x), v, time.perf_counter() - t_rx)
+
+    def _encoder(self, x_rad: float) -> float:
+        """The encoder's reading of ``x_rad``: whole increments."""
+        return encoder_counts(x_rad, self.config.encoder_counts_per_rev) * self._rad_per_count
 
     def _to_nm(self, per_mille: int) -> float:
         """Per-mille of the rated torque 0x6076 (mN m) to N m."""
@@ -481,7 +493,7 @@ class VirtualCia402:
     def _send_tpdos(self) -> None:
         x, v = self.plant.x, self.plant.v
         position = _saturate(encoder_counts(x, self.config.encoder_counts_per_rev), _I32)
-        velocity = _saturate(round(v / self._rad_per_count), _I32)
+        velocity = _saturate(round(v * self.config.velocity_report_scale / self._rad_per_count), _I32)
         values = {0x6041: self.statusword(), 0x6064: position, 0x606C: velocity,
                   0x6077: self.torque_per_mille, 0x2000: self.sync_counter}
         for index, value in values.items():

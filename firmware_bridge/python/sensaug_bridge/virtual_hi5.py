@@ -22,6 +22,10 @@ behaviour, the choices and their reasons are in ``docs/virtual_hi5.md``; in shor
   command source, or a lost command) latches FAULT(SEQUENCE).
 * Watchdog (no accepted command for ``watchdog_ms`` while ENABLED), emergency
   stop, overspeed: torque 0, FAULT with the flag latched until ClearFaults.
+* The handle: while not ENABLED the plant keeps moving at zero torque in real
+  time (a free handle coasts after a stop, :func:`coast`); with ``log`` every
+  step is recorded, commanded or free (:class:`DriveLog`), so a test measures
+  the handle's travel after a stop on the drive's own record.
 """
 
 from __future__ import annotations
@@ -59,6 +63,10 @@ class DriveConfig:
     max_velocity_rad_s: float = 8.0
     heartbeat_period_s: float = 0.1
     x0_rad: float = 0.0
+    #: The velocity reported is the plant's times this: 1 in normal use; any
+    #: other value is a drive (or a master's velocity unit) that is wrong,
+    #: for the tests of the controller's feedback consistency check.
+    velocity_report_scale: float = 1.0
 
     def validate(self) -> None:
         """Raises ValueError naming the field."""
@@ -72,6 +80,7 @@ class DriveConfig:
             ("max_velocity_rad_s", self.max_velocity_rad_s, self.max_velocity_rad_s > 0),
             ("heartbeat_period_s", self.heartbeat_period_s, self.heartbeat_period_s > 0),
             ("x0_rad", self.x0_rad, True),
+            ("velocity_report_scale", self.velocity_report_scale, True),
         ]
         for name, value, ok in checks:
             if not (math.isfinite(value) and ok):
@@ -103,7 +112,12 @@ def encoder_counts(x_rad: float, counts_per_rev: int) -> int:
 
 @dataclass
 class DriveLog:
-    """One row per accepted TorqueCommand (kept only when logging is on)."""
+    """The handle's record (kept only when logging is on): one row per plant
+    step, commanded (an accepted TorqueCommand; CiA 402 a SYNC while enabled)
+    or free (``free``: the handle coasting at zero torque while the drive
+    applies no commands, :func:`coast`). ``t_s`` is the step's end (free) or
+    the command's arrival, seconds after ``t0_monotonic_s`` (the drive's start
+    on ``time.monotonic``, the clock other processes share)."""
 
     t_s: list[float] = field(default_factory=list)
     sequence: list[int] = field(default_factory=list)
@@ -112,12 +126,28 @@ class DriveLog:
     position_rad: list[float] = field(default_factory=list)
     velocity_rad_s: list[float] = field(default_factory=list)
     latency_s: list[float] = field(default_factory=list)
+    free: list[bool] = field(default_factory=list)
+    t0_monotonic_s: float = 0.0
+
+    def add(
+        self, t_s: float, sequence: int, torque_cmd_nm: float, torque_nm: float, position_rad: float,
+        velocity_rad_s: float, latency_s: float = 0.0, free: bool = False,
+    ) -> None:
+        """One plant step."""
+        self.t_s.append(t_s)
+        self.sequence.append(sequence)
+        self.torque_cmd_nm.append(torque_cmd_nm)
+        self.torque_nm.append(torque_nm)
+        self.position_rad.append(position_rad)
+        self.velocity_rad_s.append(velocity_rad_s)
+        self.latency_s.append(latency_s)
+        self.free.append(free)
 
     def latency_summary(self) -> dict[str, float]:
-        """Handling latency percentiles, us (empty without rows)."""
-        if not self.latency_s:
+        """Handling latency percentiles of the commanded steps, us (empty without any)."""
+        lat = sorted(t for t, free in zip(self.latency_s, self.free) if not free)
+        if not lat:
             return {}
-        lat = sorted(self.latency_s)
         return {
             "latency_us_p50": round(lat[len(lat) // 2] * 1e6, 1),
             "latency_us_p99": round(lat[min(len(lat) - 1, int(0.99 * len(lat)))] * 1e6, 1),
@@ -136,7 +166,27 @@ class DriveLog:
             position_rad=np.asarray(self.position_rad, dtype=np.float64),
             velocity_rad_s=np.asarray(self.velocity_rad_s, dtype=np.float64),
             latency_s=np.asarray(self.latency_s, dtype=np.float64),
+            free=np.asarray(self.free, dtype=np.bool_),
+            t0_monotonic_s=np.float64(self.t0_monotonic_s),
         )
+
+
+def coast(plant: Any, since_s: float, now_s: float, dt_s: float, log: Optional[DriveLog], t0_s: float,
+          encode: Callable[[float], float]) -> float:
+    """The free handle from ``since_s`` to ``now_s``: whole plant steps of
+    ``dt_s`` at zero torque (a handle at rest stays at rest and is not
+    stepped); each step recorded in ``log`` (``free``, position through
+    ``encode``, the encoder). Returns the time stepped to."""
+    steps = int((now_s - since_s) / dt_s)
+    if steps <= 0:
+        return since_s
+    for i in range(steps):
+        if plant.v == 0.0:
+            break
+        x, v = plant.step(0.0)
+        if log is not None:
+            log.add(since_s + (i + 1) * dt_s - t0_s, 0, 0.0, 0.0, encode(x), v, free=True)
+    return since_s + steps * dt_s
 
 
 class VirtualHi5:
@@ -197,6 +247,8 @@ class VirtualHi5:
         self.ignored = 0
         self.accepted = 0
         self.log: Optional[DriveLog] = DriveLog() if log else None
+        #: The handle coasts (zero torque, real time) from here while not ENABLED.
+        self._coast_s = 0.0
 
     # -- set-up --------------------------------------------------------------------
 
@@ -204,6 +256,9 @@ class VirtualHi5:
         """Announce BOOT, move to DISABLED, send the first Heartbeat."""
         now = self._clock()
         self._t0 = now
+        self._coast_s = now
+        if self.log is not None:
+            self.log.t0_monotonic_s = now
         self._send_fault()
         self._set_state(State.DISABLED)
         self._send_heartbeat()
@@ -265,6 +320,9 @@ class VirtualHi5:
         timestamps); the watchdog is checked there instead of at ``now``.
         """
         self._check_watchdog(now if read_until is None else min(now, read_until))
+        if self.state != State.ENABLED:
+            self._coast_s = coast(self.plant, self._coast_s, now, self.config.dt_s, self.log, self._t0,
+                                  self._encoder)
         if now >= self._next_hb_s:
             self._send_heartbeat()
             # Skip missed beats instead of bursting after a stall.
@@ -324,9 +382,9 @@ class VirtualHi5:
             self.torque_nm = 0.0
             self._latch(FaultFlag.OVERSPEED)
         # The encoder: position quantised to whole counts, then to the field's 1e-6 rad.
-        x_q = encoder_counts(x, cfg.encoder_counts_per_rev) * self._rad_per_count
+        x_q = self._encoder(x)
         x_rep = p.saturate("Feedback", "position", x_q)
-        v_rep = p.saturate("Feedback", "velocity", v)
+        v_rep = p.saturate("Feedback", "velocity", v * cfg.velocity_report_scale)
         reply = p.Feedback(
             position_rad=x_rep,
             velocity_rad_s=v_rep,
@@ -337,14 +395,11 @@ class VirtualHi5:
         ).encode(cfg.node)
         self.bus.send(reply)
         if self.log is not None:
-            log = self.log
-            log.t_s.append(now - self._t0)
-            log.sequence.append(cmd.sequence)
-            log.torque_cmd_nm.append(cmd.torque_nm)
-            log.torque_nm.append(torque)
-            log.position_rad.append(x_q)
-            log.velocity_rad_s.append(v)
-            log.latency_s.append(time.perf_counter() - t_rx)
+            self.log.add(now - self._t0, cmd.sequence, cmd.torque_nm, torque, x_q, v, time.perf_counter() - t_rx)
+
+    def _encoder(self, x_rad: float) -> float:
+        """The encoder's reading of ``x_rad``: whole counts."""
+        return encoder_counts(x_rad, self.config.encoder_counts_per_rev) * self._rad_per_count
 
     def _on_set_state(self, msg: can.Message, now: float) -> None:
         try:
@@ -401,7 +456,7 @@ class VirtualHi5:
         self._expected_seq = None
         self.torque_nm = 0.0
         if self.state != State.FAULT:
-            self.state = State.FAULT
+            self._leave(State.FAULT)
         if changed:
             self._send_fault()
 
@@ -409,8 +464,14 @@ class VirtualHi5:
         if state != State.ENABLED:
             self.torque_nm = 0.0
             self._expected_seq = None
-        self.state = state
+        self._leave(state)
         self._send_fault()
+
+    def _leave(self, state: State) -> None:
+        """The state changes to ``state``; leaving ENABLED, the handle coasts from now."""
+        if self.state == State.ENABLED and state != State.ENABLED:
+            self._coast_s = self._clock()
+        self.state = state
 
     # -- frames out ------------------------------------------------------------------
 
@@ -496,8 +557,13 @@ def add_drive_args(ap: argparse.ArgumentParser, d: DriveConfig) -> None:
         "--max-velocity", type=float, default=d.max_velocity_rad_s, help="OVERSPEED fault above this, rad/s (default 8, inside the +-8.39 rad/s Feedback field)"
     )
     ap.add_argument("--heartbeat-hz", type=float, default=1.0 / d.heartbeat_period_s, help="default 10")
+    ap.add_argument(
+        "--velocity-report-scale", type=float, default=d.velocity_report_scale,
+        help="report the plant's velocity times this (default 1; else a faulty drive, for tests)",
+    )
     ap.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
-    ap.add_argument("--log", default=None, metavar="FILE.npz", help="save t_s, torque_nm, position_rad, velocity_rad_s, ...")
+    ap.add_argument("--log", default=None, metavar="FILE.npz",
+                    help="save the handle's record: t_s, torque_nm, position_rad, velocity_rad_s, free, ...")
     ap.add_argument("-q", "--quiet", action="store_true", help="no summary line on stderr at exit")
 
 
@@ -514,6 +580,7 @@ def drive_config_fields(args: argparse.Namespace) -> dict[str, Any]:
         max_velocity_rad_s=args.max_velocity,
         heartbeat_period_s=1.0 / args.heartbeat_hz if args.heartbeat_hz > 0 else math.nan,
         x0_rad=args.x0,
+        velocity_report_scale=args.velocity_report_scale,
     )
 
 

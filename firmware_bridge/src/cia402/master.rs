@@ -206,6 +206,11 @@ impl Master {
         self.syncs_sent
     }
 
+    /// The counter of the last SYNC sent (1..=240; 0 before the first).
+    pub fn sync_counter(&self) -> u8 {
+        self.sync_counter
+    }
+
     /// Set-up: wait for the drive's boot-up or heartbeat; check it is a
     /// CiA 402 device; set cyclic synchronous torque mode and check the
     /// display; write the heartbeat times; read the units; check the drive

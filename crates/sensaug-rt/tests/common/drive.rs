@@ -7,7 +7,7 @@ use sensaug_bridge::transport::UdpBus;
 use sensaug_bridge::Transport;
 use sensaug_config::Resolved;
 use sensaug_core::plant::{Plant, PlantParams};
-use sensaug_rt::control::LoopSettings;
+use sensaug_rt::control::{LoopSettings, StopSettings};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
@@ -124,7 +124,8 @@ mod bridge_common;
 pub use bridge_common::free_port;
 
 /// The loop's settings against this drive (node 1, 3 N m, 50 ms watchdog
-/// and feedback timeout, 50 ms ramp) for a resolved configuration.
+/// and feedback timeout, a controlled stop of at most 50 ms) for a
+/// resolved configuration.
 pub fn loop_settings(resolved: &Resolved<'_>) -> LoopSettings {
     LoopSettings {
         drive: sensaug_config::DriveProfile::Hi5,
@@ -134,11 +135,18 @@ pub fn loop_settings(resolved: &Resolved<'_>) -> LoopSettings {
         torque_limit_nm: 3.0,
         watchdog_ms: 50,
         feedback_timeout_ms: 50.0,
-        ramp_down_s: 0.05,
+        stop: StopSettings {
+            time_limit_s: 0.05,
+            damping_nm_s_per_rad: PlantParams::HI5.mass / 0.004,
+            torque_limit_nm: 3.0,
+            rest_velocity_rad_s: 0.01,
+        },
         partner_gains: resolved.partner.gains,
         partner_torque_limit: 1e3,
         max_feedback_velocity_rad_s: 8.0,
         feedback_step_margin_rad: 0.01,
+        max_acceleration_rad_s2: 3.0 / PlantParams::HI5.mass,
+        feedback_velocity_margin_rad_s: 0.05,
         max_missing_feedback_fraction: 0.5,
         max_stale_feedback_ticks: 100,
         max_estimator_errors: 10,
