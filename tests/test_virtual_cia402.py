@@ -244,6 +244,38 @@ def test_tpdos_echo_the_counter_of_the_sync_they_answer(drive: Drive):
     assert struct.unpack_from("<B", host.sdo_read(0x2000), 4)[0] == 0
 
 
+def test_a_backlog_steps_every_sync_and_answers_only_the_last(drive: Drive):
+    """Frames queued while the drive's process was not running (here: its
+    loop is paused) are one backlog: each SYNC steps the plant with the
+    RPDO1 before it, in order, and only the last SYNC is answered; the
+    superseded answers would reach the master stale, after a later SYNC."""
+    host = drive.host
+    host.set_up()
+    host.enable()  # the enabling SYNC steps the plant once, at torque 0
+    drive.stop.set()
+    drive.thread.join(timeout=5)
+    syncs = drive.drive.syncs
+    torques = [40, -10, 25, 5, -30]
+    for per_mille in torques:
+        host.send(0x200 + NODE, struct.pack("<Hh", 0x0F, per_mille))
+        host.sync_counter = host.sync_counter % SYNC_COUNTER_OVERFLOW + 1
+        host.send(0x080, bytes([host.sync_counter]))
+    time.sleep(0.05)  # every frame is queued at the drive's socket
+    drive.stop = threading.Event()
+    drive.thread = threading.Thread(target=drive.drive.run, kwargs={"stop": drive.stop, "duration_s": 30.0}, daemon=True)
+    drive.thread.start()
+    answers = [m for m in host.frames_for(0.3) if m.arbitration_id in (0x180 + NODE, 0x280 + NODE)]
+    assert [(m.arbitration_id, m.data[6]) for m in answers] == [(0x180 + NODE, host.sync_counter),
+                                                               (0x280 + NODE, host.sync_counter)]
+    ref = sensaug.Plant(mass=0.0035, dt_s=1e-3)
+    for per_mille in [0, *torques]:
+        x, v = ref.step(per_mille * RATED_MNM * 1e-6)
+    _, position, _ = struct.unpack("<HiB", answers[0].data)
+    velocity, torque, _ = struct.unpack("<ihB", answers[1].data)
+    assert drive.drive.steps == 1 + len(torques) and drive.drive.syncs == syncs + len(torques)
+    assert (position, velocity, torque) == (round(x / RAD_PER_COUNT), round(v / RAD_PER_COUNT), torques[-1])
+
+
 def test_a_pdo_mapping_written_over_sdo_is_what_the_tpdo_then_carries(drive: Drive):
     """CiA 301's remapping sequence (COB-ID invalid, count 0, entries, count,
     COB-ID valid) on TPDO2: torque actual first, then velocity actual, no
