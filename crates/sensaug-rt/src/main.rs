@@ -264,6 +264,13 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, RunError> {
     let overflows = sink.overflows();
     drop(sink);
     let mut report = rig_loop.report(reason);
+    for emcy in &report.drive.emcy {
+        eprintln!("{}", emcy.line());
+    }
+    let unlisted = report.drive.emcy_received - report.drive.emcy.len() as u64;
+    if unlisted > 0 {
+        eprintln!("drive EMCY: {unlisted} more not listed (counted in stats drive.emcy_received)");
+    }
     report.ring_overflows = overflows;
     report.realtime = realtime;
     let mut end = serde_json::Map::new();
@@ -316,6 +323,7 @@ fn log_metadata(resolved: &Resolved<'_>, s: &LoopSettings) -> serde_json::Value 
             "rad_per_unit": s.rad_per_unit,
             "torque_limit_nm": s.torque_limit_nm,
             "watchdog_ms": s.watchdog_ms,
+            "drive_heartbeat_timeout_ms": s.drive_heartbeat_timeout_ms,
             "feedback_timeout_ms": s.feedback_timeout_ms,
             "ramp_down_s": s.ramp_down_s,
             "partner_gains": s.partner_gains,
