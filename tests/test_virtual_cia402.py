@@ -13,6 +13,7 @@ the watchdog's bounds, as in the Hi5 tests.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import signal
 import struct
@@ -399,6 +400,30 @@ def test_nmt_stop_while_enabled_faults(drive: Drive):
     assert drive.drive.state == Cia402State.FAULT and drive.drive.torque_per_mille == 0
 
 
+def test_a_reset_sends_its_boot_up_and_restores_the_stored_parameters(drive: Drive):
+    """NMT reset node (0x81) restarts the drive as a power cycle would: the
+    boot-up message, PRE-OPERATIONAL heartbeats, SwitchOnDisabled, every
+    SDO-written value back to the EDS's and the config's (mode 0, heartbeat
+    consumer off, 0x6072 the configured 3000), no fault latched, no PDOs."""
+    host = drive.host
+    host.set_up(consumer_ms=500)
+    assert host.sdo_write(0x6072, 0, struct.pack("<H", 2500))[0] == 0x60
+    host.enable()
+    host.heartbeat()
+    host.cycle(0x0F, 40)
+    host.nmt(0x81)
+    assert host.expect(0x700 + NODE, lambda d: d in (b"\x00", b"\x7f")) == b"\x00"  # boot-up first
+    assert host.expect(0x700 + NODE) == b"\x7f"
+    assert drive.drive.resets == 1 and drive.drive.faults == Fault.NONE
+    assert struct.unpack_from("<b", host.sdo_read(0x6060), 4)[0] == 0
+    assert struct.unpack_from("<H", host.sdo_read(0x6072), 4)[0] == 3000
+    assert struct.unpack_from("<I", host.sdo_read(0x1016, 1), 4)[0] == 0
+    assert state_of(struct.unpack_from("<H", host.sdo_read(0x6041), 4)[0]) == Cia402State.SWITCH_ON_DISABLED
+    host.send(0x200 + NODE, struct.pack("<Hh", 0x0F, 40))
+    host.send(0x080, bytes([1]))
+    assert not [m for m in host.frames_for(0.2) if m.arbitration_id in (0x180 + NODE, 0x280 + NODE)]
+
+
 def test_other_nodes_and_bad_frames_are_ignored(drive: Drive):
     host = drive.host
     host.set_up()
@@ -429,33 +454,60 @@ def _cli(*args: str) -> subprocess.Popen:
     )
 
 
-def test_cli_sigterm_is_a_clean_shutdown(tmp_path):
+@contextlib.contextmanager
+def cli_drive(*args: str) -> Iterator[tuple[Host, subprocess.Popen]]:
+    """The CLI drive on a free port, booted (its boot-up seen), and a host
+    on the same bus; killed at the end if still running."""
     port = free_port()
     with can.Bus(interface="sensaug_udp", channel=port) as bus:
         host = Host(bus)
-        proc = _cli("-c", str(port), "--log", str(tmp_path / "log.npz"))
+        proc = _cli("-c", str(port), *args)
         try:
             host.expect(0x700 + NODE, lambda d: d == b"\x00", timeout=30.0)  # boot-up
-            host.set_up(consumer_ms=500)
-            host.enable()
-            for _ in range(20):
-                host.heartbeat()
-                host.cycle(0x0F, 5)
-            proc.send_signal(signal.SIGTERM)
-            last_sw = host.expect(0x180 + NODE)
-            assert state_of(struct.unpack_from("<H", last_sw)[0]) == Cia402State.SWITCH_ON_DISABLED
-            host.expect(0x700 + NODE, lambda d: d == b"\x04")  # the last heartbeat: STOPPED
-            _, err = proc.communicate(timeout=10)
+            yield host, proc
         finally:
             if proc.poll() is None:
                 proc.kill()
                 proc.communicate()
+
+
+def test_cli_sigterm_is_a_clean_shutdown(tmp_path):
+    with cli_drive("--log", str(tmp_path / "log.npz")) as (host, proc):
+        host.set_up(consumer_ms=500)
+        host.enable()
+        for _ in range(20):
+            host.heartbeat()
+            host.cycle(0x0F, 5)
+        proc.send_signal(signal.SIGTERM)
+        last_sw = host.expect(0x180 + NODE)
+        assert state_of(struct.unpack_from("<H", last_sw)[0]) == Cia402State.SWITCH_ON_DISABLED
+        host.expect(0x700 + NODE, lambda d: d == b"\x04")  # the last heartbeat: STOPPED
+        _, err = proc.communicate(timeout=10)
     assert proc.returncode == 0, err
     assert "'steps': 21" in err and "'faults': 0" in err
     import numpy as np
 
     log = np.load(tmp_path / "log.npz")
     assert len(log["t_s"]) == 21 and np.allclose(log["torque_nm"][1:], 5 * RATED_MNM * 1e-6)
+
+
+def test_cli_sigusr1_is_a_reset_mid_run():
+    """SIGUSR1 to the CLI drive: a power glitch; it sends its boot-up and
+    comes back PRE-OPERATIONAL in SwitchOnDisabled (tests/test_rig_faults.py
+    resets the drive this way under a running controller)."""
+    with cli_drive() as (host, proc):
+        host.set_up()
+        host.enable()
+        host.cycle(0x0F, 5)
+        proc.send_signal(signal.SIGUSR1)
+        host.expect(0x700 + NODE, lambda d: d == b"\x00")
+        host.expect(0x700 + NODE, lambda d: d == b"\x7f")
+        sw = struct.unpack_from("<H", host.sdo_read(0x6041), 4)[0]
+        assert state_of(sw) == Cia402State.SWITCH_ON_DISABLED
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0, err
+    assert "'resets': 1" in err, err
 
 
 @pytest.mark.parametrize(

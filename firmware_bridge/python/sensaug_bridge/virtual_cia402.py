@@ -172,11 +172,7 @@ class VirtualCia402:
         self.plant = new_plant(cfg)
         self._rad_per_count = 2.0 * math.pi / cfg.encoder_counts_per_rev
         self._max_per_mille = cfg.max_torque_per_mille()
-        # The config's values in the dictionary (SDO reads see them).
-        self._store(0x6076, 0, cfg.rated_torque_mnm)
-        self._store(0x6072, 0, self._max_per_mille)
-        self._store(0x608F, 1, cfg.encoder_counts_per_rev)
-        self._store(0x1017, 0, max(1, round(cfg.heartbeat_period_s * 1000.0)))
+        self._store_config()
         self.node.add_write_callback(self._on_write)
         self.node.add_read_callback(self._on_read)
         self.node.rpdo.read(from_od=True)
@@ -214,6 +210,9 @@ class VirtualCia402:
         self.unknown_frames = 0
         #: Frames for this drive with a length its handler cannot take.
         self.length_errors = 0
+        #: Resets done (:meth:`reset`: NMT reset node, or SIGUSR1 to the CLI).
+        self.resets = 0
+        self._reset_requested = False
         n = cfg.node
         self._lengths = {
             0x000: (2,),  # NMT command
@@ -226,6 +225,16 @@ class VirtualCia402:
         self.log: Optional[DriveLog] = DriveLog() if log else None
 
     # -- dictionary --------------------------------------------------------------------
+
+    def _store_config(self) -> None:
+        """The config's values in the dictionary (SDO reads see them): the
+        drive's stored parameters, which a reset restores."""
+        cfg = self.config
+        self._max_per_mille = cfg.max_torque_per_mille()
+        self._store(0x6076, 0, cfg.rated_torque_mnm)
+        self._store(0x6072, 0, self._max_per_mille)
+        self._store(0x608F, 1, cfg.encoder_counts_per_rev)
+        self._store(0x1017, 0, max(1, round(cfg.heartbeat_period_s * 1000.0)))
 
     def _store(self, index: int, sub: int, value: int) -> None:
         od = self.node.object_dictionary.get_variable(index, sub)
@@ -287,6 +296,34 @@ class VirtualCia402:
         self._set_state(Cia402State.SWITCH_ON_DISABLED)
         self.poll(self._clock())
 
+    def reset(self) -> None:
+        """A restart of the drive (NMT reset node, or a power glitch: SIGUSR1 to
+        the CLI): torque 0, faults cleared, every SDO-written value back to the
+        EDS's and the config's (mode 0, heartbeat consumer off, 0x6072, PDO
+        maps), then the boot of :meth:`start`: the boot-up message,
+        PRE-OPERATIONAL with its heartbeat, SWITCH_ON_DISABLED. The handle
+        (the plant) keeps its motion."""
+        self.resets += 1
+        self.torque_per_mille = 0
+        self.faults = Fault.NONE
+        self._limit_active = False
+        self._controlword = 0
+        self.mode = 0
+        self.node.data_store.clear()
+        self._store_config()
+        self._set_consumer(0)
+        self._reread_pdo_maps()  # the EDS's, the store being cleared
+        self._rpdo.timestamp = None  # no RPDO1 received since
+        self._set_state(Cia402State.NOT_READY_TO_SWITCH_ON)
+        self.node.nmt.state = "INITIALISING"  # sends the boot-up frame
+        self.node.nmt.state = "PRE-OPERATIONAL"  # restarts the heartbeat (0x1017)
+        self._set_state(Cia402State.SWITCH_ON_DISABLED)
+
+    def request_reset(self) -> None:
+        """Asks :meth:`run` to :meth:`reset` at its next iteration (safe from
+        a signal handler)."""
+        self._reset_requested = True
+
     def stop(self) -> None:
         """Torque 0; leave OPERATION_ENABLED for SWITCH_ON_DISABLED; a last TPDO1 with
         the final statusword and a last heartbeat (NMT STOPPED)."""
@@ -313,6 +350,9 @@ class VirtualCia402:
             now = self._clock()
             if now >= end:
                 break
+            if self._reset_requested:
+                self._reset_requested = False
+                self.reset()
             self.poll(now)
             due = min([end, now + 0.01] + [t.next_s for t in self._tasks])
             if self._last_master_hb is not None:
@@ -375,7 +415,11 @@ class VirtualCia402:
 
     def _after_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
         nmt = self.node.nmt.state
-        if nmt == "INITIALISING":  # a reset: boot-up was sent; come back up
+        if nmt == "INITIALISING" and data[0] == 0x81:  # reset node: the whole drive
+            self.reset()
+            return
+        if nmt == "INITIALISING":  # reset communication: boot-up, then back up
+            self.node.nmt.state = "INITIALISING"  # canopen's handler sends no boot-up
             self.node.nmt.state = "PRE-OPERATIONAL"
         if nmt != "OPERATIONAL" and self.state == Cia402State.OPERATION_ENABLED:
             self._latch(Fault.COMMUNICATION)
@@ -547,6 +591,7 @@ class VirtualCia402:
             "emcy_sent": self.emcy_sent,
             "unknown_frames": self.unknown_frames,
             "length_errors": self.length_errors,
+            "resets": self.resets,
         }
         if self.log is not None:
             out.update(self.log.latency_summary())

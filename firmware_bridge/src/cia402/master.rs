@@ -293,11 +293,13 @@ impl Master {
     }
 
     /// Set-up: wait for the drive's boot-up or heartbeat; check it is a
-    /// CiA 402 device; set cyclic synchronous torque mode and check the
-    /// display; write the heartbeat times; read the units; check the drive
-    /// has the SYNC counter echo 0x2000; check the PDO communication and
-    /// mapping parameters, writing those that differ from the EDS's; start
-    /// the master's heartbeat; NMT start the drive.
+    /// CiA 402 device; read the units and check its max torque 0x6072 is
+    /// the configured limit; check the drive has the SYNC counter echo
+    /// 0x2000 (a refused drive is left as found: nothing was written yet);
+    /// set cyclic synchronous torque mode and check the display; write the
+    /// heartbeat times; check the PDO communication and mapping parameters,
+    /// writing those that differ from the EDS's; start the master's
+    /// heartbeat; NMT start the drive.
     pub fn boot(&mut self, bus: &mut dyn Transport) -> Result<(), Cia402Error> {
         self.wait_for_drive(bus)?;
         self.configure(bus)
@@ -323,6 +325,11 @@ impl Master {
         let s = self.settings;
         let device = self.sdo_read_u32(bus, od::DEVICE_TYPE)?;
         self.expect(od::DEVICE_TYPE, od::PROFILE_402, device & 0xFFFF)?;
+        // Everything the master refuses a drive for is read before anything
+        // is written: a refused drive is left as it was found.
+        self.read_units(bus)?;
+        self.check_max_torque()?;
+        self.check_sync_counter_echo(bus)?;
         self.sdo_write(
             bus,
             od::MODES_OF_OPERATION,
@@ -343,9 +350,6 @@ impl Master {
         // The master's heartbeat must run before the drive's consumer is armed.
         self.send_heartbeat(bus, NmtState::PreOperational)?;
         self.sdo_write(bus, od::CONSUMER_HEARTBEAT, &consumer.to_le_bytes())?;
-        self.read_units(bus)?;
-        self.check_max_torque()?;
-        self.check_sync_counter_echo(bus)?;
         self.check_pdos(bus)?;
         self.send_heartbeat(bus, NmtState::Operational)?;
         bus.send(&frames::nmt(NmtCommand::Start, s.node.get()))?;
