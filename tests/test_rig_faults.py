@@ -387,14 +387,18 @@ def scenario_stale_flood(tmp: Path, drive: str = "hi5", flood_s: float = 5.0) ->
     rig.max_stale_feedback_ticks or rig.max_missing_feedback_fraction (at
     their defaults, 100 and 0.5) the run ramps down and ends as "degraded", exit 6, and says
     why. CiA 402: every replayed TPDO is discarded (older SYNC counter) and
-    counted; the run completes."""
+    counted; the run completes (with stall_tolerant's thresholds: the
+    flood's 4 kHz of frames load this 2-core VM, and the feedback the load
+    delays is not the subject; 2 of 5 runs at load 9.7 crossed the default
+    thresholds that way)."""
     cfg = stall_tolerant(short_config(gain_s=10.0))
     # The thresholds under test: the defaults. The estimator-error threshold
     # is lifted (stall_tolerant) so that the stop can only come from the
     # feedback thresholds: with its default of 10, the starved filters'
     # recoveries crossed it first in one CI run (the run still ended
     # "degraded", exit 6, but for the other reason).
-    cfg.rig.max_stale_feedback_ticks, cfg.rig.max_missing_feedback_fraction = 100, 0.5
+    if drive == "hi5":
+        cfg.rig.max_stale_feedback_ticks, cfg.rig.max_missing_feedback_fraction = 100, 0.5
     pr = rig_processes(tmp, cfg, drive)
     try:
         pr.start_controller()
