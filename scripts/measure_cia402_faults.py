@@ -14,7 +14,6 @@ process is started and stopped here.
 from __future__ import annotations
 
 import sys
-import tempfile
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -22,7 +21,7 @@ sys.path.insert(0, str(REPO / "tests"))
 sys.path.insert(0, str(REPO / "scripts"))
 
 import test_rig_faults as f  # noqa: E402
-from measure_safety import summarize  # noqa: E402
+from measure_safety import measure  # noqa: E402
 
 
 def main() -> int:
@@ -35,18 +34,7 @@ def main() -> int:
         "drive frozen, CiA 402 (SIGSTOP; heartbeat consumer 100 ms)": f.scenario_heartbeat_lost,
         "stale-TPDO flood, CiA 402 (discarded)": lambda d: f.scenario_stale_flood(d, "cia402"),
     }
-    lines = ["| fault | figure | runs | median | max |", "| --- | --- | --- | --- | --- |"]
-    for name, fn in scenarios.items():
-        runs = []
-        for i in range(reps):
-            with tempfile.TemporaryDirectory() as d:
-                try:
-                    runs.append(fn(Path(d)))
-                except AssertionError as e:
-                    print(f"{name} run {i}: FAILED {e}", file=sys.stderr)
-        print(f"{name}: {len(runs)}/{reps} runs passed", file=sys.stderr)
-        if runs:
-            lines += summarize(name, runs)
+    lines = measure(scenarios, reps)
     print("\n".join(lines))
     return 0
 

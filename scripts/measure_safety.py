@@ -93,6 +93,24 @@ def summarize(name: str, runs: list[dict]) -> list[str]:
     return rows
 
 
+def measure(scenarios: dict, reps: int) -> list[str]:
+    """Runs each scenario ``reps`` times (a failed run is reported on
+    stderr and left out) and returns the Markdown table of its figures."""
+    lines = ["| fault | figure | runs | median | max |", "| --- | --- | --- | --- | --- |"]
+    for name, fn in scenarios.items():
+        runs = []
+        for i in range(reps):
+            with tempfile.TemporaryDirectory() as d:
+                try:
+                    runs.append(fn(Path(d)))
+                except AssertionError as e:
+                    print(f"{name} run {i}: FAILED {e}", file=sys.stderr)
+        print(f"{name}: {len(runs)}/{reps} runs passed", file=sys.stderr)
+        if runs:
+            lines += summarize(name, runs)
+    return lines
+
+
 def main() -> int:
     reps = int(sys.argv[1]) if len(sys.argv) > 1 else 5
     starts = int(sys.argv[2]) if len(sys.argv) > 2 else 30
@@ -106,18 +124,7 @@ def main() -> int:
         "dead drive": dead_drive,
         "SIGKILL of the controller": killed_controller,
     }
-    lines = ["| fault | figure | runs | median | max |", "| --- | --- | --- | --- | --- |"]
-    for name, fn in scenarios.items():
-        runs = []
-        for i in range(reps):
-            with tempfile.TemporaryDirectory() as d:
-                try:
-                    runs.append(fn(Path(d)))
-                except AssertionError as e:
-                    print(f"{name} run {i}: FAILED {e}", file=sys.stderr)
-        print(f"{name}: {len(runs)}/{reps} runs passed", file=sys.stderr)
-        if runs:
-            lines += summarize(name, runs)
+    lines = measure(scenarios, reps)
     with tempfile.TemporaryDirectory() as d:
         gaps = start_gaps(Path(d), starts)
     lines += summarize("start (enable -> tick 0)", gaps)
