@@ -104,9 +104,10 @@ impl MasterSettings {
                 why: "must be > 0 and shorter than drive_heartbeat_timeout",
             });
         }
-        if !(self.max_torque_nm.is_finite() && self.max_torque_nm > 0.0) {
+        // A finite limit of 0 or below matches no drive's 0x6072 (>= 1): set-up refuses it.
+        if !self.max_torque_nm.is_finite() {
             return Err(Cia402Error::NotFinite {
-                field: "max_torque_nm (must be finite and > 0)",
+                field: "max_torque_nm",
             });
         }
         Ok(())
