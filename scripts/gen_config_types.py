@@ -33,6 +33,7 @@ CLASS = {
     "PartnerSpec": "PartnerConfig",
     "PartnerIntegrationSpec": "PartnerIntegrationConfig",
     "RealtimeSpec": "RealtimeConfig",
+    "Cia402Spec": "RigCia402Config",
     "RigSpec": "RigConfig",
 }
 

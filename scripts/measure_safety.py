@@ -153,6 +153,24 @@ def scenarios() -> dict:
     return out
 
 
+def measure(scenarios: dict, reps: int) -> list[str]:
+    """Runs each scenario ``reps`` times (a failed run is reported on
+    stderr and left out) and returns the Markdown table of its figures."""
+    lines = ["| fault | figure | runs | median | max |", "| --- | --- | --- | --- | --- |"]
+    for name, fn in scenarios.items():
+        runs = []
+        for i in range(reps):
+            with tempfile.TemporaryDirectory() as d:
+                try:
+                    runs.append(fn(Path(d)))
+                except AssertionError as e:
+                    print(f"{name} run {i}: FAILED {e}", file=sys.stderr)
+        print(f"{name}: {len(runs)}/{reps} runs passed", file=sys.stderr)
+        if runs:
+            lines += summarize(name, runs)
+    return lines
+
+
 def brake_model(mass: float = 0.0035, dt_s: float = 1e-3, time_constant_s: float = 0.004,
                 rest_rad_s: float = 0.01) -> list[str]:
     """The controlled stop's brake on the exact zero-order-hold plant (no
@@ -184,20 +202,7 @@ def main() -> int:
         args.remove(only)
     reps = int(args[0]) if len(args) > 0 else 5
     starts = int(args[1]) if len(args) > 1 else 30
-    lines = ["| fault | figure | runs | median | max |", "| --- | --- | --- | --- | --- |"]
-    for name, fn in scenarios().items():
-        if only not in name:
-            continue
-        runs = []
-        for i in range(reps):
-            with tempfile.TemporaryDirectory() as d:
-                try:
-                    runs.append(fn(Path(d)))
-                except AssertionError as e:
-                    print(f"{name} run {i}: FAILED {e}", file=sys.stderr)
-        print(f"{name}: {len(runs)}/{reps} runs passed", file=sys.stderr)
-        if runs:
-            lines += summarize(name, runs)
+    lines = measure({name: fn for name, fn in scenarios().items() if only in name}, reps)
     print("\n".join(lines))
     if starts > 0:
         with tempfile.TemporaryDirectory() as d:

@@ -119,8 +119,10 @@ def stall_tolerant(cfg: ScenarioConfig) -> ScenarioConfig:
     ticks (as the timeout), no limit on the missing fraction (a run at load 9
     lost 501 of its first 831 feedbacks) nor on estimator errors (2 of 5
     runs at load 8 passed the default 10). For the tests whose subject is
-    not those limits."""
+    not those limits. CiA 402: the drive's heartbeat is declared lost after
+    600 ms (3 watchdogs, the bound), not the default 100 ms."""
     cfg.rig.feedback_timeout_ms, cfg.rig.watchdog_ms = 300.0, 200
+    cfg.rig.cia402.heartbeat_timeout_ms = 600
     cfg.rig.max_stale_feedback_ticks, cfg.rig.max_missing_feedback_fraction = 300, 1.0
     cfg.rig.max_estimator_errors = 1_000_000
     return cfg

@@ -24,7 +24,10 @@ import json
 import math
 import resource
 import signal
+import socket
+import struct
 import subprocess
+import threading
 import time
 from pathlib import Path
 
@@ -33,6 +36,7 @@ import numpy as np
 import pytest
 from sensaug_bridge import protocol as p
 from sensaug_bridge.protocol import FaultFlag, State
+from sensaug_bridge.udp_bus import BROADCAST_ADDR, unpack_frame
 from test_rig import NODE, Processes, short_config, stall_tolerant
 
 from sensaug import rig
@@ -1066,3 +1070,296 @@ def test_the_drive_is_fed_from_the_enable_to_the_first_tick(tmp_path, drive):
         print(f"\nstart gaps: {gap}")
     finally:
         pr.close()
+
+
+# --- 6. the drive's own reports: resets, EMCYs, faults, heartbeat, 0x6072 (issue 17) ---------
+
+#: sensaug-rt's exit code for a drive reset (docs/realtime.md).
+EXIT_DRIVE_RESET = 8
+
+_SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)  # Linux's value; Python does not name it
+
+
+class KernelTimedFrames:
+    """Every frame on a loopback bus port with the kernel's time of its
+    arrival (``SO_TIMESTAMPNS``: stamped when the sender's datagram is
+    queued, so it is the send time on loopback), read by a thread: the
+    reaction times below are differences of these stamps, free of the
+    reading process's own scheduling."""
+
+    def __init__(self, port: int) -> None:
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+        self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
+        self._sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+        self._sock.bind((BROADCAST_ADDR, port))
+        self._sock.settimeout(0.05)
+        self._stop = threading.Event()
+        self.frames: list[tuple[float, int, bytes]] = []
+        self._thread = threading.Thread(target=self._read, daemon=True)
+        self._thread.start()
+
+    def _read(self) -> None:
+        while not self._stop.is_set():
+            try:
+                datagram, ancillary, _, _ = self._sock.recvmsg(64, 64)
+            except socket.timeout:
+                continue
+            frame = unpack_frame(datagram)
+            stamps = [d for level, kind, d in ancillary if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS]
+            if isinstance(frame, str) or not stamps:
+                continue
+            sec, ns = struct.unpack("qq", stamps[0][:16])
+            self.frames.append((sec + ns * 1e-9, frame.arbitration_id, bytes(frame.data)))
+
+    def first(self, pred, after: float = 0.0) -> float | None:
+        """Kernel time of the first frame ``pred(can_id, data)`` after ``after``."""
+        return next((t for t, i, d in list(self.frames) if t > after and pred(i, d)), None)
+
+    def last(self, pred, before: float) -> float | None:
+        """Kernel time of the last frame ``pred(can_id, data)`` before ``before``."""
+        return next((t for t, i, d in reversed(list(self.frames)) if t < before and pred(i, d)), None)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+        self._sock.close()
+
+
+def _hi5(can_id: int, data: bytes) -> p.Decoded | None:
+    try:
+        return p.decode(can.Message(arbitration_id=can_id, data=data, is_extended_id=False))
+    except p.ProtocolError:
+        return None
+
+
+def is_reset_report(drive: str):
+    """``pred(can_id, data)`` for the drive's report of a reset: CiA 402 its
+    boot-up message (0x701, NMT state 0x00); Hi5 a Fault or Heartbeat frame
+    with state BOOT."""
+    if drive == "cia402":
+        return lambda i, d: i == 0x700 + NODE and d == b"\x00"
+
+    def hi5(i: int, d: bytes) -> bool:
+        m = _hi5(i, d)
+        return m is not None and m.name in ("Fault", "Heartbeat") and m.message.state == State.BOOT
+
+    return hi5
+
+
+def is_emergency_stop(drive: str):
+    """``pred(can_id, data)`` for the controller's emergency stop: CiA 402
+    controlword quick stop; Hi5 EmergencyStop."""
+    if drive == "cia402":
+        return lambda i, d: i == RPDO1 and len(d) >= 2 and int.from_bytes(d[:2], "little") == CW_QUICK_STOP
+    return lambda i, d: (m := _hi5(i, d)) is not None and m.name == "EmergencyStop"
+
+
+def wait_for(frames: KernelTimedFrames, pred, after: float = 0.0, seconds: float = 5.0) -> float | None:
+    """Kernel time of the first frame ``pred`` after ``after``, waiting up to ``seconds``."""
+    end = time.monotonic() + seconds
+    while (t := frames.first(pred, after)) is None and time.monotonic() < end:
+        time.sleep(0.01)
+    return t
+
+
+def scenario_drive_reset(tmp: Path, drive: str = "hi5", how: str = "restart") -> dict:
+    """The drive resets mid-run (``restart``: SIGUSR1 to the virtual drive,
+    a power glitch: CiA 402 boot-up, pre-operational, SwitchOnDisabled; Hi5
+    BOOT then DISABLED), or a third node forges its reset report
+    (``forged``: the boot-up message; a Fault frame saying BOOT): the
+    controller stops at once with an emergency stop and "drive reset"
+    (exit 8), never waiting for the feedback timeout."""
+    pr = rig_processes(tmp, stall_tolerant(short_config(gain_s=10.0)), drive)
+    frames = KernelTimedFrames(pr.port)
+    try:
+        pr.start_controller()
+        wait_running(pr, drive=drive)
+        acted = time.time()  # the kernel's stamps are CLOCK_REALTIME too
+        if how == "restart":
+            pr.drive.send_signal(signal.SIGUSR1)
+        elif drive == "cia402":
+            pr.monitor.send(can.Message(arbitration_id=0x700 + NODE, data=b"\x00", is_extended_id=False))
+        else:
+            pr.monitor.send(p.Fault(State.BOOT, FaultFlag.NONE, 0).encode(NODE))
+        reported = wait_for(frames, is_reset_report(drive), after=acted)
+        assert reported is not None, "no reset report on the bus"
+        stopped = wait_for(frames, is_emergency_stop(drive), after=reported)
+        assert stopped is not None, "no emergency stop after the reset report"
+        code, stats, err = end_of_run(pr)
+        assert code == EXIT_DRIVE_RESET and stats["exit_code"] == EXIT_DRIVE_RESET, (stats["stop_reason"], err)
+        reason = stats["stop_reason"]
+        assert reason.startswith("drive reset: ") and "emergency stop sent" in reason, reason
+        assert ("boot-up message" if drive == "cia402" else "reports Boot") in reason, reason
+        assert reason in err
+        # Long before the feedback timeout (300 ms here): the tick after the report.
+        log = load_log(pr.log)
+        assert log.complete and len(log) == stats["ticks"]
+        if how == "restart" and drive == "cia402":
+            assert_drive_disabled(pr, drive)  # rebooted: SwitchOnDisabled, pre-operational
+        elif how == "restart":
+            assert_drive_latched_off(pr, drive)  # the emergency stop latched FAULT
+        return {"report_to_emergency_stop_ms": 1e3 * (stopped - reported), "ticks": stats["ticks"]}
+    finally:
+        frames.close()
+        pr.close()
+
+
+@pytest.mark.parametrize("how", ["restart", "forged"])
+@pytest.mark.parametrize("drive", PROFILES)
+def test_a_drive_reset_stops_the_run_at_once_with_its_own_reason(tmp_path, drive, how):
+    figures = scenario_drive_reset(tmp_path, drive, how)
+    print(f"\n{drive} {how}: reset report -> emergency stop on the bus in {figures['report_to_emergency_stop_ms']:.1f} ms")
+
+
+def third_canopen_node(pr: Processes):
+    """python-canopen as a third node on the processes' bus: a network on
+    its own socket with the drive as a RemoteNode (the project's EDS)."""
+    import canopen
+    from sensaug_bridge.virtual_cia402 import EDS_PATH
+
+    network = canopen.Network()
+    network.connect(interface="sensaug_udp", channel=pr.port)
+    node = canopen.RemoteNode(NODE, str(EDS_PATH))
+    network.add_node(node)
+    node.sdo.RESPONSE_TIMEOUT = 2.0  # the Python drive may answer late on a loaded VM
+    node.nmt.wait_for_heartbeat(timeout=10.0)  # the drive is up
+    return network, node
+
+
+@pytest.mark.parametrize("max_torque", [32767, 50])
+def test_a_max_torque_another_node_wrote_is_refused_at_set_up(tmp_path, max_torque):
+    """Before the run a third node (python-canopen's SDO client) writes the
+    drive's max torque 0x6072: 32767 (32.8 N m, 11x the configured 3 N m) or
+    50 (0.05 N m). The controller reads it at set-up, refuses to start
+    (exit 2) naming 0x6072, both values and the fix, and never enables the
+    drive: no RPDO1 and no SYNC on the bus, the drive still SwitchOnDisabled
+    in PRE-OPERATIONAL."""
+    pr = rig_processes(tmp_path, stall_tolerant(short_config()), "cia402")
+    network, node = third_canopen_node(pr)
+    try:
+        node.sdo["Max torque"].raw = max_torque
+        assert node.sdo["Max torque"].raw == max_torque
+        _drain(pr)
+        proc = pr.start_controller()
+        code = pr.wait_controller(timeout=30)
+        err = proc.stderr.read()
+        assert code == EXIT_SETUP, err
+        for part in ["0x6072", f"is {max_torque} per-mille", "rig.torque_limit_nm is 3 N m", "3000 per-mille",
+                     "not starting"]:
+            assert part in err, (part, err)
+        sent = list(cia_frames(pr, 0.3))  # every frame since the controller started
+        assert not [m for m in sent if m.arbitration_id in (RPDO1, SYNC)], "the controller cycled the drive"
+        assert not [m for m in sent if m.arbitration_id == NMT], "the controller sent an NMT command"
+        assert cia_state(cia_statusword(pr)) == "SwitchOnDisabled"
+        assert node.nmt.wait_for_heartbeat(timeout=1.0) == "PRE-OPERATIONAL"
+    finally:
+        network.disconnect()
+        pr.close()
+
+
+def test_emcy_warnings_and_forged_emcys_are_listed_with_code_register_and_time(tmp_path):
+    """A third node sends EMCYs built by python-canopen's EmcyProducer while
+    the drive runs normally: a temperature warning (0x4210, register 0x09)
+    and a forged overspeed (0x8400, register 0x01). The statusword stays
+    OperationEnabled, so the run goes on (only a latched Fault stops it);
+    both are in the statistics (code, error register, manufacturer bytes,
+    time after tick 0, tick) and one line each on stderr."""
+    import canopen
+
+    cfg = stall_tolerant(short_config(gain_s=1.0, other_s=0.5))
+    pr = rig_processes(tmp_path, cfg, "cia402")
+    network, _ = third_canopen_node(pr)
+    try:
+        pr.start_controller()
+        wait_running(pr, drive="cia402")
+        emcy = canopen.emcy.EmcyProducer(0x080 + NODE)
+        emcy.network = network
+        emcy.send(0x4210, 0x09, b"\x01\x02")
+        time.sleep(0.2)
+        emcy.send(0x8400, 0x01)
+        code, stats, err = end_of_run(pr)
+        assert code == 0 and stats["stop_reason"] == "completed", (stats["stop_reason"], err)
+        listed = stats["drive"]["emcy"]
+        assert stats["drive"]["emcy_received"] == 2 == len(listed), stats["drive"]
+        warning, forged = listed
+        assert (warning["code"], warning["error_register"], warning["manufacturer"]) == ("0x4210", "0x09", "0102000000")
+        assert warning["meaning"] == "temperature"
+        assert (forged["code"], forged["error_register"]) == ("0x8400", "0x01")
+        assert 0 < warning["t_s"] < forged["t_s"] <= stats["ticks"] * 1e-3
+        assert forged["tick"] == pytest.approx(forged["t_s"] * 1e3, abs=1)
+        assert "drive EMCY 0x4210 (temperature), error register 0x09" in err, err
+        assert "drive EMCY 0x8400 (velocity speed controller (overspeed)), error register 0x01" in err, err
+    finally:
+        network.disconnect()
+        pr.close()
+
+
+@pytest.mark.parametrize("drive", PROFILES)
+def test_a_latched_drive_fault_stops_the_run_with_the_profiles_own_code(tmp_path, drive):
+    """The drive's own overspeed limit set low (--max-velocity 0.05 rad/s):
+    it latches its fault at the first fast move; the controller stops at once
+    and says why in the drive's terms: CiA 402 the EMCY code and error
+    register (0x8400, 0x01), Hi5 its fault flags (OVERSPEED), exit 1."""
+    cfg = stall_tolerant(short_config(gain_s=10.0))
+    cfg.rig.drive = drive
+    pr = Processes(tmp_path, cfg, drive_args=["--max-velocity", "0.05"])
+    try:
+        time.sleep(0.5)
+        pr.start_controller()
+        code, stats, err = end_of_run(pr)
+        reason = stats["stop_reason"]
+        assert code == 1 and reason.startswith("drive fault: "), (reason, err)
+        if drive == "cia402":
+            assert "CiA 402 Fault, EMCY 0x8400 (velocity speed controller (overspeed)), error register 0x01" in reason
+            assert stats["drive"]["emcy"][0]["code"] == "0x8400"
+            assert "FaultFlags" not in reason
+        else:
+            assert "Hi5 FAULT" in reason and "OVERSPEED" in reason, reason
+        print(f"\n{drive}: {reason} at tick {stats['ticks']}")
+    finally:
+        pr.close()
+
+
+def scenario_heartbeat_lost(tmp: Path, drive: str = "cia402") -> dict:
+    """The drive process frozen (SIGSTOP: no heartbeat, no TPDO) with the
+    feedback timeout at 300 ms and rig.cia402.heartbeat_timeout_ms at its
+    default 100: the heartbeat consumer stops the run first, with an
+    emergency stop, "the drive's heartbeat lost" (exit 1). Measured on the
+    bus from the drive's last heartbeat to the quick stop."""
+    cfg = stall_tolerant(short_config(gain_s=10.0))
+    cfg.rig.cia402.heartbeat_timeout_ms = 100
+    pr = rig_processes(tmp, cfg, drive)
+    frames = KernelTimedFrames(pr.port)
+    try:
+        pr.start_controller()
+        wait_running(pr, drive=drive)
+        acted = time.time()
+        pr.drive.send_signal(signal.SIGSTOP)
+        try:
+            stopped = wait_for(frames, is_emergency_stop(drive), after=acted, seconds=3.0)
+            code, stats, err = end_of_run(pr)
+        finally:
+            pr.drive.send_signal(signal.SIGCONT)
+        assert stopped is not None, "no quick stop within 3 s"
+        reason = stats["stop_reason"]
+        assert code == 1 and reason.startswith("drive fault: the drive's heartbeat lost"), (reason, err)
+        assert "100 ms" in reason and "rig.cia402.heartbeat_timeout_ms" in reason, reason
+        last_beat = frames.last(lambda i, d: i == 0x700 + NODE, before=stopped)
+        last_tpdo = frames.last(lambda i, d: i == TPDO2, before=stopped)
+        assert last_beat is not None and last_tpdo is not None
+        # The consumer time at least, and before the 300 ms feedback timeout
+        # counted from the last TPDO (the drive's last sign of life).
+        after_ms = 1e3 * (stopped - last_beat)
+        assert 100 <= after_ms, after_ms
+        assert 1e3 * (stopped - last_tpdo) < 300
+        return {"last_heartbeat_to_quick_stop_ms": after_ms, "last_tpdo_to_quick_stop_ms": 1e3 * (stopped - last_tpdo)}
+    finally:
+        frames.close()
+        pr.close()
+
+
+def test_a_lost_drive_heartbeat_stops_the_run_after_the_consumer_time(tmp_path):
+    figures = scenario_heartbeat_lost(tmp_path)
+    print(f"\ndrive heartbeat lost: {figures} (consumer 100 ms, beats every 50 ms)")

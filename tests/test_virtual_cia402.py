@@ -13,6 +13,7 @@ the watchdog's bounds, as in the Hi5 tests.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import signal
 import struct
@@ -244,6 +245,38 @@ def test_tpdos_echo_the_counter_of_the_sync_they_answer(drive: Drive):
     assert struct.unpack_from("<B", host.sdo_read(0x2000), 4)[0] == 0
 
 
+def test_a_backlog_steps_every_sync_and_answers_only_the_last(drive: Drive):
+    """Frames queued while the drive's process was not running (here: its
+    loop is paused) are one backlog: each SYNC steps the plant with the
+    RPDO1 before it, in order, and only the last SYNC is answered; the
+    superseded answers would reach the master stale, after a later SYNC."""
+    host = drive.host
+    host.set_up()
+    host.enable()  # the enabling SYNC steps the plant once, at torque 0
+    drive.stop.set()
+    drive.thread.join(timeout=5)
+    syncs = drive.drive.syncs
+    torques = [40, -10, 25, 5, -30]
+    for per_mille in torques:
+        host.send(0x200 + NODE, struct.pack("<Hh", 0x0F, per_mille))
+        host.sync_counter = host.sync_counter % SYNC_COUNTER_OVERFLOW + 1
+        host.send(0x080, bytes([host.sync_counter]))
+    time.sleep(0.05)  # every frame is queued at the drive's socket
+    drive.stop = threading.Event()
+    drive.thread = threading.Thread(target=drive.drive.run, kwargs={"stop": drive.stop, "duration_s": 30.0}, daemon=True)
+    drive.thread.start()
+    answers = [m for m in host.frames_for(0.3) if m.arbitration_id in (0x180 + NODE, 0x280 + NODE)]
+    assert [(m.arbitration_id, m.data[6]) for m in answers] == [(0x180 + NODE, host.sync_counter),
+                                                               (0x280 + NODE, host.sync_counter)]
+    ref = sensaug.Plant(mass=0.0035, dt_s=1e-3)
+    for per_mille in [0, *torques]:
+        x, v = ref.step(per_mille * RATED_MNM * 1e-6)
+    _, position, _ = struct.unpack("<HiB", answers[0].data)
+    velocity, torque, _ = struct.unpack("<ihB", answers[1].data)
+    assert drive.drive.steps == 1 + len(torques) and drive.drive.syncs == syncs + len(torques)
+    assert (position, velocity, torque) == (round(x / RAD_PER_COUNT), round(v / RAD_PER_COUNT), torques[-1])
+
+
 def test_a_pdo_mapping_written_over_sdo_is_what_the_tpdo_then_carries(drive: Drive):
     """CiA 301's remapping sequence (COB-ID invalid, count 0, entries, count,
     COB-ID valid) on TPDO2: torque actual first, then velocity actual, no
@@ -367,6 +400,30 @@ def test_nmt_stop_while_enabled_faults(drive: Drive):
     assert drive.drive.state == Cia402State.FAULT and drive.drive.torque_per_mille == 0
 
 
+def test_a_reset_sends_its_boot_up_and_restores_the_stored_parameters(drive: Drive):
+    """NMT reset node (0x81) restarts the drive as a power cycle would: the
+    boot-up message, PRE-OPERATIONAL heartbeats, SwitchOnDisabled, every
+    SDO-written value back to the EDS's and the config's (mode 0, heartbeat
+    consumer off, 0x6072 the configured 3000), no fault latched, no PDOs."""
+    host = drive.host
+    host.set_up(consumer_ms=500)
+    assert host.sdo_write(0x6072, 0, struct.pack("<H", 2500))[0] == 0x60
+    host.enable()
+    host.heartbeat()
+    host.cycle(0x0F, 40)
+    host.nmt(0x81)
+    assert host.expect(0x700 + NODE, lambda d: d in (b"\x00", b"\x7f")) == b"\x00"  # boot-up first
+    assert host.expect(0x700 + NODE) == b"\x7f"
+    assert drive.drive.resets == 1 and drive.drive.faults == Fault.NONE
+    assert struct.unpack_from("<b", host.sdo_read(0x6060), 4)[0] == 0
+    assert struct.unpack_from("<H", host.sdo_read(0x6072), 4)[0] == 3000
+    assert struct.unpack_from("<I", host.sdo_read(0x1016, 1), 4)[0] == 0
+    assert state_of(struct.unpack_from("<H", host.sdo_read(0x6041), 4)[0]) == Cia402State.SWITCH_ON_DISABLED
+    host.send(0x200 + NODE, struct.pack("<Hh", 0x0F, 40))
+    host.send(0x080, bytes([1]))
+    assert not [m for m in host.frames_for(0.2) if m.arbitration_id in (0x180 + NODE, 0x280 + NODE)]
+
+
 def test_other_nodes_and_bad_frames_are_ignored(drive: Drive):
     host = drive.host
     host.set_up()
@@ -397,33 +454,60 @@ def _cli(*args: str) -> subprocess.Popen:
     )
 
 
-def test_cli_sigterm_is_a_clean_shutdown(tmp_path):
+@contextlib.contextmanager
+def cli_drive(*args: str) -> Iterator[tuple[Host, subprocess.Popen]]:
+    """The CLI drive on a free port, booted (its boot-up seen), and a host
+    on the same bus; killed at the end if still running."""
     port = free_port()
     with can.Bus(interface="sensaug_udp", channel=port) as bus:
         host = Host(bus)
-        proc = _cli("-c", str(port), "--log", str(tmp_path / "log.npz"))
+        proc = _cli("-c", str(port), *args)
         try:
             host.expect(0x700 + NODE, lambda d: d == b"\x00", timeout=30.0)  # boot-up
-            host.set_up(consumer_ms=500)
-            host.enable()
-            for _ in range(20):
-                host.heartbeat()
-                host.cycle(0x0F, 5)
-            proc.send_signal(signal.SIGTERM)
-            last_sw = host.expect(0x180 + NODE)
-            assert state_of(struct.unpack_from("<H", last_sw)[0]) == Cia402State.SWITCH_ON_DISABLED
-            host.expect(0x700 + NODE, lambda d: d == b"\x04")  # the last heartbeat: STOPPED
-            _, err = proc.communicate(timeout=10)
+            yield host, proc
         finally:
             if proc.poll() is None:
                 proc.kill()
                 proc.communicate()
+
+
+def test_cli_sigterm_is_a_clean_shutdown(tmp_path):
+    with cli_drive("--log", str(tmp_path / "log.npz")) as (host, proc):
+        host.set_up(consumer_ms=500)
+        host.enable()
+        for _ in range(20):
+            host.heartbeat()
+            host.cycle(0x0F, 5)
+        proc.send_signal(signal.SIGTERM)
+        last_sw = host.expect(0x180 + NODE)
+        assert state_of(struct.unpack_from("<H", last_sw)[0]) == Cia402State.SWITCH_ON_DISABLED
+        host.expect(0x700 + NODE, lambda d: d == b"\x04")  # the last heartbeat: STOPPED
+        _, err = proc.communicate(timeout=10)
     assert proc.returncode == 0, err
     assert "'steps': 21" in err and "'faults': 0" in err
     import numpy as np
 
     log = np.load(tmp_path / "log.npz")
     assert len(log["t_s"]) == 21 and np.allclose(log["torque_nm"][1:], 5 * RATED_MNM * 1e-6)
+
+
+def test_cli_sigusr1_is_a_reset_mid_run():
+    """SIGUSR1 to the CLI drive: a power glitch; it sends its boot-up and
+    comes back PRE-OPERATIONAL in SwitchOnDisabled (tests/test_rig_faults.py
+    resets the drive this way under a running controller)."""
+    with cli_drive() as (host, proc):
+        host.set_up()
+        host.enable()
+        host.cycle(0x0F, 5)
+        proc.send_signal(signal.SIGUSR1)
+        host.expect(0x700 + NODE, lambda d: d == b"\x00")
+        host.expect(0x700 + NODE, lambda d: d == b"\x7f")
+        sw = struct.unpack_from("<H", host.sdo_read(0x6041), 4)[0]
+        assert state_of(sw) == Cia402State.SWITCH_ON_DISABLED
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0, err
+    assert "'resets': 1" in err, err
 
 
 @pytest.mark.parametrize(

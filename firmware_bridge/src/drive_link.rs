@@ -15,7 +15,9 @@
 use core::fmt;
 use std::time::{Duration, Instant};
 
-use crate::cia402::{Cia402Error, DriveState as Cia402State, Heard, Master, MasterSettings};
+use crate::cia402::{
+    Cia402Error, DriveState as Cia402State, Emcy, Heard, Master, MasterSettings, NmtState,
+};
 use crate::frame::Frame;
 use crate::protocol::{decode, encode, DriveState, FaultFlags, Message, MessageKind, NodeId};
 use crate::transport::{Transport, TransportError};
@@ -32,20 +34,130 @@ pub struct DriveSample {
     /// The drive applies torque commands (Hi5 ENABLED, CiA 402
     /// OperationEnabled).
     pub enabled: bool,
-    /// The drive is in its fault state, or (CiA 402) its heartbeat is lost.
-    pub fault: bool,
+    /// Why the drive cannot be driven on, if it cannot: its fault, its
+    /// heartbeat lost, or a reset.
+    pub alarm: Option<DriveAlarm>,
     /// The profile's state code, for the log (Hi5: the DBC's `state`;
     /// CiA 402: [`Cia402State`] as `u8`, 255 before the first statusword).
     pub state_code: u8,
-    /// The profile's fault code (Hi5: the latched fault flags; CiA 402: the
-    /// last EMCY error code, [`HEARTBEAT_LOST_CODE`] when the drive's
-    /// heartbeat is lost).
-    pub fault_code: u16,
 }
 
-/// CiA 301's EMCY error code for a heartbeat (life guard) error, reported
-/// as the fault code when the master stops hearing the drive.
-pub const HEARTBEAT_LOST_CODE: u16 = 0x8130;
+/// Why the loop must stop driving the drive at once, as the profile says it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DriveAlarm {
+    /// Hi5: FAULT, with its latched fault flags (`hi5.dbc`).
+    Hi5Fault {
+        /// The Fault/Heartbeat frame's `fault_flags`.
+        flags: u16,
+    },
+    /// CiA 402: the statusword reports Fault; the last EMCY's error code and
+    /// error register (0x1001) say why (both 0 when no EMCY came).
+    Cia402Fault {
+        /// Emergency error code (CiA 301 table 21, CiA 402).
+        emcy_code: u16,
+        /// Error register 0x1001 as the EMCY carried it.
+        error_register: u8,
+    },
+    /// CiA 402: no heartbeat from the drive for longer than the master's
+    /// consumer time.
+    HeartbeatLost {
+        /// The consumer time (`rig.cia402.heartbeat_timeout_ms`), ms.
+        timeout_ms: u64,
+    },
+    /// The drive restarted, or left its enabled state by itself: what said
+    /// so.
+    Reset(ResetReport),
+}
+
+/// What told the loop that the drive reset or left its enabled state by
+/// itself while the loop ran.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ResetReport {
+    /// CiA 402: the drive's boot-up message (its NMT state 0x00).
+    BootUp,
+    /// CiA 402: the drive's heartbeat reports this NMT state after it had
+    /// reported OPERATIONAL.
+    NmtState(NmtState),
+    /// Hi5: a state report (Fault, Heartbeat or Feedback frame) of BOOT or
+    /// DISABLED after the enable.
+    Hi5State(DriveState),
+    /// CiA 402: the statusword reports this state (neither
+    /// OperationEnabled nor a fault) after the enable.
+    Cia402State(Cia402State),
+}
+
+impl fmt::Display for DriveAlarm {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Hi5Fault { flags } => {
+                write!(f, "Hi5 FAULT {:?}", FaultFlags::from_bits_retain(*flags))
+            }
+            Self::Cia402Fault {
+                emcy_code: 0,
+                error_register: 0,
+            } => write!(f, "CiA 402 Fault (no EMCY received)"),
+            Self::Cia402Fault {
+                emcy_code,
+                error_register,
+            } => {
+                let emcy = Emcy {
+                    code: *emcy_code,
+                    register: *error_register,
+                    manufacturer: [0; 5],
+                };
+                write!(
+                    f,
+                    "CiA 402 Fault, EMCY {emcy_code:#06x} ({}), error register {error_register:#04x}",
+                    emcy.name()
+                )
+            }
+            Self::HeartbeatLost { timeout_ms } => write!(
+                f,
+                "the drive's heartbeat lost: none for more than {timeout_ms} ms \
+                 (rig.cia402.heartbeat_timeout_ms)"
+            ),
+            Self::Reset(r) => write!(f, "{r}"),
+        }
+    }
+}
+
+impl fmt::Display for ResetReport {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::BootUp => write!(f, "the drive sent a boot-up message (CiA 301 NMT 0x00)"),
+            Self::NmtState(s) => write!(
+                f,
+                "the drive's heartbeat reports NMT {s:?} ({:#04x}) after OPERATIONAL",
+                *s as u8
+            ),
+            Self::Hi5State(s) => write!(f, "the Hi5 drive reports {s:?} while enabled"),
+            Self::Cia402State(s) => write!(
+                f,
+                "the drive's statusword reports {s:?} while enabled (it left OperationEnabled \
+                 by itself: a reset, or its own stop input)"
+            ),
+        }
+    }
+}
+
+/// What a drive link saw over a run beyond each tick's sample, for the
+/// statistics (CiA 402; the Hi5 link reports none).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct DriveEvents {
+    /// EMCYs received (all of them).
+    pub emcy_received: u64,
+    /// The first EMCYs (up to the master's [`crate::cia402::master::EMCY_RECORDS`]),
+    /// each with its time in seconds after tick 0's command (negative:
+    /// during set-up).
+    pub emcy: Vec<(Emcy, f64)>,
+    /// Feedback frames discarded as older than, or a repeat of, the
+    /// feedback already taken (CiA 402: the newest SYNC counter wins).
+    pub feedback_discarded: u64,
+    /// Commands beyond the drive's own limit (0x6072) sent clamped to it.
+    pub commands_clamped_at_drive_limit: u64,
+    /// Non-finite commands sent as zero torque.
+    pub commands_non_finite: u64,
+}
 
 /// What one received frame was, for the loop's counters and checks.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -108,11 +220,8 @@ pub enum LinkError {
         /// How long.
         waited: Duration,
     },
-    /// The drive faulted while being enabled.
-    Faulted {
-        /// The profile's fault code ([`DriveSample::fault_code`]).
-        code: u16,
-    },
+    /// The drive faulted, lost its heartbeat or reset while being enabled.
+    Faulted(DriveAlarm),
 }
 
 impl fmt::Display for LinkError {
@@ -124,10 +233,7 @@ impl fmt::Display for LinkError {
             Self::Timeout { what, waited } => {
                 write!(f, "waited {waited:?} for {what}; is the drive on the bus?")
             }
-            Self::Faulted { code } => write!(
-                f,
-                "faulted (fault code {code:#06x}) right after the enable; see the drive's fault flags"
-            ),
+            Self::Faulted(alarm) => write!(f, "right after the enable: {alarm}"),
         }
     }
 }
@@ -195,6 +301,12 @@ pub trait DriveLink {
     /// rest): the drive's frames and commands to it (which only another
     /// sender can have put on the bus).
     fn receive_ids(&self) -> Vec<u32>;
+
+    /// What the link saw over the run beyond the samples (EMCYs, discarded
+    /// feedback, commands clamped at the drive's limit).
+    fn events(&self) -> DriveEvents {
+        DriveEvents::default()
+    }
 
     /// [`DriveLink::connect`] then [`DriveLink::enable`].
     fn bring_up(&mut self, bus: &mut dyn Transport) -> Result<EnableTimes, LinkError> {
@@ -376,6 +488,10 @@ pub struct Hi5Link {
     order: FeedbackOrder,
     /// Foreign commands seen by set-up's waits.
     foreign_in_setup: u64,
+    /// The enable succeeded: a BOOT or DISABLED report from now on is a reset.
+    enabled_once: bool,
+    /// The first BOOT or DISABLED report after the enable.
+    reset: Option<DriveState>,
 }
 
 impl Hi5Link {
@@ -391,6 +507,21 @@ impl Hi5Link {
             sample: DriveSample::default(),
             order: FeedbackOrder::new(256),
             foreign_in_setup: 0,
+            enabled_once: false,
+            reset: None,
+        }
+    }
+
+    /// Takes a state report: after the enable, the first BOOT or DISABLED
+    /// is kept as a reset (the drive never disables itself otherwise; a
+    /// SetState(disable) from another node is a foreign command).
+    fn note_state(&mut self, state: DriveState) {
+        self.state = state;
+        if self.enabled_once
+            && self.reset.is_none()
+            && matches!(state, DriveState::Boot | DriveState::Disabled)
+        {
+            self.reset = Some(state);
         }
     }
 
@@ -477,10 +608,12 @@ impl DriveLink for Hi5Link {
             s.order.up_to_date() || s.state == DriveState::Fault
         })?;
         if self.state == DriveState::Fault {
-            return Err(LinkError::Faulted {
-                code: self.faults.bits(),
-            });
+            return Err(LinkError::Faulted(DriveAlarm::Hi5Fault {
+                flags: self.faults.bits(),
+            }));
         }
+        self.enabled_once = true;
+        self.reset = None;
         Ok(EnableTimes {
             enable,
             first_command,
@@ -502,7 +635,7 @@ impl DriveLink for Hi5Link {
                 if let Absorbed::Feedback { .. } = absorbed {
                     self.sample.position_rad = position_rad;
                     self.sample.velocity_rad_s = velocity_rad_s;
-                    self.state = state;
+                    self.note_state(state);
                 }
                 absorbed
             }
@@ -512,7 +645,7 @@ impl DriveLink for Hi5Link {
             | Ok(Message::Fault {
                 state, fault_flags, ..
             }) => {
-                self.state = state;
+                self.note_state(state);
                 self.faults = fault_flags;
                 Absorbed::Other
             }
@@ -527,9 +660,13 @@ impl DriveLink for Hi5Link {
     fn sample(&mut self, k: u64) -> DriveSample {
         self.sample.fresh = k == 0 || self.order.up_to_date();
         self.sample.enabled = self.state == DriveState::Enabled;
-        self.sample.fault = self.state == DriveState::Fault;
+        self.sample.alarm = match self.reset {
+            Some(s) => Some(DriveAlarm::Reset(ResetReport::Hi5State(s))),
+            None => (self.state == DriveState::Fault).then_some(DriveAlarm::Hi5Fault {
+                flags: self.faults.bits(),
+            }),
+        };
         self.sample.state_code = self.state.raw();
-        self.sample.fault_code = self.faults.bits();
         self.sample
     }
 
@@ -601,6 +738,11 @@ pub struct Cia402Link {
     /// A TPDO1 newer than the newest feedback, waiting for its TPDO2:
     /// (SYNC counter, position rad).
     pending_tpdo1: Option<(u8, f64)>,
+    /// The enable succeeded: a statusword other than OperationEnabled or a
+    /// fault from now on is the drive leaving it by itself.
+    enabled_once: bool,
+    /// When tick 0's command went out (the EMCYs' time origin).
+    tick0: Option<Instant>,
 }
 
 impl Cia402Link {
@@ -611,6 +753,8 @@ impl Cia402Link {
             step,
             order: FeedbackOrder::new(u16::from(crate::cia402::od::SYNC_COUNTER_OVERFLOW)),
             pending_tpdo1: None,
+            enabled_once: false,
+            tick0: None,
         })
     }
 
@@ -650,6 +794,31 @@ impl Cia402Link {
         }
     }
 
+    /// Why the drive cannot be driven on, if it cannot: a reset (boot-up or
+    /// NMT state), its Fault (with the last EMCY), its heartbeat lost, or,
+    /// after the enable, a statusword that left OperationEnabled.
+    fn alarm(&self) -> Option<DriveAlarm> {
+        let fb = self.master.feedback();
+        let reset = |r| Some(DriveAlarm::Reset(r));
+        match (fb.reset, fb.state) {
+            (Some(NmtState::BootUp), _) => reset(ResetReport::BootUp),
+            (Some(s), _) => reset(ResetReport::NmtState(s)),
+            (None, Some(Cia402State::Fault | Cia402State::FaultReactionActive)) => {
+                Some(DriveAlarm::Cia402Fault {
+                    emcy_code: fb.last_emcy.map_or(0, |e| e.code),
+                    error_register: fb.last_emcy.map_or(0, |e| e.register),
+                })
+            }
+            _ if fb.drive_heartbeat_lost => Some(DriveAlarm::HeartbeatLost {
+                timeout_ms: self.master.settings().drive_heartbeat_timeout.as_millis() as u64,
+            }),
+            (None, Some(s)) if self.enabled_once && s != Cia402State::OperationEnabled => {
+                reset(ResetReport::Cia402State(s))
+            }
+            _ => None,
+        }
+    }
+
     /// The master (units, feedback counters).
     pub fn master(&self) -> &Master {
         &self.master
@@ -681,11 +850,11 @@ impl DriveLink for Cia402Link {
         self.order.sent(counter);
         self.order
             .absorb(counter, fb.position_rad, fb.velocity_rad_s);
-        if fb.state == Some(Cia402State::Fault) || fb.drive_heartbeat_lost {
-            return Err(LinkError::Faulted {
-                code: self.sample(0).fault_code,
-            });
+        self.master.check_drive_heartbeat(Instant::now());
+        if let Some(alarm) = self.alarm() {
+            return Err(LinkError::Faulted(alarm));
         }
+        self.enabled_once = true;
         Ok(EnableTimes {
             enable,
             first_command: enable,
@@ -700,6 +869,10 @@ impl DriveLink for Cia402Link {
             }
             Heard::ForeignCommand => Absorbed::ForeignCommand,
             Heard::Undecodable => Absorbed::Undecodable,
+            Heard::Conflicting { sync_counter } => Absorbed::ConflictingFeedback {
+                sequence: sync_counter,
+            },
+            Heard::Discarded => Absorbed::StaleFeedback,
             Heard::Other => Absorbed::Other,
         }
     }
@@ -713,32 +886,53 @@ impl DriveLink for Cia402Link {
             .order
             .newest()
             .unwrap_or((fb.position_rad, fb.velocity_rad_s));
-        let fault_code = if fb.drive_heartbeat_lost {
-            HEARTBEAT_LOST_CODE
-        } else {
-            fb.last_emcy.map_or(0, |e| e.code)
-        };
         DriveSample {
             position_rad,
             velocity_rad_s,
             fresh: k == 0 || self.order.up_to_date(),
             enabled: fb.state == Some(Cia402State::OperationEnabled),
-            fault: fb.state == Some(Cia402State::Fault) || fb.drive_heartbeat_lost,
+            alarm: self.alarm(),
             state_code: fb.state.map_or(u8::MAX, |s| s as u8),
-            fault_code,
         }
     }
 
     fn send_torque(
         &mut self,
         bus: &mut dyn Transport,
-        _k: u64,
+        k: u64,
         torque_nm: f64,
     ) -> Result<(), LinkError> {
+        if k == 0 {
+            self.tick0 = Some(Instant::now());
+        }
         let sent = self.master.tick(bus, torque_nm);
         self.order.sent(self.master.sync_counter());
         sent?;
         Ok(())
+    }
+
+    /// The EMCYs (time after tick 0's command), the TPDOs discarded by the
+    /// newest-SYNC-counter rule, the commands clamped at 0x6072.
+    fn events(&self) -> DriveEvents {
+        let fb = self.master.feedback();
+        let origin = self.tick0;
+        let seconds = |at: Instant| match origin {
+            Some(t0) if at >= t0 => at.duration_since(t0).as_secs_f64(),
+            Some(t0) => -t0.duration_since(at).as_secs_f64(),
+            None => f64::NAN,
+        };
+        DriveEvents {
+            emcy_received: fb.emcy_received,
+            emcy: self
+                .master
+                .emcy_records()
+                .iter()
+                .map(|r| (r.emcy, seconds(r.at)))
+                .collect(),
+            feedback_discarded: fb.tpdos_discarded,
+            commands_clamped_at_drive_limit: self.master.commands_clamped(),
+            commands_non_finite: self.master.commands_non_finite(),
+        }
     }
 
     /// Emergency: [`Master::quick_stop`] (torque 0 at once; the drive

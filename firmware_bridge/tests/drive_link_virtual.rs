@@ -136,7 +136,10 @@ fn idle_ticks(module: &str, link: &mut dyn DriveLink, bus: &mut UdpBus, k0: u64,
             std::thread::sleep(left);
         }
         let s = link.drain(bus, k).unwrap();
-        assert!(!s.fault, "{module}: fault at tick {k} while ticking");
+        assert!(
+            s.alarm.is_none(),
+            "{module}: fault at tick {k} while ticking"
+        );
         link.send_torque(bus, k, 0.0).unwrap();
     }
 }
@@ -152,7 +155,7 @@ fn trip_watchdog(module: &str, link: &mut dyn DriveLink, watchdog: Duration) -> 
     let wait = Instant::now();
     loop {
         let s = link.drain(&mut bus, 51).unwrap();
-        if s.fault {
+        if s.alarm.is_some() {
             assert!(!s.enabled);
             return (bus, child);
         }
@@ -170,7 +173,10 @@ fn reenable(module: &str, link: &mut dyn DriveLink, mut bus: UdpBus, child: Chil
     link.bring_up(&mut bus).unwrap();
     idle_ticks(module, link, &mut bus, 0, 50);
     let s = link.drain(&mut bus, 50).unwrap();
-    assert!(s.enabled && !s.fault, "{module}: not enabled again: {s:?}");
+    assert!(
+        s.enabled && s.alarm.is_none(),
+        "{module}: not enabled again: {s:?}"
+    );
     link.shut_down(&mut bus, 50).unwrap();
     stop(child);
 }
@@ -190,7 +196,7 @@ fn run(profile: &Profile, link: &mut dyn DriveLink) {
             std::thread::sleep(left);
         }
         let s = link.drain(&mut bus, k).unwrap();
-        if s.fault {
+        if s.alarm.is_some() {
             let err = stop(child);
             panic!("{}: drive fault at tick {k}; drive: {err}", profile.module);
         }
@@ -207,7 +213,7 @@ fn run(profile: &Profile, link: &mut dyn DriveLink) {
         if s.fresh {
             break s;
         }
-        if s.fault {
+        if s.alarm.is_some() {
             let err = stop(child);
             panic!(
                 "{}: drive fault after the last tick; drive: {err}",

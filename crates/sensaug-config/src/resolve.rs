@@ -222,6 +222,10 @@ fn partner_integration(spec: &ScenarioSpec) -> Result<(), ConfigError> {
     Ok(())
 }
 
+/// CiA 402: the master's consumer time for the drive's heartbeat is at most
+/// this many drive watchdogs (`rig.cia402.heartbeat_timeout_ms`).
+pub const MAX_HEARTBEAT_WATCHDOGS: u32 = 3;
+
 fn rig_timing(rig: &RigSpec, dt_s: f64) -> Result<(), ConfigError> {
     sensaug_bridge::transport::BusUrl::parse(&rig.can)
         .map_err(|e| ConfigError::new("rig.can", e.to_string()))?;
@@ -242,6 +246,19 @@ fn rig_timing(rig: &RigSpec, dt_s: f64) -> Result<(), ConfigError> {
             "rig.node_id",
             "0 is the NMT broadcast address, not a CANopen node (rig.drive = \"cia402\"); \
              use the drive's node-ID, 1..15",
+        ));
+    }
+    let heartbeat = rig.cia402.heartbeat_timeout_ms;
+    if rig.drive == DriveProfile::Cia402 && heartbeat > MAX_HEARTBEAT_WATCHDOGS * rig.watchdog_ms {
+        return Err(ConfigError::new(
+            "rig.cia402.heartbeat_timeout_ms",
+            format!(
+                "{heartbeat} ms is more than {MAX_HEARTBEAT_WATCHDOGS} x rig.watchdog_ms ({} ms): \
+                 a drive that stopped beating would go unnoticed far longer than a master that \
+                 stopped; use at most {} ms, or a longer rig.watchdog_ms",
+                rig.watchdog_ms,
+                MAX_HEARTBEAT_WATCHDOGS * rig.watchdog_ms
+            ),
         ));
     }
     if f64::from(rig.watchdog_ms) < 2.0 * dt_ms {

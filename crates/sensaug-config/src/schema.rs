@@ -576,6 +576,29 @@ impl Default for RealtimeSpec {
     }
 }
 
+/// `[rig.cia402]`: settings of the CiA 402 profile (`rig.drive = "cia402"`;
+/// ignored on the Hi5).
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct Cia402Spec {
+    /// The master's heartbeat consumer time for the drive (ms): a drive
+    /// heartbeat missing this long stops the run with an emergency stop
+    /// ("drive fault: the drive's heartbeat lost"). The drive is set to beat
+    /// every half of it (0x1017). At most 3 x rig.watchdog_ms (the drive
+    /// watches the master within the watchdog; the master watches the drive
+    /// within a small multiple of it).
+    #[schemars(range(min = 10, max = 600))]
+    pub heartbeat_timeout_ms: u32,
+}
+
+impl Default for Cia402Spec {
+    fn default() -> Self {
+        Cia402Spec {
+            heartbeat_timeout_ms: 100,
+        }
+    }
+}
+
 /// `[rig]`: the real-time loop, its CAN link, its safety limits and outputs.
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
 #[serde(deny_unknown_fields, default)]
@@ -665,6 +688,8 @@ pub struct RigSpec {
     pub max_estimator_errors: u64,
     /// Thread settings.
     pub realtime: RealtimeSpec,
+    /// CiA 402 profile settings.
+    pub cia402: Cia402Spec,
 }
 
 impl Default for RigSpec {
@@ -692,6 +717,7 @@ impl Default for RigSpec {
             max_stale_feedback_ticks: 100,
             max_estimator_errors: 10,
             realtime: RealtimeSpec::default(),
+            cia402: Cia402Spec::default(),
         }
     }
 }

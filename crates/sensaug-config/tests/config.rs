@@ -178,3 +178,45 @@ fn spin_is_bounded_by_the_schema_and_by_half_the_period() {
         0
     );
 }
+
+/// `rig.cia402.heartbeat_timeout_ms`: the schema's 10..=600 ms, and on the
+/// CiA 402 profile at most 3 x `rig.watchdog_ms` (a cross-field rule), named
+/// with the fix; the Hi5 profile does not use it.
+#[test]
+fn the_drive_heartbeat_timeout_is_bounded_by_the_watchdog_on_cia402() {
+    let with = |drive: &str, watchdog: u32, timeout: u32| {
+        load_str(
+            &format!(
+                "{MINIMAL}\n[rig]\ndrive = \"{drive}\"\nwatchdog_ms = {watchdog}\n\
+                 [rig.cia402]\nheartbeat_timeout_ms = {timeout}\n"
+            ),
+            Format::Toml,
+        )
+    };
+    let default = load_str(MINIMAL, Format::Toml).unwrap().rig.cia402;
+    assert_eq!(default.heartbeat_timeout_ms, 100);
+    assert_eq!(
+        with("cia402", 50, 150)
+            .unwrap()
+            .rig
+            .cia402
+            .heartbeat_timeout_ms,
+        150
+    );
+    let long = with("cia402", 50, 151).unwrap_err();
+    assert_eq!(long.field, "rig.cia402.heartbeat_timeout_ms");
+    assert_eq!(
+        long.message,
+        "151 ms is more than 3 x rig.watchdog_ms (50 ms): a drive that stopped beating would go \
+         unnoticed far longer than a master that stopped; use at most 150 ms, or a longer \
+         rig.watchdog_ms"
+    );
+    assert!(with("hi5", 50, 151).is_ok());
+    for (timeout, field_ok) in [(9, false), (10, true), (600, true), (601, false)] {
+        let r = with("cia402", 200, timeout);
+        assert_eq!(r.is_ok(), field_ok, "{timeout}: {r:?}");
+        if let Err(e) = r {
+            assert!(e.message.contains("out of range"), "{e}");
+        }
+    }
+}

@@ -17,8 +17,10 @@ const HEARTBEATS_PER_WATCHDOG: u64 = 5;
 
 /// The link to the drive `[rig] drive` names. CiA 402: the drive's
 /// heartbeat consumer (its command watchdog) is `rig.watchdog_ms`, the
-/// master beats [`HEARTBEATS_PER_WATCHDOG`] times per watchdog; the drive's
-/// own heartbeat and the set-up's response timeout are
+/// master beats [`HEARTBEATS_PER_WATCHDOG`] times per watchdog; the master's
+/// consumer of the drive's heartbeat is `rig.cia402.heartbeat_timeout_ms`
+/// (the drive beats twice per timeout); the drive's max torque 0x6072 must
+/// be `rig.torque_limit_nm`; the set-up's response timeout is
 /// [`MasterSettings::new`]'s.
 pub fn drive_link(s: &LoopSettings) -> Result<Box<dyn DriveLink + Send>, ConfigError> {
     Ok(match s.drive {
@@ -26,7 +28,10 @@ pub fn drive_link(s: &LoopSettings) -> Result<Box<dyn DriveLink + Send>, ConfigE
         DriveProfile::Cia402 => {
             let node = CanopenNode::new(s.node.get())
                 .map_err(|e| ConfigError::new("rig.node_id", e.to_string()))?;
-            let mut m = MasterSettings::new(node);
+            let mut m = MasterSettings::new(node).with_drive_heartbeat_timeout(
+                Duration::from_millis(u64::from(s.drive_heartbeat_timeout_ms)),
+            );
+            m.max_torque_nm = s.torque_limit_nm;
             m.drive_consumer_ms = s.watchdog_ms;
             m.heartbeat_period =
                 Duration::from_millis((u64::from(s.watchdog_ms) / HEARTBEATS_PER_WATCHDOG).max(1));
@@ -57,6 +62,7 @@ pub fn loop_settings(resolved: &Resolved<'_>) -> Result<LoopSettings, ConfigErro
         rad_per_unit: resolved.rad_per_unit,
         torque_limit_nm: rig.torque_limit_nm,
         watchdog_ms: rig.watchdog_ms as u16,
+        drive_heartbeat_timeout_ms: rig.cia402.heartbeat_timeout_ms,
         feedback_timeout_ms: rig.feedback_timeout_ms,
         stop: StopSettings {
             time_limit_s: rig.stop_time_limit_s,

@@ -13,7 +13,7 @@
 
 use crate::log::{LogRecord, LogSink};
 use crate::os;
-use crate::stats::{CanCounters, ComputeParts, Histogram, LoopReport, StartGap};
+use crate::stats::{CanCounters, ComputeParts, DriveReport, Histogram, LoopReport, StartGap};
 use crate::wake::{wake_up, Wake};
 use sensaug_bridge::drive_link::{Absorbed, DriveLink, DriveSample};
 use sensaug_bridge::protocol::NodeId;
@@ -170,6 +170,8 @@ pub struct LoopSettings {
     pub torque_limit_nm: f64,
     /// Drive watchdog (ms).
     pub watchdog_ms: u16,
+    /// CiA 402: the drive's heartbeat is lost after this long (ms).
+    pub drive_heartbeat_timeout_ms: u32,
     /// Feedback timeout (ms).
     pub feedback_timeout_ms: f64,
     /// The controlled stop.
@@ -630,11 +632,7 @@ impl<'a> Rig<'a> {
         Checks {
             tick: k,
             feedback_timed_out: k > 0 && sensed.age_ticks > timing.timeout_ticks,
-            drive_fault: self
-                .drive
-                .sample
-                .fault
-                .then_some(self.drive.sample.fault_code),
+            drive_fault: self.drive.sample.alarm,
             foreign_command: self.can.foreign_commands > 0,
             implausible: self.implausible,
             log_failed,
@@ -722,9 +720,10 @@ impl<'a> Rig<'a> {
     }
 
     /// After the loop, without waiting: the drive's emergency stop on a
-    /// feedback timeout or a foreign command (it leaves the drive unable to
-    /// move until set up again: no controller can drive the motor), else
-    /// zero torque; then disable ([`DriveLink::stop`]).
+    /// feedback timeout, a lost drive heartbeat, a foreign command or a
+    /// drive reset (it leaves the drive unable to move until set up again:
+    /// no controller can drive the motor), else zero torque; then disable
+    /// ([`DriveLink::stop`]).
     fn shut_down(&mut self, reason: StopReason) {
         let emergency = reason.stop_kind() == StopKind::EmergencyStop;
         // The command after the loop's last one (tick k - 1).
@@ -758,6 +757,7 @@ impl<'a> Rig<'a> {
             loop_page_faults: self.page_faults,
             deadline_misses: self.deadline_misses,
             can,
+            drive: DriveReport::new(&self.link.events(), self.settings.dt_s),
             ring_overflows: 0,
             records_written: 0,
             log_write_errors: 0,

@@ -269,6 +269,13 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, RunError> {
     let overflows = sink.overflows();
     drop(sink);
     let mut report = rig_loop.report(reason);
+    for emcy in &report.drive.emcy {
+        eprintln!("{}", emcy.line());
+    }
+    let unlisted = report.drive.emcy_received - report.drive.emcy.len() as u64;
+    if unlisted > 0 {
+        eprintln!("drive EMCY: {unlisted} more not listed (counted in stats drive.emcy_received)");
+    }
     report.ring_overflows = overflows;
     report.realtime = realtime;
     let mut end = serde_json::Map::new();
@@ -324,6 +331,7 @@ fn log_metadata(resolved: &Resolved<'_>, s: &LoopSettings) -> serde_json::Value 
             "rad_per_unit": s.rad_per_unit,
             "torque_limit_nm": s.torque_limit_nm,
             "watchdog_ms": s.watchdog_ms,
+            "drive_heartbeat_timeout_ms": s.drive_heartbeat_timeout_ms,
             "feedback_timeout_ms": s.feedback_timeout_ms,
             "stop_time_limit_s": s.stop.time_limit_s,
             "stop_damping_nm_s_per_rad": s.stop.damping_nm_s_per_rad,

@@ -7,7 +7,7 @@
 //! `docs/safety.md` lists every fault, its safe state and the measured time
 //! to reach it.
 
-use sensaug_bridge::protocol::FaultFlags;
+use sensaug_bridge::drive_link::{DriveAlarm, ResetReport};
 use std::fmt;
 
 /// A feedback that physics rules out (`rig.max_feedback_velocity_rad_s`,
@@ -178,8 +178,14 @@ pub enum StopReason {
     Signal(i32),
     /// No feedback for longer than `rig.feedback_timeout_ms`: emergency stop sent.
     FeedbackTimeout,
-    /// The drive reported FAULT (flags).
-    DriveFault(u16),
+    /// The drive reported its fault (Hi5 FAULT flags; CiA 402 Fault with
+    /// the EMCY code and error register) or, CiA 402, its heartbeat was
+    /// lost: emergency stop on a lost heartbeat, else stop and disable.
+    DriveFault(DriveAlarm),
+    /// The drive reset (CiA 402 boot-up, or a heartbeat leaving
+    /// OPERATIONAL; Hi5 BOOT or DISABLED reported) or left its enabled
+    /// state by itself: emergency stop at once.
+    DriveReset(ResetReport),
     /// A command frame for this node that this process did not send (a
     /// second controller on the bus): emergency stop sent.
     ForeignCommand,
@@ -197,8 +203,9 @@ pub enum StopReason {
 impl StopReason {
     /// The process exit code (docs/realtime.md): 0 completed; 1 signal,
     /// feedback timeout or drive fault; 4 foreign command; 5 implausible
-    /// feedback; 6 degraded; 7 log write failure. (2 is a configuration or
-    /// set-up error, 3 another controller seen before enabling.)
+    /// feedback; 6 degraded; 7 log write failure; 8 drive reset. (2 is a
+    /// configuration or set-up error, 3 another controller seen before
+    /// enabling.)
     pub fn exit_code(&self) -> u8 {
         match self {
             StopReason::Completed => 0,
@@ -207,6 +214,7 @@ impl StopReason {
             StopReason::ImplausibleFeedback(_) => 5,
             StopReason::Degraded(_) => 6,
             StopReason::LogWriteFailed => 7,
+            StopReason::DriveReset(_) => 8,
         }
     }
 
@@ -223,7 +231,10 @@ impl StopReason {
     pub fn stop_kind(&self) -> StopKind {
         match self {
             StopReason::Completed => StopKind::Completed,
-            StopReason::FeedbackTimeout | StopReason::ForeignCommand => StopKind::EmergencyStop,
+            StopReason::FeedbackTimeout
+            | StopReason::ForeignCommand
+            | StopReason::DriveReset(_)
+            | StopReason::DriveFault(DriveAlarm::HeartbeatLost { .. }) => StopKind::EmergencyStop,
             StopReason::Signal(_)
             | StopReason::LogWriteFailed
             | StopReason::Degraded(Degradation::Estimator { .. }) => StopKind::Controlled,
@@ -269,9 +280,11 @@ impl fmt::Display for StopReason {
                 write!(f, "signal {} ({safe})", crate::os::signal_name(*n))
             }
             StopReason::FeedbackTimeout => write!(f, "feedback timeout ({safe})"),
-            StopReason::DriveFault(flags) => {
-                write!(f, "drive fault {:?}", FaultFlags::from_bits_retain(*flags))
-            }
+            StopReason::DriveFault(alarm) => write!(f, "drive fault: {alarm} ({safe})"),
+            StopReason::DriveReset(why) => write!(
+                f,
+                "drive reset: {why} ({safe}; the drive must be set up again)"
+            ),
             StopReason::ForeignCommand => write!(
                 f,
                 "foreign command: a command frame for this node that this process did not \
@@ -469,8 +482,8 @@ pub struct Checks {
     pub tick: u64,
     /// No feedback for longer than the timeout.
     pub feedback_timed_out: bool,
-    /// The drive reported FAULT (its flags).
-    pub drive_fault: Option<u16>,
+    /// The drive's alarm: its fault, its heartbeat lost, or a reset.
+    pub drive_fault: Option<DriveAlarm>,
     /// A command frame for this node that this process did not send.
     pub foreign_command: bool,
     /// The first implausible feedback, if any.
@@ -507,8 +520,10 @@ impl Checks {
         if self.feedback_timed_out {
             return Some(StopReason::FeedbackTimeout);
         }
-        if let Some(flags) = self.drive_fault {
-            return Some(StopReason::DriveFault(flags));
+        match self.drive_fault {
+            Some(DriveAlarm::Reset(why)) => return Some(StopReason::DriveReset(why)),
+            Some(alarm) => return Some(StopReason::DriveFault(alarm)),
+            None => {}
         }
         self.foreign_command.then_some(StopReason::ForeignCommand)
     }
@@ -594,6 +609,33 @@ mod tests {
         reason: StopReason::Signal(SIGTERM),
     };
 
+    const HI5_FAULT: DriveAlarm = DriveAlarm::Hi5Fault { flags: 3 };
+
+    #[test]
+    fn a_drive_fault_prints_its_profiles_code_and_a_reset_has_its_own_exit_code() {
+        let hi5 = StopReason::DriveFault(HI5_FAULT).to_string();
+        assert!(
+            hi5.contains("Hi5 FAULT") && hi5.contains("WATCHDOG"),
+            "{hi5}"
+        );
+        let cia = StopReason::DriveFault(DriveAlarm::Cia402Fault {
+            emcy_code: 0x8400,
+            error_register: 0x01,
+        });
+        let text = cia.to_string();
+        assert!(
+            text.contains("EMCY 0x8400") && text.contains("overspeed") && text.contains("0x01"),
+            "{text}"
+        );
+        assert!(!text.contains("FaultFlags"), "{text}");
+        let lost = StopReason::DriveFault(DriveAlarm::HeartbeatLost { timeout_ms: 100 });
+        assert!(lost.to_string().contains("heartbeat lost"), "{lost}");
+        assert_eq!((cia.exit_code(), lost.exit_code()), (1, 1));
+        let reset = StopReason::DriveReset(ResetReport::BootUp);
+        assert_eq!(reset.exit_code(), 8);
+        assert!(reset.to_string().starts_with("drive reset: "), "{reset}");
+    }
+
     const JUMP: Implausible = Implausible::Step {
         step_rad: 0.5,
         allowed_rad: 0.026,
@@ -609,7 +651,7 @@ mod tests {
     fn a_timeout_then_a_fault_then_a_foreign_command_stop_at_once_even_while_braking() {
         let all = Checks {
             feedback_timed_out: true,
-            drive_fault: Some(3),
+            drive_fault: Some(HI5_FAULT),
             foreign_command: true,
             implausible: Some(JUMP),
             signal: Some(SIGTERM),
@@ -622,7 +664,18 @@ mod tests {
                 feedback_timed_out: false,
                 ..all
             };
-            assert_eq!(s.next(&fault), Safety::Stopped(StopReason::DriveFault(3)));
+            assert_eq!(
+                s.next(&fault),
+                Safety::Stopped(StopReason::DriveFault(HI5_FAULT))
+            );
+            let reset = Checks {
+                drive_fault: Some(DriveAlarm::Reset(ResetReport::BootUp)),
+                ..fault
+            };
+            assert_eq!(
+                s.next(&reset),
+                Safety::Stopped(StopReason::DriveReset(ResetReport::BootUp))
+            );
             let foreign = Checks {
                 drive_fault: None,
                 ..fault

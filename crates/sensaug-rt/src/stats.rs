@@ -200,6 +200,83 @@ pub struct StopReport {
     pub speed_at_end_rad_s: f64,
 }
 
+/// One emergency message from the drive (CiA 402 EMCY), as the statistics
+/// list it: hex codes as a lab reads them in the drive's manual.
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct EmcyEntry {
+    /// Seconds after tick 0's command (the log's `t`); negative: during
+    /// set-up.
+    pub t_s: f64,
+    /// The tick being sensed when it was taken in (`t_s / dt`, rounded up;
+    /// None during set-up).
+    pub tick: Option<u64>,
+    /// Emergency error code, e.g. "0x8611".
+    pub code: String,
+    /// Error register 0x1001, e.g. "0x01".
+    pub error_register: String,
+    /// The 5 manufacturer-specific bytes, hex.
+    pub manufacturer: String,
+    /// What the code means (its class when not one the master knows).
+    pub meaning: &'static str,
+}
+
+impl EmcyEntry {
+    /// One line for stderr.
+    pub fn line(&self) -> String {
+        let when = match self.tick {
+            Some(k) => format!("t = {:.3} s (tick {k})", self.t_s),
+            None => format!("during set-up ({:.3} s before tick 0)", -self.t_s),
+        };
+        format!(
+            "drive EMCY {} ({}), error register {}, manufacturer bytes {}, {when}",
+            self.code, self.meaning, self.error_register, self.manufacturer
+        )
+    }
+}
+
+/// What the drive link saw beyond each tick's sample (CiA 402; zeros and an
+/// empty list on the Hi5 profile).
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct DriveReport {
+    /// EMCY frames received (the first 64 are listed in `emcy`).
+    pub emcy_received: u64,
+    /// The EMCYs, in the order received.
+    pub emcy: Vec<EmcyEntry>,
+    /// Feedback frames discarded as older than, or a repeat of, the one
+    /// already taken (the newest SYNC counter wins).
+    pub feedback_discarded: u64,
+    /// Commands beyond the drive's own limit (0x6072) sent clamped to it.
+    pub commands_clamped_at_drive_limit: u64,
+    /// Non-finite commands the link sent as zero torque.
+    pub commands_non_finite: u64,
+}
+
+impl DriveReport {
+    /// From the link's events, the EMCY times placed on the loop's ticks of
+    /// `dt_s`.
+    pub fn new(events: &sensaug_bridge::drive_link::DriveEvents, dt_s: f64) -> Self {
+        let emcy = events
+            .emcy
+            .iter()
+            .map(|(e, t_s)| EmcyEntry {
+                t_s: *t_s,
+                tick: (*t_s >= 0.0).then(|| (t_s / dt_s).ceil() as u64),
+                code: format!("{:#06x}", e.code),
+                error_register: format!("{:#04x}", e.register),
+                manufacturer: e.manufacturer.iter().map(|b| format!("{b:02x}")).collect(),
+                meaning: e.name(),
+            })
+            .collect();
+        DriveReport {
+            emcy_received: events.emcy_received,
+            emcy,
+            feedback_discarded: events.feedback_discarded,
+            commands_clamped_at_drive_limit: events.commands_clamped_at_drive_limit,
+            commands_non_finite: events.commands_non_finite,
+        }
+    }
+}
+
 /// The gaps the drive's watchdog sees at the start (us): from the enable
 /// request to the set-up's zero-torque command, and from that command to
 /// tick 0's command. NaN when the loop never sent tick 0.
@@ -258,6 +335,9 @@ pub struct LoopReport {
     pub deadline_misses: u64,
     /// CAN counters.
     pub can: CanCounters,
+    /// The drive's emergency messages and what its link discarded or
+    /// clamped.
+    pub drive: DriveReport,
     /// Records dropped because the log ring was full.
     pub ring_overflows: u64,
     /// Records written to the log file.

@@ -246,6 +246,9 @@ class VirtualHi5:
         #: change while ENABLED. Not in the Heartbeat.
         self.ignored = 0
         self.accepted = 0
+        #: Resets done (:meth:`reset`).
+        self.resets = 0
+        self._reset_requested = False
         self.log: Optional[DriveLog] = DriveLog() if log else None
         #: The handle coasts (zero torque, real time) from here while not ENABLED.
         self._coast_s = 0.0
@@ -263,6 +266,26 @@ class VirtualHi5:
         self._set_state(State.DISABLED)
         self._send_heartbeat()
         self._next_hb_s = now + self.config.heartbeat_period_s
+
+    def reset(self) -> None:
+        """A restart of the drive's electronics (a power glitch; ``SIGUSR1`` to
+        the CLI): torque 0, faults and watchdog cleared, then the boot of
+        :meth:`start`: a Fault frame reporting BOOT, DISABLED, a Heartbeat.
+        The handle (the plant) keeps its motion."""
+        self.resets += 1
+        self.torque_nm = 0.0
+        self.fault_flags = FaultFlag.NONE
+        self._expected_seq = None
+        self.state = State.BOOT
+        self._send_fault()
+        self._set_state(State.DISABLED)
+        self._send_heartbeat()
+        self._next_hb_s = self._clock() + self.config.heartbeat_period_s
+
+    def request_reset(self) -> None:
+        """Asks :meth:`run` to :meth:`reset` at its next iteration (safe from
+        a signal handler)."""
+        self._reset_requested = True
 
     def stop(self) -> None:
         """Zero torque, leave ENABLED for DISABLED, send a final Fault and Heartbeat."""
@@ -293,6 +316,9 @@ class VirtualHi5:
             now = self._clock()
             if now >= end:
                 break
+            if self._reset_requested:
+                self._reset_requested = False
+                self.reset()
             self.poll(now, read_until if self.kernel_timestamps else None)
             due = min(self._next_hb_s, end, now + 0.01)
             if self.state == State.ENABLED:
@@ -522,6 +548,7 @@ class VirtualHi5:
             "sequence_errors": self.sequence_errors,
             "unknown_ids": hb.unknown_ids,
             "range_errors": self.range_errors,
+            "resets": self.resets,
         }
         if self.log is not None:
             out.update(self.log.latency_summary())
@@ -587,7 +614,9 @@ def drive_config_fields(args: argparse.Namespace) -> dict[str, Any]:
 def serve(prog: str, args: argparse.Namespace, config: DriveConfig, make_drive: Callable[[can.BusABC], Any]) -> int:
     """Run one virtual drive from the command line: validate, open the bus, start,
     run until SIGINT/SIGTERM/--duration, stop, save the log, print the summary.
-    Exit code 0 on a clean stop, 2 for a bad option value, 1 if the bus cannot be opened."""
+    SIGUSR1 resets the drive (``request_reset``: a power glitch, for the
+    tests of a drive reset mid-run). Exit code 0 on a clean stop, 2 for a bad
+    option value, 1 if the bus cannot be opened."""
     try:
         config.validate()
     except ValueError as err:
@@ -607,6 +636,7 @@ def serve(prog: str, args: argparse.Namespace, config: DriveConfig, make_drive: 
         return 1
     try:
         drive = make_drive(bus)
+        signal.signal(signal.SIGUSR1, lambda signum, frame: drive.request_reset())
         drive.start()
         try:
             drive.run(stop=stop, duration_s=args.duration)

@@ -265,16 +265,33 @@ pub struct Emcy {
 }
 
 impl Emcy {
-    /// A short name for the error codes the virtual drive sends.
+    /// A short name: the codes the virtual drive sends, else the code's
+    /// class (CiA 301 table 21 by its high byte or nibble).
     pub fn name(&self) -> &'static str {
         match self.code {
-            0x0000 => "error reset",
+            0x0000 => "error reset or no error",
             0x8130 => "heartbeat error (the drive lost the master's heartbeat)",
             0x8400 => "velocity speed controller (overspeed)",
             0x8611 => "target torque beyond max torque 0x6072",
             0x6100 => "internal software",
-            c if c & 0xFF00 == 0x8100 => "communication",
-            _ => "other",
+            c => match c >> 8 {
+                0x10 => "generic error",
+                0x81 => "communication",
+                0x82 => "protocol error",
+                0x90 => "external error",
+                0xF0 => "additional functions",
+                0xFF => "device specific",
+                _ => match c >> 12 {
+                    0x2 => "current",
+                    0x3 => "voltage",
+                    0x4 => "temperature",
+                    0x5 => "device hardware",
+                    0x6 => "device software",
+                    0x7 => "additional modules",
+                    0x8 => "monitoring",
+                    _ => "unknown class",
+                },
+            },
         }
     }
 }

@@ -35,26 +35,41 @@ pub struct MasterSettings {
     /// Written to the drive's 0x1017: its heartbeat period.
     pub drive_producer_ms: u16,
     /// The master reports the drive lost ([`Feedback::drive_heartbeat_lost`])
-    /// when its heartbeat is missing this long.
+    /// when its heartbeat is missing this long (its heartbeat consumer).
     pub drive_heartbeat_timeout: Duration,
     /// Longest wait for one SDO answer or one state transition at set-up.
     pub response_timeout: Duration,
+    /// The torque limit the drive must hold in 0x6072 (max torque), N m:
+    /// set-up refuses a drive whose 0x6072 is another value
+    /// ([`Cia402Error::MaxTorqueMismatch`]), higher or lower.
+    pub max_torque_nm: f64,
 }
 
 impl MasterSettings {
     /// Node 1, master 127; master heartbeat every 10 ms, the drive's
-    /// watchdog 100 ms, its heartbeat every 100 ms, lost after 500 ms.
+    /// watchdog 100 ms, its heartbeat every 50 ms, lost after 100 ms; max
+    /// torque 3 N m (the EDS's 3000 per-mille of 1 N m).
     pub fn new(node: CanopenNode) -> Self {
+        let drive_heartbeat_timeout = Duration::from_millis(100);
         Self {
             node,
             // Constant in range.
             master_node: CanopenNode::new(127).unwrap_or(node),
             heartbeat_period: Duration::from_millis(10),
             drive_consumer_ms: 100,
-            drive_producer_ms: 100,
-            drive_heartbeat_timeout: Duration::from_millis(500),
+            drive_producer_ms: producer_for(drive_heartbeat_timeout),
+            drive_heartbeat_timeout,
             response_timeout: Duration::from_secs(2),
+            max_torque_nm: 3.0,
         }
+    }
+
+    /// Watches the drive's heartbeat with consumer time `timeout`, and has
+    /// the drive beat twice per timeout ([`producer_for`]).
+    pub fn with_drive_heartbeat_timeout(mut self, timeout: Duration) -> Self {
+        self.drive_heartbeat_timeout = timeout;
+        self.drive_producer_ms = producer_for(timeout);
+        self
     }
 
     fn validate(&self) -> Result<(), Cia402Error> {
@@ -89,8 +104,23 @@ impl MasterSettings {
                 why: "must be > 0 and shorter than drive_heartbeat_timeout",
             });
         }
+        // A finite limit of 0 or below matches no drive's 0x6072 (>= 1): set-up refuses it.
+        if !self.max_torque_nm.is_finite() {
+            return Err(Cia402Error::NotFinite {
+                field: "max_torque_nm",
+            });
+        }
         Ok(())
     }
+}
+
+/// The drive's heartbeat period (0x1017, ms) for a master that declares it
+/// lost after `timeout`: half of it (at least 1 ms), so one late beat is
+/// not a loss.
+pub fn producer_for(timeout: Duration) -> u16 {
+    u16::try_from(timeout.as_millis() / 2)
+        .unwrap_or(u16::MAX)
+        .max(1)
 }
 
 /// What the master knows about the drive, updated by every received frame.
@@ -132,7 +162,28 @@ pub struct Feedback {
     /// to it, SYNC, NMT to it or to all): another master is on the bus
     /// (a socket never receives its own frames).
     pub foreign_commands: u64,
+    /// TPDOs discarded because they answer an older SYNC than the TPDO of
+    /// the same kind already taken, or the same SYNC again (a duplicate, a
+    /// late copy, a replay): the newest SYNC counter wins.
+    pub tpdos_discarded: u64,
+    /// What said the drive reset after NMT start, the first such report: a
+    /// boot-up message, or a heartbeat other than OPERATIONAL after an
+    /// OPERATIONAL one.
+    pub reset: Option<NmtState>,
 }
+
+/// One EMCY as received: the frame and when.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct EmcyRecord {
+    /// The EMCY.
+    pub emcy: Emcy,
+    /// When it was taken in.
+    pub at: Instant,
+}
+
+/// EMCYs kept per run by [`Master::emcy_records`] (allocated up front; later
+/// ones are only counted in [`Feedback::emcy_received`]).
+pub const EMCY_RECORDS: usize = 64;
 
 /// What [`Master::absorb`] made of one frame.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -143,6 +194,16 @@ pub enum Heard {
     ForeignCommand,
     /// A frame from the drive that did not decode.
     Undecodable,
+    /// A TPDO discarded: it answers an older SYNC than the one already
+    /// taken, or the same one again ([`Feedback::tpdos_discarded`]).
+    Discarded,
+    /// A TPDO echoing the SYNC counter of the one of its kind already
+    /// taken, with other values: two answers to one SYNC (a forger on the
+    /// bus); not taken.
+    Conflicting {
+        /// The SYNC counter both echo.
+        sync_counter: u8,
+    },
     /// Any other frame (TPDO1, EMCY, heartbeat, or not from the drive).
     Other,
 }
@@ -160,6 +221,18 @@ pub struct Master {
     sync_counter: u8,
     /// PDOs whose configuration set-up wrote (they differed from the EDS's).
     pdos_rewritten: u32,
+    /// NMT start sent: a boot-up from now on is a reset.
+    nmt_started: bool,
+    /// An OPERATIONAL heartbeat seen since NMT start: another state from now
+    /// on is a reset (before it, a beat sent before the start may arrive).
+    operational_seen: bool,
+    /// The EMCYs received, up to [`EMCY_RECORDS`] (capacity reserved by
+    /// [`Master::new`]).
+    emcy_records: Vec<EmcyRecord>,
+    /// Torque commands beyond 0x6072 sent as +-0x6072.
+    commands_clamped: u64,
+    /// Non-finite torque commands sent as 0.
+    commands_non_finite: u64,
 }
 
 impl Master {
@@ -177,6 +250,11 @@ impl Master {
             syncs_sent: 0,
             sync_counter: 0,
             pdos_rewritten: 0,
+            nmt_started: false,
+            operational_seen: false,
+            emcy_records: Vec::with_capacity(EMCY_RECORDS),
+            commands_clamped: 0,
+            commands_non_finite: 0,
         })
     }
 
@@ -211,12 +289,30 @@ impl Master {
         self.sync_counter
     }
 
+    /// The EMCYs received so far (the first [`EMCY_RECORDS`]; all are
+    /// counted in [`Feedback::emcy_received`]).
+    pub fn emcy_records(&self) -> &[EmcyRecord] {
+        &self.emcy_records
+    }
+
+    /// Torque commands beyond 0x6072 that [`Master::tick`] sent clamped.
+    pub fn commands_clamped(&self) -> u64 {
+        self.commands_clamped
+    }
+
+    /// Non-finite torque commands that [`Master::tick`] sent as 0.
+    pub fn commands_non_finite(&self) -> u64 {
+        self.commands_non_finite
+    }
+
     /// Set-up: wait for the drive's boot-up or heartbeat; check it is a
-    /// CiA 402 device; set cyclic synchronous torque mode and check the
-    /// display; write the heartbeat times; read the units; check the drive
-    /// has the SYNC counter echo 0x2000; check the PDO communication and
-    /// mapping parameters, writing those that differ from the EDS's; start
-    /// the master's heartbeat; NMT start the drive.
+    /// CiA 402 device; read the units and check its max torque 0x6072 is
+    /// the configured limit; check the drive has the SYNC counter echo
+    /// 0x2000 (a refused drive is left as found: nothing was written yet);
+    /// set cyclic synchronous torque mode and check the display; write the
+    /// heartbeat times; check the PDO communication and mapping parameters,
+    /// writing those that differ from the EDS's; start the master's
+    /// heartbeat; NMT start the drive.
     pub fn boot(&mut self, bus: &mut dyn Transport) -> Result<(), Cia402Error> {
         self.wait_for_drive(bus)?;
         self.configure(bus)
@@ -242,6 +338,11 @@ impl Master {
         let s = self.settings;
         let device = self.sdo_read_u32(bus, od::DEVICE_TYPE)?;
         self.expect(od::DEVICE_TYPE, od::PROFILE_402, device & 0xFFFF)?;
+        // Everything the master refuses a drive for is read before anything
+        // is written: a refused drive is left as it was found.
+        self.read_units(bus)?;
+        self.check_max_torque()?;
+        self.check_sync_counter_echo(bus)?;
         self.sdo_write(
             bus,
             od::MODES_OF_OPERATION,
@@ -262,12 +363,31 @@ impl Master {
         // The master's heartbeat must run before the drive's consumer is armed.
         self.send_heartbeat(bus, NmtState::PreOperational)?;
         self.sdo_write(bus, od::CONSUMER_HEARTBEAT, &consumer.to_le_bytes())?;
-        self.read_units(bus)?;
-        self.check_sync_counter_echo(bus)?;
         self.check_pdos(bus)?;
         self.send_heartbeat(bus, NmtState::Operational)?;
         bus.send(&frames::nmt(NmtCommand::Start, s.node.get()))?;
+        self.nmt_started = true;
+        self.operational_seen = false;
         Ok(())
+    }
+
+    /// The drive's 0x6072 (read with the units) must be the configured
+    /// limit in the drive's torque steps: a higher one would let the drive
+    /// apply more than the configuration allows (e.g. another node wrote
+    /// it), a lower one would reject the controller's commands.
+    fn check_max_torque(&self) -> Result<(), Cia402Error> {
+        let u = &self.units;
+        let wanted = (self.settings.max_torque_nm / u.torque_step_nm()).round();
+        if wanted == f64::from(u.max_torque_per_mille) {
+            return Ok(());
+        }
+        Err(Cia402Error::MaxTorqueMismatch {
+            drive_per_mille: u.max_torque_per_mille,
+            drive_nm: u.max_torque_nm(),
+            configured_nm: self.settings.max_torque_nm,
+            configured_per_mille: wanted,
+            rated_mnm: u.rated_torque_mnm,
+        })
     }
 
     fn read_units(&mut self, bus: &mut dyn Transport) -> Result<(), Cia402Error> {
@@ -429,12 +549,24 @@ impl Master {
     }
 
     /// One control tick: RPDO1 (enable operation, `torque_nm` as per-mille
-    /// of rated torque) then SYNC, and the master's heartbeat when due.
-    /// Refuses a non-finite torque or one beyond 0x6072 (nothing is sent).
-    /// The drive applies the torque at this SYNC and answers with TPDO1 and
-    /// TPDO2. Does not wait, does not allocate.
+    /// of rated torque) then SYNC, and the master's heartbeat when due. The
+    /// master never falls silent: a torque beyond 0x6072 is sent as
+    /// +-0x6072 and counted ([`Master::commands_clamped`]), a non-finite one
+    /// as 0 ([`Master::commands_non_finite`]). The drive applies the torque
+    /// at this SYNC and answers with TPDO1 and TPDO2. Does not wait, does
+    /// not allocate.
     pub fn tick(&mut self, bus: &mut dyn Transport, torque_nm: f64) -> Result<(), Cia402Error> {
-        let per_mille = self.units.torque_to_per_mille(torque_nm)?;
+        let per_mille = match self.units.torque_to_per_mille(torque_nm) {
+            Ok(t) => t,
+            Err(Cia402Error::TorqueBeyondLimit { .. }) => {
+                self.commands_clamped += 1;
+                self.units.max_torque_per_mille_signed(torque_nm)
+            }
+            Err(_) => {
+                self.commands_non_finite += 1;
+                0
+            }
+        };
         self.send_cycle(bus, controlword::ENABLE_OPERATION, per_mille)
     }
 
@@ -450,15 +582,20 @@ impl Master {
         per_mille: i16,
     ) -> Result<(), Cia402Error> {
         self.controlword = cw;
-        bus.send(&frames::rpdo1(self.settings.node, cw, per_mille))?;
+        // Each frame is sent even if the one before failed (a full queue):
+        // the first error is returned.
+        let rpdo = bus.send(&frames::rpdo1(self.settings.node, cw, per_mille));
         self.sync_counter = next_sync_counter(self.sync_counter);
-        bus.send(&frames::sync(self.sync_counter))?;
+        let sync = bus.send(&frames::sync(self.sync_counter));
         self.syncs_sent += 1;
-        let now = Instant::now();
-        if now >= self.next_heartbeat {
-            self.send_heartbeat(bus, NmtState::Operational)?;
-        }
-        Ok(())
+        let heartbeat = if Instant::now() >= self.next_heartbeat {
+            self.send_heartbeat(bus, NmtState::Operational)
+        } else {
+            Ok(())
+        };
+        rpdo?;
+        sync?;
+        heartbeat
     }
 
     fn send_heartbeat(&mut self, bus: &mut dyn Transport, s: NmtState) -> Result<(), Cia402Error> {
@@ -523,27 +660,53 @@ impl Master {
             return Heard::ForeignCommand;
         }
         let p = f.payload();
-        let ok = if f.id == n.tpdo1() {
+        let heard = if f.id == n.tpdo1() {
             frames::decode_tpdo1(p).map(|t| {
                 self.fb.tpdo1_received += 1;
+                let (taken, received) = (self.fb.tpdo1_sync_counter, self.fb.tpdo1_received);
+                if !self.take(t.sync_counter, taken, received) {
+                    let same = t.statusword == self.fb.statusword
+                        && self.units.increments_to_rad(t.position_increments)
+                            == self.fb.position_rad;
+                    return self.discarded(t.sync_counter, taken, same);
+                }
                 self.fb.statusword = t.statusword;
                 self.fb.tpdo1_sync_counter = t.sync_counter;
                 self.fb.state = decode_statusword(t.statusword).ok();
                 self.fb.position_rad = self.units.increments_to_rad(t.position_increments);
+                Heard::Other
             })
         } else if f.id == n.tpdo2() {
             frames::decode_tpdo2(p).map(|t| {
                 self.fb.tpdo2_received += 1;
+                let (taken, received) = (self.fb.tpdo2_sync_counter, self.fb.tpdo2_received);
+                if !self.take(t.sync_counter, taken, received) {
+                    let same = self
+                        .units
+                        .increments_per_s_to_rad_s(t.velocity_increments_s)
+                        == self.fb.velocity_rad_s
+                        && self.units.per_mille_to_torque_nm(t.torque_per_mille)
+                            == self.fb.torque_nm;
+                    return self.discarded(t.sync_counter, taken, same);
+                }
                 self.fb.velocity_rad_s = self
                     .units
                     .increments_per_s_to_rad_s(t.velocity_increments_s);
                 self.fb.torque_nm = self.units.per_mille_to_torque_nm(t.torque_per_mille);
                 self.fb.tpdo2_sync_counter = t.sync_counter;
+                Heard::Tpdo2
             })
         } else if f.id == n.emcy() {
             frames::decode_emcy(p).map(|e| {
                 self.fb.emcy_received += 1;
                 self.fb.last_emcy = Some(e);
+                if self.emcy_records.len() < self.emcy_records.capacity() {
+                    self.emcy_records.push(EmcyRecord {
+                        emcy: e,
+                        at: Instant::now(),
+                    });
+                }
+                Heard::Other
             })
         } else if f.id == n.heartbeat() {
             frames::decode_heartbeat(p).map(|s| {
@@ -551,17 +714,59 @@ impl Master {
                 self.fb.drive_nmt = Some(s);
                 self.last_drive_heartbeat = Some(Instant::now());
                 self.fb.drive_heartbeat_lost = false;
+                self.note_nmt_state(s);
+                Heard::Other
             })
         } else {
             return Heard::Other;
         };
-        match ok {
-            Ok(()) if f.id == n.tpdo2() => Heard::Tpdo2,
-            Ok(()) => Heard::Other,
-            Err(_) => {
-                self.fb.decode_errors += 1;
-                Heard::Undecodable
+        heard.unwrap_or_else(|_| {
+            self.fb.decode_errors += 1;
+            Heard::Undecodable
+        })
+    }
+
+    /// Whether a TPDO echoing SYNC counter `echo` is taken: it answers a
+    /// later SYNC than the one of the same kind already taken (echoing
+    /// `taken`), counting back from the last SYNC sent. The newest wins; an
+    /// older one or a repeat of the same counter is discarded and counted.
+    /// `received` counts this kind's TPDOs, this one included: the first is
+    /// always taken, as is any before the first SYNC.
+    fn take(&mut self, echo: u8, taken: u8, received: u64) -> bool {
+        let age = |c: u8| syncs_ago(self.sync_counter, c);
+        let newer = received == 1 || self.syncs_sent == 0 || age(echo) < age(taken);
+        if !newer {
+            self.fb.tpdos_discarded += 1;
+        }
+        newer
+    }
+
+    /// What a TPDO not taken was: a repeat of the one taken for its SYNC
+    /// with other values conflicts; anything else (older, an exact copy) is
+    /// discarded.
+    fn discarded(&self, echo: u8, taken: u8, same_values: bool) -> Heard {
+        if echo == taken && !same_values {
+            Heard::Conflicting { sync_counter: echo }
+        } else {
+            Heard::Discarded
+        }
+    }
+
+    /// A heartbeat's NMT state after NMT start: a boot-up is a reset at once;
+    /// another state than OPERATIONAL after an OPERATIONAL one is the drive
+    /// having left it (a reset of its communication, or its own error
+    /// reaction). The first such report is kept ([`Feedback::reset`]).
+    fn note_nmt_state(&mut self, s: NmtState) {
+        if !self.nmt_started || self.fb.reset.is_some() {
+            return;
+        }
+        match s {
+            NmtState::Operational => self.operational_seen = true,
+            NmtState::BootUp => self.fb.reset = Some(s),
+            NmtState::PreOperational | NmtState::Stopped if self.operational_seen => {
+                self.fb.reset = Some(s)
             }
+            NmtState::PreOperational | NmtState::Stopped => {}
         }
     }
 
@@ -678,9 +883,43 @@ fn next_sync_counter(counter: u8) -> u8 {
     counter % od::SYNC_COUNTER_OVERFLOW + 1
 }
 
+/// How many SYNCs before the last one sent (counter `last`) the SYNC with
+/// counter `echo` went out: 0 for `last` itself, up to
+/// [`od::SYNC_COUNTER_OVERFLOW`] - 1 (older ones alias). An echo outside
+/// 1..=overflow (0: a SYNC without a counter, not this master's) counts as
+/// the oldest possible.
+fn syncs_ago(last: u8, echo: u8) -> u8 {
+    let n = od::SYNC_COUNTER_OVERFLOW;
+    if echo == 0 || echo > n {
+        return n;
+    }
+    // Both in 1..=n: the difference modulo n.
+    ((u16::from(last) + u16::from(n) - u16::from(echo)) % u16::from(n)) as u8
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn syncs_ago_counts_back_through_the_wrap() {
+        assert_eq!(syncs_ago(5, 5), 0);
+        assert_eq!(syncs_ago(5, 4), 1);
+        assert_eq!(syncs_ago(2, 239), 3);
+        assert_eq!(syncs_ago(1, 240), 1);
+        assert_eq!(syncs_ago(5, 6), od::SYNC_COUNTER_OVERFLOW - 1);
+        assert_eq!(syncs_ago(5, 0), od::SYNC_COUNTER_OVERFLOW);
+        assert_eq!(syncs_ago(5, 241), od::SYNC_COUNTER_OVERFLOW);
+    }
+
+    #[test]
+    fn a_drive_heartbeat_of_200_ms_is_watched_with_a_producer_of_100_ms() {
+        let s = MasterSettings::new(CanopenNode::new(1).unwrap())
+            .with_drive_heartbeat_timeout(Duration::from_millis(200));
+        assert_eq!(s.drive_producer_ms, 100);
+        assert_eq!(producer_for(Duration::from_millis(1)), 1);
+        assert!(s.validate().is_ok());
+    }
 
     #[test]
     fn sync_counter_runs_1_to_the_overflow_value_then_wraps() {

@@ -24,7 +24,7 @@ pub mod state;
 pub mod units;
 
 pub use frames::{Emcy, NmtCommand, NmtState, SdoResponse, Tpdo1, Tpdo2};
-pub use master::{Feedback, Heard, Master, MasterSettings};
+pub use master::{EmcyRecord, Feedback, Heard, Master, MasterSettings};
 pub use od::{CanopenNode, Object};
 pub use state::{DriveState, Goal};
 pub use units::Units;
@@ -103,7 +103,22 @@ pub enum Cia402Error {
         /// The field.
         field: &'static str,
     },
-    /// A torque beyond the drive's max torque 0x6072: refused, not clamped.
+    /// The drive's max torque 0x6072 is not the configured torque limit
+    /// (`rig.torque_limit_nm`) in its torque steps: set-up refuses it.
+    MaxTorqueMismatch {
+        /// 0x6072 as read, per-mille of rated torque.
+        drive_per_mille: u16,
+        /// The same in N m.
+        drive_nm: f64,
+        /// The configured limit, N m.
+        configured_nm: f64,
+        /// The configured limit in per-mille of the drive's rated torque.
+        configured_per_mille: f64,
+        /// 0x6076 motor rated torque, mN m.
+        rated_mnm: u32,
+    },
+    /// A torque beyond the drive's max torque 0x6072 (the master sends it
+    /// clamped and counts it: [`Master::commands_clamped`]).
     TorqueBeyondLimit {
         /// The torque asked for, N m.
         torque_nm: f64,
@@ -170,6 +185,21 @@ impl fmt::Display for Cia402Error {
                 write!(f, "{field}: {why}, got {value}")
             }
             Self::NotFinite { field } => write!(f, "{field}: must be finite"),
+            Self::MaxTorqueMismatch {
+                drive_per_mille,
+                drive_nm,
+                configured_nm,
+                configured_per_mille,
+                rated_mnm,
+            } => write!(
+                f,
+                "the drive's max torque 0x6072 is {drive_per_mille} per-mille of its rated \
+                 torque 0x6076 ({rated_mnm} mN m), {drive_nm} N m, but rig.torque_limit_nm is \
+                 {configured_nm} N m ({configured_per_mille} per-mille); they must agree \
+                 (another node may have changed 0x6072): set rig.torque_limit_nm = {drive_nm}, \
+                 or the drive's 0x6072 = {configured_per_mille} with the drive's own tool; \
+                 not starting"
+            ),
             Self::TorqueBeyondLimit { torque_nm, max_nm } => write!(
                 f,
                 "target torque: must be within +-{max_nm} N m (0x6072 max torque), got {torque_nm}"

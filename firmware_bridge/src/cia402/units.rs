@@ -112,6 +112,18 @@ impl Units {
         Ok(raw as i16)
     }
 
+    /// 0x6072 with the sign of `torque_nm`: the command a torque beyond
+    /// the limit is clamped to.
+    pub fn max_torque_per_mille_signed(&self, torque_nm: f64) -> i16 {
+        // 0x6072 <= 32767: `Master` set-up refuses larger values.
+        let max = self.max_torque_per_mille.min(i16::MAX as u16) as i16;
+        if torque_nm < 0.0 {
+            -max
+        } else {
+            max
+        }
+    }
+
     /// `tau = t_pm rated_mNm 1e-6`.
     pub fn per_mille_to_torque_nm(&self, per_mille: i16) -> f64 {
         f64::from(per_mille) * self.torque_step_nm()

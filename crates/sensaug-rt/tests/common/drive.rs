@@ -134,6 +134,7 @@ pub fn loop_settings(resolved: &Resolved<'_>) -> LoopSettings {
         rad_per_unit: resolved.rad_per_unit,
         torque_limit_nm: 3.0,
         watchdog_ms: 50,
+        drive_heartbeat_timeout_ms: 100,
         feedback_timeout_ms: 50.0,
         stop: StopSettings {
             time_limit_s: 0.05,
