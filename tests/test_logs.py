@@ -344,10 +344,13 @@ def test_a_format_1_log_loads_unverified(tmp_path):
     short.write_bytes(b"\n".join(lines[:10] + lines[11:]))
     with pytest.raises(ValueError, match=r"short\.csv: line 63: the end status counts 60 rows"):
         load_log(short)
-    # Saved again, it becomes a verified format-2 log.
+    # Saved again, it is a format-2 log with checksums from now on, still
+    # saying its rows were never verified.
     log.save(tmp_path / "again.csv")
-    again = load_log(tmp_path / "again.csv")
-    assert again.verified and again.meta["format_version"] == 2 and same_bits(again.data, log.data)
+    with pytest.warns(logs.UnverifiedLogWarning, match="saved from a log that was not verified"):
+        again = load_log(tmp_path / "again.csv")
+    assert not again.verified and again.meta["format_version"] == 2 and again.meta["unverified_source"]
+    assert same_bits(again.data, log.data) and verify_independently(tmp_path / "again.csv") == 60
 
 
 def test_an_edited_metadata_line_is_refused_unless_accepted(trial, saved, tmp_path):

@@ -146,8 +146,13 @@ class Log:
         return df
 
     def save(self, path: str | Path) -> Path:
-        """Writes this log (metadata, rows, end status) with the Rust writer."""
+        """Writes this log (metadata, rows, end status) with the Rust writer,
+        with fresh checksums. A log that was not verified when read keeps
+        saying so: its metadata gets ``"unverified_source": true`` and
+        ``load_log`` reads it back unverified, with a warning."""
         meta = {k: v for k, v in self.meta.items() if k != "end"}
+        if not self.verified:
+            meta["unverified_source"] = True
         end = self.meta.get("end")
         _core.write_log(
             str(path),
@@ -344,7 +349,7 @@ def _read(path: Path, raw: bytes, verify: bool, edited_metadata_ok: bool) -> Log
         raise _Corrupt(end_line, f"the end status counts {counted} rows, the file has {len(data)}")
     if meta_edited:
         meta["metadata_edited"] = True
-    return Log(data=data, meta=meta, verified=checked and not meta_edited)
+    return Log(data=data, meta=meta, verified=checked and not meta_edited and not meta.get("unverified_source"))
 
 
 def _json_line_unchecked(n: int, line: str) -> dict:
@@ -388,6 +393,8 @@ def load_log(path: str | Path, *, verify: bool = True, edited_metadata_ok: bool 
             why = f"a format-1 log ({FORMAT_LINE_V1!r}), written before checksums; a changed or lost row cannot be detected"
         elif log.meta.get("metadata_edited"):
             why = "its metadata line was changed after the run (checksum mismatch); the rows are verified"
+        elif log.meta.get("unverified_source") and verify:
+            why = "saved from a log that was not verified when read (meta['unverified_source'])"
         else:
             why = "read with verify=False; a changed or lost row cannot be detected"
         warnings.warn(

@@ -161,4 +161,4 @@ def replay(log: str | Path | Log, config: ScenarioConfig | None = None, *, allow
         data[c][:n] = columns[c]
     meta = dict(log.meta)
     meta["replay"] = dict(counters, controller_ticks=n, recorded_config_verified=matches)
-    return Log(data=data, meta=meta)
+    return Log(data=data, meta=meta, verified=log.verified)
