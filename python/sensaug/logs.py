@@ -276,7 +276,7 @@ def _parse_rows(body: list[str], first_line: int, columns: list[tuple[str, str]]
     raise _Corrupt(first_line, f"the rows do not parse ({reason})")
 
 
-def _read(path: Path, raw: bytes, verify: bool, edited_metadata_ok: bool) -> Log:
+def _read(raw: bytes, verify: bool, edited_metadata_ok: bool) -> Log:
     # A partial last line (no newline: a killed writer) is ignored.
     kept = raw[: raw.rfind(b"\n") + 1]
     try:
@@ -385,7 +385,7 @@ def load_log(path: str | Path, *, verify: bool = True, edited_metadata_ok: bool 
     path = Path(path)
     raw = path.read_bytes()
     try:
-        log = _read(path, raw, verify, edited_metadata_ok)
+        log = _read(raw, verify, edited_metadata_ok)
     except _Corrupt as e:
         raise ValueError(f"{path}: line {e.line}: {e}") from None
     if not log.verified:

@@ -145,18 +145,13 @@ pub fn check_outputs(outputs: &[(&str, &Path)]) -> Result<(), ConfigError> {
     let mut taken: Vec<(PathBuf, String)> = Vec::new();
     for &(field, path) in outputs {
         check_one(field, path)?;
-        let partial = partial_path(path);
-        let files = [
-            (path.to_path_buf(), format!("{field} ({})", path.display())),
-            (partial, format!("{field}'s temporary file")),
-        ];
-        for (file, what) in files {
+        for (file, temporary) in [(path.to_path_buf(), false), (partial_path(path), true)] {
             let id = identity(&file);
             if let Some((_, other)) = taken.iter().find(|(p, _)| *p == id) {
-                let which = if what.starts_with(field) && what.ends_with(')') {
-                    path.display().to_string()
-                } else {
+                let which = if temporary {
                     format!("{}'s temporary file {}", path.display(), file.display())
+                } else {
+                    path.display().to_string()
                 };
                 return Err(ConfigError::new(
                     field,
@@ -166,6 +161,11 @@ pub fn check_outputs(outputs: &[(&str, &Path)]) -> Result<(), ConfigError> {
                     ),
                 ));
             }
+            let what = if temporary {
+                format!("{field}'s temporary file")
+            } else {
+                format!("{field} ({})", path.display())
+            };
             taken.push((id, what));
         }
     }
