@@ -99,3 +99,52 @@ def test_rt_help_lists_every_option():
     assert r.returncode == 0
     for opt in ("--check", "--print-resolved", "--can", "--log", "--stats", "--help", "--version"):
         assert opt in r.stdout
+
+
+def _with_outputs(tmp_path: Path, log: Path, stats: Path) -> Path:
+    text = (CORPUS / "valid_full.toml").read_text()
+    text = text.replace('log = "out/rig_log.csv"', f'log = "{log}"').replace('stats = "out/rig_stats.json"', f'stats = "{stats}"')
+    path = tmp_path / "outputs.toml"
+    path.write_text(text)
+    return path
+
+
+def test_output_paths_made_at_test_time_get_the_same_named_verdict(tmp_path, capsys):
+    """FIFOs, links and folders in the way of an output (made here: the
+    corpus cannot hold them) are refused by both checkers alike, by field,
+    without blocking on the FIFO (each check is bounded by the timeout)."""
+    import os
+
+    fifo = tmp_path / "fifo.csv"
+    os.mkfifo(fifo)
+    busy = tmp_path / "busy.csv"
+    os.mkfifo(tmp_path / "busy.csv.partial")
+    to_full = tmp_path / "to_full.csv"
+    to_full.symlink_to("/dev/full")
+    to_file = tmp_path / "to_file.csv"
+    (tmp_path / "file.csv").write_text("x")
+    to_file.symlink_to(tmp_path / "file.csv")
+    folder = tmp_path / "folder.csv"
+    folder.mkdir()
+    ok = tmp_path / "new" / "log.csv"
+    cases = {
+        "fifo": (fifo, ok, "rig.log", "it is a FIFO (named pipe), not a regular file"),
+        "fifo at .partial": (ok, busy, "rig.stats", "busy.csv.partial (where it is written until the run ends) is a FIFO"),
+        "link to a device": (to_full, ok, "rig.log", "it is a symbolic link to /dev/full (a character device)"),
+        "link to a file": (ok, to_file, "rig.stats", "it is a symbolic link to"),
+        "folder": (folder, ok, "rig.log", "it is a directory, not a regular file; give a file path inside it"),
+        "through a linked folder": (ok, tmp_path / "alias" / "log.csv", "rig.stats", "the same file as rig.log"),
+    }
+    (tmp_path / "new").mkdir()
+    (tmp_path / "alias").symlink_to(tmp_path / "new")
+    for what, (log, stats, field, message) in cases.items():
+        path = _with_outputs(tmp_path, log, stats)
+        py, rt = python_check(path, capsys), rt_check(path)
+        assert py == rt, what
+        assert py[0] == 2 and py[2].startswith(f"{field}: ") and message in py[2], (what, py[2])
+    good = _with_outputs(tmp_path, ok, tmp_path / "stats.json")
+    assert python_check(good, capsys) == rt_check(good) == (0, "valid\n", "")
+    # --log X --stats X on the command line: the same rule.
+    r = subprocess.run([str(RT), "--check", str(good), "--log", str(ok), "--stats", str(ok)],
+                       capture_output=True, text=True, timeout=30)
+    assert r.returncode == 2 and r.stderr.startswith(f"rig.stats: {ok} is the same file as rig.log"), r.stderr

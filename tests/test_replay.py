@@ -1,16 +1,23 @@
 """``sensaug.replay``: the robot's controller re-run offline over a log
 reproduces the columns computed online, tick by tick and bit for bit, for a
 simulated trial and for a virtual-rig run (whose loaded VM loses feedback on
-some ticks: the ``fresh`` column says which)."""
+some ticks: the ``fresh`` column says which). A log whose recorded
+configuration was edited after the run is refused (or replayed with a loud
+warning when the lab says so); a flipped ``fresh`` is caught by the row
+checksum."""
 from __future__ import annotations
+
+import json
+from pathlib import Path
 
 import numpy as np
 import pytest
+from test_logs import verify_independently
 from test_rig import short_config
 
 import sensaug
-from sensaug import experiment, presets, rig
-from sensaug.logs import UNKNOWN_INT, load_log
+from sensaug import _core, experiment, presets, rig
+from sensaug.logs import UNKNOWN_INT, UnverifiedLogWarning, load_log
 from sensaug.replay import ESTIMATE_COLUMNS
 
 
@@ -117,6 +124,11 @@ def test_a_virtual_rig_run_replays_tick_by_tick(tmp_path):
     assert log.meta["source"] == "rig" and len(log) == 5000
     out = sensaug.replay(tmp_path / "rig_log.csv")
     assert_columns_identical(out, log)
+    # What sensaug-rt wrote verifies with zlib alone, and its configuration
+    # digest is that of the configuration it recorded.
+    assert verify_independently(tmp_path / "rig_log.csv") == len(log)
+    assert log.meta["config_sha256"] == _core.config_sha256(json.dumps(log.meta["config"]))
+    assert out.meta["replay"]["recorded_config_verified"] is True
     stale = int((~log["fresh"]).sum())
     assert out.meta["replay"]["missing_measurements"] == stale
     # Without the `fresh` column's information (every tick taken as fresh)
@@ -146,3 +158,70 @@ def test_a_ramp_down_is_left_as_logged(tmp_path):
     assert out.meta["replay"]["controller_ticks"] == 4000
     assert_columns_identical(out, trial, slice(0, 4000))
     assert np.all(out["phase"][tail] == UNKNOWN_INT) and np.isnan(out["u"][tail]).all()
+
+
+def test_an_edited_recorded_configuration_is_refused_unless_allowed(tmp_path):
+    """`replay` used to run without a warning on a log whose metadata
+    configuration was edited: another robot seed gives other stage-3
+    estimates, silently. The digest recorded with the log tells."""
+    trial = experiment.run(sim_config())
+    assert sensaug.replay(trial).meta["replay"]["recorded_config_verified"] is True
+    meta = json.loads(json.dumps(trial.meta))
+    meta["config"]["robot"]["seed"] += 1
+    edited = sensaug.Log(data=trial.data, meta=meta)
+    with pytest.raises(ValueError, match=r"^log\.meta\.config: not the configuration the run was recorded with"):
+        sensaug.replay(edited)
+    with pytest.warns(UnverifiedLogWarning, match="EDITED after the run"):
+        out = sensaug.replay(edited, allow_edited_config=True)
+    assert out.meta["replay"]["recorded_config_verified"] is False
+    integ = trial["phase"] == 2
+    assert not np.array_equal(out["e_meas"][integ], trial["e_meas"][integ])
+    # In a file, the metadata line's checksum fails first; the override
+    # reads it with the rows still verified.
+    path = trial.save(tmp_path / "trial.csv")
+    lines = path.read_text().split("\n")
+    seed = trial.config.robot.seed
+    assert lines[1].count(f'"seed":{seed}') == 1
+    lines[1] = lines[1].replace(f'"seed":{seed}', f'"seed":{seed + 1}')
+    path.write_text("\n".join(lines))
+    with pytest.raises(ValueError, match=r"trial\.csv: line 2: checksum mismatch.*allow_edited_config=True"):
+        sensaug.replay(path)
+    with pytest.warns(UnverifiedLogWarning) as caught:
+        out = sensaug.replay(path, allow_edited_config=True)
+    assert {str(w.message).split(": ")[0] for w in caught} >= {str(path), "log.meta.config"}
+    assert out.meta["replay"]["recorded_config_verified"] is False
+    # Given explicitly, another configuration is the supported use: no check.
+    with pytest.warns(UnverifiedLogWarning, match="metadata line was changed"):
+        given = sensaug.replay(path, trial.config, allow_edited_config=True)
+    assert given.meta["replay"]["recorded_config_verified"] is None
+
+
+def test_a_flipped_fresh_column_in_a_file_is_caught(tmp_path):
+    """A stale tick marked fresh (or the reverse) changes the replay
+    (test_a_missed_measurement_changes_the_replay); in a file, the row's
+    checksum refuses it first."""
+    trial = experiment.run(sim_config())
+    path = trial.save(tmp_path / "trial.csv")
+    lines = path.read_text().split("\n")
+    k = 1000  # row k is line k + 4
+    fields = lines[k + 3].split(",")
+    col = sensaug.logs.COLUMNS.index("fresh")
+    assert fields[col] == "1"
+    fields[col] = "0"
+    lines[k + 3] = ",".join(fields)
+    path.write_text("\n".join(lines))
+    with pytest.raises(ValueError, match=rf"trial\.csv: line {k + 4}: checksum mismatch"):
+        sensaug.replay(path)
+
+
+def test_a_format_1_log_replays_with_a_warning():
+    """A log written before the digest (format 1) replays with its recorded
+    configuration as it stands, and says it could not check it."""
+    old = Path(__file__).parent / "logs" / "trial_format1.csv"
+    with pytest.warns(UnverifiedLogWarning) as caught:
+        out = sensaug.replay(old)
+    assert any("format-1 log" in str(w.message) for w in caught)
+    assert any("no config_sha256" in str(w.message) for w in caught)
+    assert out.meta["replay"]["recorded_config_verified"] is None
+    with pytest.warns(UnverifiedLogWarning):
+        assert_columns_identical(out, load_log(old))

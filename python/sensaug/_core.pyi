@@ -323,7 +323,24 @@ def replay_robot(
 def log_schema() -> dict[str, Any]:
     """The schema: ``format_line``, ``format_version``, ``columns`` as
     ``(name, unit, kind, description)`` tuples (kind ``int``/``float``/``bool``),
-    ``phase_names``, ``unknown_int``, ``units`` as ``(symbol, meaning)``."""
+    ``phase_names``, ``unknown_int``, ``units`` as ``(symbol, meaning)``,
+    ``checksum_field`` and ``json_checksum_key`` (docs/logs.md, "Checksums")."""
+
+def config_sha256(config_json: str) -> str:
+    """SHA-256 (hex) of a configuration's canonical JSON: what a log records
+    as ``meta["config_sha256"]``.
+
+    Raises:
+        ValueError: ``config_json`` is not valid JSON.
+    """
+
+def check_output_paths(outputs: list[tuple[str, str]]) -> None:
+    """Checks ``(name, path)`` outputs as sensaug-rt checks its own: regular
+    files or absent (their ``.partial`` too), no two the same file.
+
+    Raises:
+        ConfigError: ``<name>: ...`` at the first refused one.
+    """
 
 def git_commit(dir: str) -> str | None:
     """``git rev-parse HEAD`` of the checkout containing ``dir`` (``-dirty`` if
@@ -342,5 +359,7 @@ def write_log(path: str, data: Any, /, *, meta_json: str, end_json: str | None =
 
     Raises:
         ValueError: a column is missing, has the wrong dtype or length; bad JSON.
+        ConfigError: ``path`` is not a regular file or a new one (a device,
+            a FIFO, a folder, a link).
         OSError: the file cannot be written.
     """

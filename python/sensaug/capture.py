@@ -79,13 +79,19 @@ class BusCapture:
 
     Raises:
         ValueError: ``path``'s suffix is no format python-can writes.
+        ConfigError: ``path`` is not a regular file or a new one (a FIFO, a
+            device, a folder, a link: ``docs/safety.md``, "Output paths");
+            checked before anything is opened, so a FIFO never blocks it.
         can.CanInitializationError: the bus cannot be opened.
     """
 
     def __init__(self, port: int, path: str | Path) -> None:
         import can
 
+        from sensaug import _core
+
         self.path = Path(path)
+        _core.check_output_paths([("capture", str(self.path))])
         self._bus = can.Bus(interface="sensaug_udp", channel=port)
         try:
             self._writer = can.Logger(self.path)

@@ -167,7 +167,12 @@ def rig_demo(
     print(f"virtual {drive} drive (Python, python-can) <-> sensaug-rt (Rust, 1 kHz) over the loopback CAN bus")
     print(f"bus: sensaug_udp port {port} (watch it: python -m can.viewer -i sensaug_udp -c {port})")
     print(f"capture: {out / capture} ({rig.capture_format(out / capture)})\n" if capture else "capture: off\n", flush=True)
-    run = rig.run_virtual_rig(config, out=out, port=port, capture=capture, progress=progress)
+    also = None
+    if plots:
+        from sensaug.plots import RIG_PLOTS
+
+        also = {f"plot {name}": out / name for name in RIG_PLOTS}
+    run = rig.run_virtual_rig(config, out=out, port=port, capture=capture, progress=progress, also_written=also)
     s = run.stats
     print(f"sensaug-rt: {s['ticks']} ticks, stop: {s['stop_reason']}, exit {run.returncode}; "
           f"virtual drive exit {run.drive_returncode}\n")

@@ -168,7 +168,7 @@ class ScenarioConfig(_ScenarioTables):
         """Reads a TOML (or ``.json``) file, or TOML text containing a newline."""
         if isinstance(source, str) and "\n" in source:
             return cls._from_json(_core.config_load(source))
-        return check_file(source)
+        return cls._from_json(_core.config_load_file(str(source)))
 
     @property
     def duration_s(self) -> float:
@@ -178,7 +178,9 @@ class ScenarioConfig(_ScenarioTables):
 
 def check_file(path: str | Path) -> ScenarioConfig:
     """Reads and validates a configuration file (TOML, or JSON by extension),
-    exactly as ``sensaug-rt --check`` does.
+    exactly as ``sensaug-rt --check`` does, its rig output paths included
+    (``rig.log``, ``rig.stats``: regular files or absent, distinct;
+    ``docs/safety.md``, "Output paths").
 
     Raises:
         ConfigError: naming the first bad field (or the file) and how to fix it.

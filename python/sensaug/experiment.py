@@ -64,6 +64,7 @@ class Trial(logs.Log):
         return cls(
             data=log.data,
             meta=log.meta,
+            verified=log.verified,
             config=config,
             summary=dict(log.meta.get("end") or {}),
             robot_gains=np.asarray(resolved.get("robot", {}).get("gains", np.zeros(3)), dtype=float),

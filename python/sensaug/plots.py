@@ -73,6 +73,10 @@ def _save(fig: Figure, path: Path) -> Path:
     return path
 
 
+#: The files :func:`write_rig_plots` writes into its folder.
+RIG_PLOTS = ("rig_gains.png", "rig_trajectory.png", "rig_integration.png", "rig_timing.png")
+
+
 def write_rig_plots(run, folder: Path) -> list[Path]:
     """Plots of a virtual-rig run (``sensaug.rig.RigRun``): gains, partner
     target, goal integration, and the loop's wake-up latency."""
@@ -89,7 +93,7 @@ def write_rig_plots(run, folder: Path) -> list[Path]:
         ax.axhline(tr, color=line.get_color(), ls=":", lw=1.0)
     ax.set(xlabel="t (s)", ylabel="gain", title="rig: partner gain estimates (dotted: truth)")
     ax.legend(loc="upper right", fontsize=8)
-    written.append(_save(fig, folder / "rig_gains.png"))
+    written.append(_save(fig, folder / RIG_PLOTS[0]))
 
     m = run.phase_mask("trajectory")
     fig, ax = _subplots()
@@ -97,7 +101,7 @@ def write_rig_plots(run, folder: Path) -> list[Path]:
     ax.plot(t[m], d["tau_h_hat"][m], "k", lw=0.8, label="tau_h^ (robot's estimate)")
     ax.set(xlabel="t (s)", ylabel="position (deg)", title="rig: partner target estimate")
     ax.legend(loc="upper right", fontsize=8)
-    written.append(_save(fig, folder / "rig_trajectory.png"))
+    written.append(_save(fig, folder / RIG_PLOTS[1]))
 
     m = run.phase_mask("integration")
     fig, ax = _subplots()
@@ -107,12 +111,12 @@ def write_rig_plots(run, folder: Path) -> list[Path]:
     ax.plot(t[m], d["e_hat_fused"][m], lw=0.8, color="tab:orange", label="with integration")
     ax.set(xlabel="t (s)", ylabel="x - tau (deg)", title="rig: goal integration")
     ax.legend(loc="upper right", fontsize=8)
-    written.append(_save(fig, folder / "rig_integration.png"))
+    written.append(_save(fig, folder / RIG_PLOTS[2]))
 
     fig, ax = _subplots()
     ax.hist(d["wake_latency_us"], bins=200, log=True, color="tab:blue", alpha=0.7, label="wake-up latency")
     ax.hist(d["compute_us"], bins=200, log=True, color="tab:orange", alpha=0.7, label="tick compute")
     ax.set(xlabel="us", ylabel="ticks", title="rig: loop timing")
     ax.legend(loc="upper right", fontsize=8)
-    written.append(_save(fig, folder / "rig_timing.png"))
+    written.append(_save(fig, folder / RIG_PLOTS[3]))
     return written

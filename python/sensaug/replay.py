@@ -8,17 +8,23 @@ the replayed ones. The core makes the very call the rig loop and the
 simulation make online (``Robot::tick_at``: update with the measurement,
 command, predict), so a replay reproduces the online columns bit for bit
 (``docs/logs.md``, "Replay").
+
+The recorded configuration is checked before it is used: the log's
+metadata carries the SHA-256 of the configuration the run had
+(``config_sha256``, written with the log); a configuration edited since is
+refused unless ``allow_edited_config=True`` says the lab knows.
 """
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from sensaug import _core
 from sensaug.config import ScenarioConfig
-from sensaug.logs import UNKNOWN_INT, Log, load_log
+from sensaug.logs import UNKNOWN_INT, Log, UnverifiedLogWarning, load_log, to_json
 
 __all__ = ["ESTIMATE_COLUMNS", "NEEDED_COLUMNS", "replay"]
 
@@ -58,14 +64,55 @@ def _controlled_ticks(log: Log) -> int:
     return n
 
 
-def replay(log: str | Path | Log, config: ScenarioConfig | None = None) -> Log:
+def _recorded_config(log: Log, allow_edited: bool) -> tuple[ScenarioConfig, bool | None]:
+    """The configuration the log recorded, checked against the digest
+    written with it; whether it matched (None: no digest to check)."""
+    if "config" not in log.meta:
+        raise ValueError("log.meta: no 'config' recorded; pass config= (the configuration of the run)")
+    recorded = log.meta.get("config_sha256")
+    now = _core.config_sha256(to_json(log.meta["config"]))
+    if recorded is None:
+        warnings.warn(
+            "log.meta: no config_sha256 (a log written before format 2): the recorded configuration "
+            "cannot be checked against the run's; replaying with it as it stands",
+            UnverifiedLogWarning,
+            stacklevel=3,
+        )
+        matches = None
+    else:
+        matches = recorded == now
+        if not matches and not allow_edited:
+            raise ValueError(
+                f"log.meta.config: not the configuration the run was recorded with (its SHA-256 is "
+                f"{now[:16]}..., the log recorded {str(recorded)[:16]}...): the metadata was edited "
+                "after the run. Pass the run's configuration as config=, or allow_edited_config=True "
+                "to replay with the edited one"
+            )
+        if not matches:
+            warnings.warn(
+                "log.meta.config: EDITED after the run (its SHA-256 differs from the recorded one); "
+                "replaying with the edited configuration as asked (allow_edited_config=True)",
+                UnverifiedLogWarning,
+                stacklevel=3,
+            )
+    return ScenarioConfig.from_dict(log.meta["config"]), matches
+
+
+def replay(log: str | Path | Log, config: ScenarioConfig | None = None, *, allow_edited_config: bool = False) -> Log:
     """Re-runs the robot's controller over a recorded trial.
 
     Args:
-        log: a log file's path, or a :class:`Log` (``load_log``, a ``Trial``).
+        log: a log file's path (read with :func:`sensaug.load_log`, every
+            checksum verified), or a :class:`Log` (``load_log``, a ``Trial``).
         config: the configuration to replay with; default the one the log
-            recorded (``log.meta["config"]``). Another configuration replays
-            the same measurements through other estimator settings.
+            recorded (``log.meta["config"]``), checked against the digest
+            recorded with it (``meta["config_sha256"]``). Another
+            configuration replays the same measurements through other
+            estimator settings.
+        allow_edited_config: replay with a recorded configuration that was
+            edited after the run (its digest differs; for a file, its
+            metadata line's checksum fails: the rows are still verified),
+            with a warning, instead of refusing it.
 
     Returns:
         A :class:`Log`: the input's rows with :data:`ESTIMATE_COLUMNS`
@@ -75,18 +122,19 @@ def replay(log: str | Path | Log, config: ScenarioConfig | None = None) -> Log:
         ``missing_measurements``, the ticks without a fresh measurement).
 
     Raises:
-        ValueError: the log lacks a needed column, has missing ticks, is
-            longer than the configuration's protocol, or its phases do not
-            match the configuration's (the message names which).
+        ValueError: the file is corrupted (``load_log``), the recorded
+            configuration was edited (without ``allow_edited_config``), the
+            log lacks a needed column, has missing ticks, is longer than the
+            configuration's protocol, or its phases do not match the
+            configuration's (the message names which).
         ConfigError: the configuration (given or recorded) is invalid.
     """
     if not isinstance(log, Log):
-        log = load_log(log)
+        log = load_log(log, edited_metadata_ok=allow_edited_config)
     n = _controlled_ticks(log)
+    matches: bool | None = None
     if config is None:
-        if "config" not in log.meta:
-            raise ValueError("log.meta: no 'config' recorded; pass config= (the configuration of the run)")
-        config = ScenarioConfig.from_dict(log.meta["config"])
+        config, matches = _recorded_config(log, allow_edited_config)
     d = log.data[:n]
     columns, counters = _core.replay_robot(
         config._toml(),
@@ -112,5 +160,5 @@ def replay(log: str | Path | Log, config: ScenarioConfig | None = None) -> Log:
     for c in ESTIMATE_COLUMNS:
         data[c][:n] = columns[c]
     meta = dict(log.meta)
-    meta["replay"] = dict(counters, controller_ticks=n)
-    return Log(data=data, meta=meta)
+    meta["replay"] = dict(counters, controller_ticks=n, recorded_config_verified=matches)
+    return Log(data=data, meta=meta, verified=log.verified)

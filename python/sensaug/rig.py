@@ -10,7 +10,10 @@ checkout's ``target/release`` (``scripts/setup.sh`` builds it).
 Each run's output folder gets the resolved configuration, the log, the
 statistics, a capture of the bus traffic (``bus.log``, candump's log format,
 recorded by ``sensaug.capture`` off the real-time thread) and a
-``README.txt`` saying what each file is.
+``README.txt`` saying what each file is. Every one of these paths is checked
+before anything is written or started (:func:`check_outputs`): each a
+regular file or absent, no two the same (``docs/safety.md``, "Output
+paths").
 """
 
 from __future__ import annotations
@@ -29,12 +32,15 @@ from typing import Optional
 
 import numpy as np
 
-from sensaug import _resources, metrics
+from sensaug import _core, _resources, metrics
 from sensaug.capture import BusCapture, CaptureStats
 from sensaug.config import ScenarioConfig
 from sensaug.logs import Log, load_log
 
-__all__ = ["RigRun", "bus_port", "capture_format", "find_binary", "run_virtual_rig", "stop_process", "write_readme"]
+__all__ = [
+    "RigRun", "bus_port", "capture_format", "check_outputs", "find_binary", "run_virtual_rig", "stop_process",
+    "write_readme",
+]  # fmt: skip
 
 
 def find_binary() -> Path:
@@ -118,6 +124,28 @@ def bus_port(port: int | None = None) -> int:
     return port
 
 
+def check_outputs(outputs: dict[str, str | Path]) -> None:
+    """Checks output paths by name before a run writes any of them, as
+    ``sensaug-rt`` checks its own (one implementation, in Rust): each a
+    regular file or absent (never a device, FIFO, socket, folder or link),
+    its ``<path>.partial`` too, and no two the same file.
+
+    Raises:
+        ConfigError: ``<name>: <path> is a FIFO (named pipe), not a regular
+            file; ...``, at the first bad one.
+    """
+    _core.check_output_paths([(name, str(path)) for name, path in outputs.items()])
+
+
+def _output_folder(out: Path) -> Path:
+    """``out`` created if needed; a ValueError if it is something else."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise ValueError(f"out: {out} exists and is not a directory; give a folder for the run's files") from None
+    return out
+
+
 def write_readme(out: Path, files: dict[str, str], *, title: str) -> Path:
     """``out/README.txt``: what the run was and one line per file it wrote."""
     width = max(len(name) for name in files) if files else 0
@@ -178,6 +206,7 @@ def run_virtual_rig(
     timeout_s: float | None = None,
     capture: str | None = "bus.log",
     progress: bool | None = False,
+    also_written: dict[str, Path] | None = None,
 ) -> RigRun:
     """Runs one trial on the virtual rig and returns its log and statistics.
 
@@ -190,14 +219,28 @@ def run_virtual_rig(
     ``out/README.txt`` lists what the run wrote. ``progress``: a tqdm bar of
     the protocol's seconds on stderr (None: only on a terminal), drawn by
     this launcher while it waits, never by the real-time process.
+    ``also_written``: files the caller writes into ``out`` afterwards (by
+    name, e.g. plots), checked with the run's own before it starts.
+
+    Every output path is checked first (:func:`check_outputs`); nothing is
+    written and nothing started when one is refused. The statistics are
+    read from ``sensaug-rt``'s stdout; if it could not save
+    ``rig_stats.json`` the run stands and the README says the file is missing.
+
+    Raises:
+        ConfigError: an output path is refused (named).
+        RuntimeError: ``sensaug-rt`` ended before reporting (set-up error).
     """
     cfg = config if isinstance(config, ScenarioConfig) else ScenarioConfig.from_toml(config)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    port = bus_port(port)
+    out = _output_folder(Path(out))
     toml_path = out / "rig_config.toml"
-    cfg.to_toml(toml_path)
     log_path, stats_path = out / "rig_log.csv", out / "rig_stats.json"
+    check_outputs({
+        "configuration copy": toml_path, "rig.log": log_path, "rig.stats": stats_path,
+        **({"capture": out / capture} if capture else {}), "README": out / "README.txt", **(also_written or {}),
+    })  # fmt: skip
+    port = bus_port(port)
+    cfg.to_toml(toml_path)
     binary = find_binary()
     budget = timeout_s or cfg.duration_s + 30.0
     # The capture's socket is bound before the drive boots: every frame of
@@ -221,12 +264,19 @@ def run_virtual_rig(
         # Both processes have exited: drain what they sent, then close.
         if recorder is not None:
             captured = recorder.stop()
-    if not stats_path.exists():
-        raise RuntimeError(f"sensaug-rt failed (exit {proc.returncode}): {proc.stderr.strip()}")
+    # sensaug-rt prints its statistics on stdout at the end of every run
+    # that reached its loop, saved or not: an older rig_stats.json is never
+    # taken for this run's.
+    try:
+        stats = json.loads(proc.stdout)
+    except json.JSONDecodeError:
+        raise RuntimeError(f"sensaug-rt failed (exit {proc.returncode}): {proc.stderr.strip()}") from None
+    stats_lost = next((ln for ln in proc.stderr.splitlines() if ln.startswith("warning: rig.stats:")), None)
     files = {
         toml_path.name: "the configuration the run used, resolved (TOML; sensaug.ScenarioConfig.from_toml)",
         log_path.name: "the controller's log, one row per tick (CSV; sensaug.load_log, docs/logs.md)",
-        stats_path.name: "sensaug-rt's statistics: stop reason, loop timing, CAN counters (JSON)",
+        stats_path.name: "sensaug-rt's statistics: stop reason, loop timing, CAN counters (JSON)"
+        if stats_lost is None else f"NOT WRITTEN by this run ({stats_lost.removeprefix('warning: ')})",
     }
     if captured is not None:
         lost = captured.dropped_kernel + captured.dropped_malformed
@@ -238,7 +288,7 @@ def run_virtual_rig(
     run = RigRun(
         config=cfg,
         log=load_log(log_path),
-        stats=json.loads(stats_path.read_text()),
+        stats=stats,
         returncode=proc.returncode,
         drive_returncode=drive.returncode,
         stderr=proc.stderr,

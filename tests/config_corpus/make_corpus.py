@@ -344,6 +344,18 @@ for value, name in [
     case(f"url_{name}", setting("rig", "can", value), "rig.can")
 case("url_log_empty", setting("rig", "log", '""'), "rig.log")
 
+# --- output paths (checked against the file system: docs/safety.md, "Output paths";
+# tests/test_config_corpus.py adds FIFOs and links made at test time) ---------------
+case("out_log_dev_full", setting("rig", "log", '"/dev/full"'), "rig.log")
+case("out_log_dev_null", setting("rig", "log", '"/dev/null"'), "rig.log")
+case("out_stats_dev_full", setting("rig", "stats", '"/dev/full"'), "rig.stats")
+case("out_log_directory", setting("rig", "log", '"/tmp"'), "rig.log")
+case("out_log_trailing_slash", setting("rig", "log", '"out/rig_log/"'), "rig.log")
+case("out_log_in_a_device", setting("rig", "log", '"/dev/null/rig_log.csv"'), "rig.log")
+case("out_same_path", full({"rig": 'log = "out/same.csv"\nstats = "out/same.csv"\n'}), "rig.stats")
+case("out_same_path_spelled_twice", full({"rig": 'log = "out/x.csv"\nstats = "out/./sub/../x.csv"\n'}), "rig.stats")
+case("out_stats_is_the_logs_partial", full({"rig": 'log = "out/x.csv"\nstats = "out/x.csv.partial"\n'}), "rig.stats")
+
 # --- phase orders and counts ---------------------------------------------------
 case("order_trajectory_first", phases("trajectory", "gains"), "phases[0].kind")
 case("order_integration_only", phases("integration"), "phases[0].kind")

@@ -8,12 +8,15 @@
 //! * [`resolve()`]: cross-field rules, then the core's structs.
 //! * [`to_toml`]: a configuration as TOML with each field's description and
 //!   unit as a comment.
+//! * [`outputs`]: the rig's output paths, checked against the file system
+//!   ([`check_file`] = [`load_file`] + [`outputs::check_outputs`]).
 //!
 //! Set-up only: everything here allocates; the loop gets the core's structs.
 
 pub mod check;
 pub mod cov;
 pub mod error;
+pub mod outputs;
 pub mod resolve;
 pub mod schema;
 mod shape;
@@ -90,6 +93,23 @@ pub fn load_file(path: &Path) -> Result<ScenarioSpec, ConfigError> {
         ));
     }
     load_str(&text, Format::of_path(path))
+}
+
+/// What both checkers (`sensaug check`, `sensaug-rt --check`) run: the file
+/// loaded and validated ([`load_file`]), then the rig's output paths
+/// ([`outputs::check_outputs`]; relative paths from the current folder).
+pub fn check_file(path: &Path) -> Result<ScenarioSpec, ConfigError> {
+    let spec = load_file(path)?;
+    check_rig_outputs(&spec)?;
+    Ok(spec)
+}
+
+/// The rig's output paths (`rig.log`, `rig.stats`) checked against the file
+/// system ([`outputs::check_outputs`]).
+pub fn check_rig_outputs(spec: &ScenarioSpec) -> Result<(), ConfigError> {
+    let outs = outputs::rig_outputs(spec);
+    let refs: Vec<(&str, &Path)> = outs.iter().map(|(f, p)| (*f, p.as_path())).collect();
+    outputs::check_outputs(&refs)
 }
 
 fn io_reason(e: &std::io::Error) -> String {

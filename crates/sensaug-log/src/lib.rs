@@ -11,7 +11,12 @@
 //!   line: configuration, versions, units, phase names, start time, loop
 //!   settings) and, after the last row, the run's end status. Floats are
 //!   written in their shortest round-trip form, so reloading is bit-exact.
+//!   Every row, the metadata line and the end line carry a chained CRC-32
+//!   ([`Checksum`]), so a changed, lost or reordered line is detected; the
+//!   metadata records the configuration's SHA-256 ([`config_sha256`]).
 //!   Why this format: `docs/logs.md`.
+//! * [`read`]: the file back, every checksum verified (the Python loader,
+//!   `sensaug.load_log`, is an independent implementation of the same rules).
 
 #![deny(missing_docs)]
 #![allow(non_snake_case)]
@@ -24,9 +29,51 @@ use std::path::Path;
 use std::process::Command;
 
 /// The first line of every log file: format name and version.
-pub const FORMAT_LINE: &str = "# sensaug-log 1";
+pub const FORMAT_LINE: &str = "# sensaug-log 2";
 /// Version of the schema and the file layout (bumped on any change to either).
-pub const FORMAT_VERSION: u32 = 1;
+/// 2: the chained CRC-32 on every row and `#` JSON line, `config_sha256`.
+pub const FORMAT_VERSION: u32 = 2;
+/// The header name of every data row's last field, after the schema's
+/// columns: the row's checksum ([`Checksum`]), an unsigned decimal integer.
+pub const CHECKSUM_FIELD: &str = "crc32";
+/// How a `#` JSON line (the metadata, the end status) ends: this key, its
+/// checksum in decimal, and the object's closing brace.
+pub const JSON_CHECKSUM_KEY: &str = ",\"crc32\":";
+
+/// CRC-32/ISO-HDLC: the CRC of zlib, gzip, PNG and Ethernet
+/// (`zlib.crc32` in Python); slice-by-16 tables (16 KiB) for speed.
+static CRC32: crc::Crc<u32, crc::Table<16>> =
+    crc::Crc::<u32, crc::Table<16>>::new(&crc::CRC_32_ISO_HDLC);
+
+/// The running checksum of a log file: the CRC-32 ([`CRC32`]) of every
+/// checksummed byte so far. The checksummed bytes of a line are all its
+/// bytes before its checksum: for a data row, up to (not including) the
+/// comma before the last field; for a `#` JSON line, up to (not including)
+/// [`JSON_CHECKSUM_KEY`]. The metadata line is the first, then each row,
+/// then the end line; each carries the running value after its own bytes.
+/// A changed line fails at itself; a deleted, duplicated or reordered one at
+/// the next line. A line's value is `zlib.crc32(its bytes, previous value)`.
+#[derive(Clone)]
+pub struct Checksum(crc::Digest<'static, u32, crc::Table<16>>);
+
+impl Default for Checksum {
+    fn default() -> Self {
+        Checksum(CRC32.digest())
+    }
+}
+
+impl Checksum {
+    /// Nothing checksummed yet (the value before the metadata line: 0).
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Adds one line's checksummed bytes; the running CRC-32 after them.
+    pub fn add(&mut self, bytes: &[u8]) -> u32 {
+        self.0.update(bytes);
+        self.0.clone().finalize()
+    }
+}
 /// The value of an integer column that one side cannot know.
 pub const UNKNOWN: i64 = -1;
 
@@ -291,9 +338,11 @@ impl Row {
     }
 }
 
-/// The header row: column names separated by commas.
+/// The header row: the column names, then [`CHECKSUM_FIELD`], separated by
+/// commas.
 pub fn header_row() -> String {
-    let names: Vec<&str> = COLUMNS.iter().map(|c| c.name).collect();
+    let mut names: Vec<&str> = COLUMNS.iter().map(|c| c.name).collect();
+    names.push(CHECKSUM_FIELD);
     names.join(",")
 }
 
@@ -319,8 +368,10 @@ pub fn format_float(v: f64, out: &mut Vec<u8>) {
     };
 }
 
-/// Appends one CSV line (with its newline) for `row`.
-pub fn format_row(row: &Row, out: &mut Vec<u8>) {
+/// Appends one CSV line (with its newline) for `row`: its values, then its
+/// checksum (`sum` advanced over the values' bytes).
+pub fn format_row(row: &Row, sum: &mut Checksum, out: &mut Vec<u8>) {
+    let start = out.len();
     for (i, v) in row.values().iter().enumerate() {
         if i > 0 {
             out.push(b',');
@@ -335,15 +386,56 @@ pub fn format_row(row: &Row, out: &mut Vec<u8>) {
             Value::Bool(b) => out.write_all(if b { b"1" } else { b"0" }),
         };
     }
-    out.push(b'\n');
+    let crc = sum.add(&out[start..]);
+    let _ = writeln!(out, ",{crc}");
 }
 
-/// Reads one CSV line written by [`format_row`] (without its newline);
-/// `Err` names the first bad column.
-pub fn parse_row(line: &str) -> Result<Row, String> {
+/// Checks a data line's checksum (the line without its newline) against the
+/// running one, which it advances; the line's values without the checksum.
+pub fn check_row<'a>(line: &'a str, sum: &mut Checksum) -> Result<&'a str, String> {
+    let (values, crc) = line
+        .rsplit_once(',')
+        .ok_or_else(|| format!("no {CHECKSUM_FIELD} field"))?;
+    check_crc(values, crc, sum)?;
+    Ok(values)
+}
+
+/// Checks a `#` JSON line's checksum (the line without its newline) against
+/// the running one, which it advances; the line's JSON without the checksum.
+pub fn check_json_line(line: &str, sum: &mut Checksum) -> Result<serde_json::Value, String> {
+    let at = line
+        .rfind(JSON_CHECKSUM_KEY)
+        .ok_or_else(|| format!("no {JSON_CHECKSUM_KEY:?} at its end"))?;
+    let crc = line[at + JSON_CHECKSUM_KEY.len()..]
+        .strip_suffix('}')
+        .ok_or("does not end with its checksum and '}'")?;
+    check_crc(&line[..at], crc, sum)?;
+    let json = line[..at]
+        .strip_prefix("# ")
+        .ok_or("does not start with \"# \"")?;
+    serde_json::from_str(&format!("{json}}}")).map_err(|e| format!("not JSON: {e}"))
+}
+
+fn check_crc(checked: &str, crc: &str, sum: &mut Checksum) -> Result<(), String> {
+    let computed = sum.add(checked.as_bytes());
+    let written: u32 = crc
+        .parse()
+        .map_err(|_| format!("checksum {crc:?} is not a 32-bit decimal number"))?;
+    if written != computed {
+        return Err(format!(
+            "checksum {written} but the bytes give {computed}: this line, or the one before it, \
+             changed after it was written"
+        ));
+    }
+    Ok(())
+}
+
+/// Reads the values of one data row (the line without its newline and
+/// without its checksum, [`check_row`]); `Err` names the first bad column.
+pub fn parse_values(values: &str) -> Result<Row, String> {
     let mut row = Row::UNKNOWN;
     let mut n = 0;
-    for (i, field) in line.split(',').enumerate() {
+    for (i, field) in values.split(',').enumerate() {
         let col = COLUMNS
             .get(i)
             .ok_or_else(|| format!("more than {} fields", COLUMNS.len()))?;
@@ -364,6 +456,56 @@ pub fn parse_row(line: &str) -> Result<Row, String> {
         return Err(format!("{n} fields, expected {}", COLUMNS.len()));
     }
     Ok(row)
+}
+
+/// Reads one data line written by [`format_row`] (without its newline),
+/// checking its checksum first.
+pub fn parse_row(line: &str, sum: &mut Checksum) -> Result<Row, String> {
+    parse_values(check_row(line, sum)?)
+}
+
+/// A log file read back by [`read`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct LogText {
+    /// The metadata (without its checksum).
+    pub meta: serde_json::Value,
+    /// One row per data line.
+    pub rows: Vec<Row>,
+    /// The end status (`meta["end"]` in Python), `None` without an end line.
+    pub end: Option<serde_json::Value>,
+}
+
+/// Reads a whole log file of this version, verifying every checksum; a
+/// partial last line (no newline: a killed writer) is ignored. `Err` is
+/// `line N: what`.
+pub fn read(text: &str) -> Result<LogText, String> {
+    let complete = &text[..text.rfind('\n').map_or(0, |i| i + 1)];
+    let mut lines = complete.lines().enumerate().map(|(i, l)| (i + 1, l));
+    let at = |n: usize| move |e: String| format!("line {n}: {e}");
+    match lines.next() {
+        Some((_, FORMAT_LINE)) => {}
+        _ => return Err(format!("line 1: not {FORMAT_LINE:?}")),
+    }
+    let mut sum = Checksum::new();
+    let (n, line) = lines.next().ok_or("line 2: no metadata line")?;
+    let meta = check_json_line(line, &mut sum).map_err(at(n))?;
+    match lines.next() {
+        Some((_, h)) if h == header_row() => {}
+        _ => return Err("line 3: not the header row of this schema".into()),
+    }
+    let (mut rows, mut end) = (Vec::new(), None);
+    for (n, line) in lines {
+        if end.is_some() {
+            return Err(format!("line {n}: after the end-status line"));
+        }
+        if line.starts_with('#') {
+            let mut json = check_json_line(line, &mut sum).map_err(at(n))?;
+            end = Some(json["end"].take());
+        } else {
+            rows.push(parse_row(line, &mut sum).map_err(at(n))?);
+        }
+    }
+    Ok(LogText { meta, rows, end })
 }
 
 /// Where a log comes from.
@@ -424,6 +566,7 @@ pub fn metadata(info: &RunInfo) -> serde_json::Value {
         "format": "sensaug-log",
         "format_version": FORMAT_VERSION,
         "source": info.source.name(),
+        "config_sha256": config_sha256(&info.config),
         "package_version": env!("CARGO_PKG_VERSION"),
         "git_commit": info.git_commit,
         "start_time_utc": iso8601_utc(info.start_unix_s),
@@ -438,17 +581,74 @@ pub fn metadata(info: &RunInfo) -> serde_json::Value {
     })
 }
 
-/// Writes the format line, the metadata line and the header row.
-pub fn write_header(out: &mut impl Write, meta: &serde_json::Value) -> io::Result<()> {
-    // serde_json never writes a raw newline inside a string, so the
-    // metadata is one line.
-    write!(out, "{FORMAT_LINE}\n# {meta}\n{}\n", header_row())
+/// Writes the format line, the metadata line (`meta` stamped with this
+/// format and version, and its checksum) and the header row; the running
+/// checksum to write the rows with.
+pub fn write_header(out: &mut impl Write, meta: &serde_json::Value) -> io::Result<Checksum> {
+    let mut meta = meta.clone();
+    let Some(fields) = meta.as_object_mut() else {
+        return Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            "the log metadata must be a JSON object",
+        ));
+    };
+    fields.remove("crc32");
+    fields.insert("format".into(), "sensaug-log".into());
+    fields.insert("format_version".into(), FORMAT_VERSION.into());
+    let mut sum = Checksum::new();
+    let line = json_line(&meta, &mut sum);
+    write!(out, "{FORMAT_LINE}\n{line}{}\n", header_row())?;
+    Ok(sum)
 }
 
-/// Writes the end-status line after the last row: `# {"end": ...}`.
-pub fn write_footer(out: &mut impl Write, end: &serde_json::Value) -> io::Result<()> {
-    let line = serde_json::json!({ "end": end });
-    writeln!(out, "# {line}")
+/// Writes the end-status line after the last row: `# {"end": ...,"crc32":N}`.
+pub fn write_footer(
+    out: &mut impl Write,
+    end: &serde_json::Value,
+    sum: &mut Checksum,
+) -> io::Result<()> {
+    out.write_all(json_line(&serde_json::json!({ "end": end }), sum).as_bytes())
+}
+
+/// A `#` JSON line of a non-empty object with its checksum, newline ended.
+fn json_line(object: &serde_json::Value, sum: &mut Checksum) -> String {
+    // serde_json never writes a raw newline inside a string, so the line is
+    // one line; a non-empty object ends with '}', replaced by the checksum.
+    let text = object.to_string();
+    let checked = format!("# {}", &text[..text.len() - 1]);
+    let crc = sum.add(checked.as_bytes());
+    format!("{checked}{JSON_CHECKSUM_KEY}{crc}}}\n")
+}
+
+/// SHA-256 (64 lowercase hex digits) of a configuration's canonical JSON
+/// text: compact, every object's keys sorted (by their UTF-8 bytes), numbers
+/// as serde_json writes them (shortest round-trip form). The metadata's
+/// `config_sha256`; `sensaug.replay` recomputes it from `meta["config"]`
+/// (`sensaug._core.config_sha256`) to tell an edited configuration.
+pub fn config_sha256(config: &serde_json::Value) -> String {
+    use sha2::Digest;
+    let digest = sha2::Sha256::digest(canonical(config).to_string().as_bytes());
+    digest.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// `v` with every object's keys in sorted order (whether or not serde_json
+/// keeps insertion order).
+fn canonical(v: &serde_json::Value) -> serde_json::Value {
+    match v {
+        serde_json::Value::Object(map) => {
+            let mut keys: Vec<&String> = map.keys().collect();
+            keys.sort();
+            serde_json::Value::Object(
+                keys.into_iter()
+                    .map(|k| (k.clone(), canonical(&map[k])))
+                    .collect(),
+            )
+        }
+        serde_json::Value::Array(items) => {
+            serde_json::Value::Array(items.iter().map(canonical).collect())
+        }
+        other => other.clone(),
+    }
 }
 
 /// Seconds since the Unix epoch, now.
@@ -576,10 +776,11 @@ mod tests {
     #[test]
     fn names_are_unique_and_the_header_matches() {
         let mut names: Vec<_> = COLUMNS.iter().map(|c| c.name).collect();
+        names.push(CHECKSUM_FIELD);
         assert_eq!(header_row().split(',').collect::<Vec<_>>(), names);
         names.sort_unstable();
         names.dedup();
-        assert_eq!(names.len(), COLUMNS.len());
+        assert_eq!(names.len(), COLUMNS.len() + 1);
     }
 
     #[test]
@@ -672,10 +873,10 @@ mod tests {
         assert_eq!((row.x_meas, row.xdot_meas), (rec.x_meas, rec.v_meas));
         assert!(row.torque_nm.is_nan() && row.e_hat_own.is_nan());
         let mut line = Vec::new();
-        format_row(&row, &mut line);
+        format_row(&row, &mut Checksum::new(), &mut line);
         assert_eq!(line.last(), Some(&b'\n'));
         let text = std::str::from_utf8(&line[..line.len() - 1]).unwrap();
-        let back = parse_row(text).unwrap();
+        let back = parse_row(text, &mut Checksum::new()).unwrap();
         for (a, b) in back.values().iter().zip(row.values()) {
             match (*a, b) {
                 (Value::Float(a), Value::Float(b)) => {
@@ -695,19 +896,180 @@ mod tests {
     #[test]
     fn bad_lines_name_the_column() {
         let mut line = Vec::new();
-        format_row(&Row::UNKNOWN, &mut line);
+        format_row(&Row::UNKNOWN, &mut Checksum::new(), &mut line);
         let text = String::from_utf8(line).unwrap();
-        let text = text.trim_end();
-        assert!(parse_row(text).is_ok());
-        let bad = text.replacen("-1", "x", 1);
-        assert!(parse_row(&bad).unwrap_err().starts_with("tick:"));
-        let short = &text[..text.rfind(',').unwrap()];
-        assert!(parse_row(short).unwrap_err().contains("fields"));
+        let values = check_row(text.trim_end(), &mut Checksum::new()).unwrap();
+        assert!(parse_values(values).is_ok());
+        let bad = values.replacen("-1", "x", 1);
+        assert!(parse_values(&bad).unwrap_err().starts_with("tick:"));
+        let short = &values[..values.rfind(',').unwrap()];
+        assert!(parse_values(short).unwrap_err().contains("fields"));
         let mut row = Row::UNKNOWN;
         assert!(row
             .set(1, Value::Int(3))
             .unwrap_err()
             .starts_with("t: expected float"));
+    }
+
+    /// The checksum is CRC-32/ISO-HDLC (its catalogue check value), and a
+    /// line's value is the CRC of every checksummed byte so far: what
+    /// `zlib.crc32(line, previous)` computes.
+    #[test]
+    fn the_checksum_is_the_running_crc32() {
+        assert_eq!(Checksum::new().add(b"123456789"), 0xCBF4_3926);
+        let mut sum = Checksum::new();
+        sum.add(b"1234");
+        assert_eq!(sum.add(b"56789"), 0xCBF4_3926);
+        assert_eq!(Checksum::new().add(b""), 0);
+    }
+
+    fn small_log(rows: usize, end: bool) -> String {
+        let info = RunInfo {
+            source: Source::Simulation,
+            config: serde_json::json!({"b": 1, "a": [0.5, 1e-5]}),
+            resolved: serde_json::Value::Null,
+            git_commit: None,
+            start_unix_s: 0.0,
+            loop_settings: serde_json::Value::Null,
+        };
+        let mut out = Vec::new();
+        let mut sum = write_header(&mut out, &metadata(&info)).unwrap();
+        for k in 0..rows {
+            let row = Row {
+                tick: k as i64,
+                fresh: k % 2 == 0,
+                x: k as f64 / 3.0,
+                ..Row::UNKNOWN
+            };
+            format_row(&row, &mut sum, &mut out);
+        }
+        if end {
+            write_footer(&mut out, &serde_json::json!({"ticks": rows}), &mut sum).unwrap();
+        }
+        String::from_utf8(out).unwrap()
+    }
+
+    #[test]
+    fn a_written_log_reads_back_verified() {
+        let text = small_log(5, true);
+        let log = read(&text).unwrap();
+        assert_eq!(log.rows.len(), 5);
+        assert_eq!(log.rows[3].x, 1.0);
+        assert!(!log.rows[3].fresh);
+        assert_eq!(log.end, Some(serde_json::json!({"ticks": 5})));
+        assert_eq!(log.meta["format_version"], FORMAT_VERSION);
+        assert!(log.meta.get("crc32").is_none());
+        // A killed writer: the partial last line is ignored.
+        let cut = &text[..text.len() - 10];
+        assert_eq!(read(cut).unwrap().rows.len(), 5);
+        assert_eq!(read(cut).unwrap().end, None);
+    }
+
+    /// Every single-line change is caught at that line or the next: a
+    /// flipped `fresh`, an edited metadata value, a deleted, duplicated or
+    /// swapped row, an edited end line.
+    #[test]
+    fn a_changed_line_fails_its_checksum() {
+        let text = small_log(5, true);
+        let lines: Vec<&str> = text.lines().collect();
+        let join = |ls: Vec<String>| ls.join("\n") + "\n";
+        let owned = || lines.iter().map(|l| l.to_string()).collect::<Vec<_>>();
+        let cases: Vec<(&str, Vec<String>, usize)> = vec![
+            (
+                "fresh flipped",
+                {
+                    let mut l = owned();
+                    let mut fields: Vec<&str> = lines[4].split(',').collect();
+                    fields[7] = if fields[7] == "0" { "1" } else { "0" };
+                    l[4] = fields.join(",");
+                    l
+                },
+                5,
+            ),
+            (
+                "metadata edited",
+                {
+                    let mut l = owned();
+                    l[1] = l[1].replacen("\"b\":1", "\"b\":2", 1);
+                    l
+                },
+                2,
+            ),
+            (
+                "row deleted",
+                {
+                    let mut l = owned();
+                    l.remove(5);
+                    l
+                },
+                6,
+            ),
+            (
+                "row duplicated",
+                {
+                    let mut l = owned();
+                    l.insert(5, l[4].clone());
+                    l
+                },
+                6,
+            ),
+            (
+                "rows swapped",
+                {
+                    let mut l = owned();
+                    l.swap(4, 5);
+                    l
+                },
+                5,
+            ),
+            (
+                "end edited",
+                {
+                    let mut l = owned();
+                    l[8] = l[8].replacen("5", "4", 1);
+                    l
+                },
+                9,
+            ),
+        ];
+        for (what, changed, line) in cases {
+            assert_ne!(join(changed.clone()), text, "{what}: nothing changed");
+            let err = read(&join(changed)).unwrap_err();
+            assert!(err.starts_with(&format!("line {line}: ")), "{what}: {err}");
+        }
+    }
+
+    /// The digest does not depend on key order; it is SHA-256 of the
+    /// canonical text (FIPS 180-2's "abc" vector checks the hash itself).
+    #[test]
+    fn the_config_digest_is_sha256_of_sorted_compact_json() {
+        let a = serde_json::json!({"b": {"y": 1, "x": [1.5, 1e-5]}, "a": "s"});
+        let b: serde_json::Value =
+            serde_json::from_str(r#"{"a": "s", "b": {"x": [1.5, 0.00001], "y": 1}}"#).unwrap();
+        assert_eq!(config_sha256(&a), config_sha256(&b));
+        assert_eq!(
+            canonical(&a).to_string(),
+            r#"{"a":"s","b":{"x":[1.5,0.00001],"y":1}}"#
+        );
+        assert_ne!(
+            config_sha256(&a),
+            config_sha256(&serde_json::json!({"a": "t"}))
+        );
+        assert_eq!(
+            config_sha256(&serde_json::json!("abc")),
+            // SHA-256 of the 5 bytes "abc" with its quotes.
+            {
+                use sha2::Digest;
+                let d = sha2::Sha256::digest(b"\"abc\"");
+                d.iter().map(|b| format!("{b:02x}")).collect::<String>()
+            }
+        );
+        use sha2::Digest;
+        let abc = sha2::Sha256::digest(b"abc");
+        assert_eq!(
+            abc.iter().map(|b| format!("{b:02x}")).collect::<String>(),
+            "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+        );
     }
 
     #[test]
@@ -734,9 +1096,10 @@ mod tests {
         let lines: Vec<&str> = text.lines().collect();
         assert_eq!(lines.len(), 3);
         assert_eq!(lines[0], FORMAT_LINE);
-        let meta: serde_json::Value = serde_json::from_str(&lines[1][2..]).unwrap();
+        let meta = check_json_line(lines[1], &mut Checksum::new()).unwrap();
         assert_eq!(meta["columns"].as_array().unwrap().len(), COLUMNS.len());
         assert_eq!(meta["config"]["note"], "a\nb");
+        assert_eq!(meta["config_sha256"], config_sha256(&info.config));
         assert_eq!(lines[2], header_row());
     }
 }

@@ -6,6 +6,7 @@ use numpy::{IntoPyArray, PyReadonlyArray1};
 use pyo3::exceptions::{PyOSError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+use sensaug_config::outputs::{create_partial, partial_path, replace};
 use sensaug_log::{Kind, PackedRow, Row, Value, COLUMNS};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -16,6 +17,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(git_commit, m)?)?;
     m.add_function(wrap_pyfunction!(simulation_meta, m)?)?;
     m.add_function(wrap_pyfunction!(write_log, m)?)?;
+    m.add_function(wrap_pyfunction!(config_sha256, m)?)?;
     Ok(())
 }
 
@@ -26,6 +28,8 @@ fn log_schema(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("format_line", sensaug_log::FORMAT_LINE)?;
     d.set_item("format_version", sensaug_log::FORMAT_VERSION)?;
+    d.set_item("checksum_field", sensaug_log::CHECKSUM_FIELD)?;
+    d.set_item("json_checksum_key", sensaug_log::JSON_CHECKSUM_KEY)?;
     let cols: Vec<(&str, &str, &str, &str)> = COLUMNS
         .iter()
         .map(|c| (c.name, c.unit, c.kind.name(), c.description))
@@ -65,6 +69,15 @@ fn simulation_meta(
         loop_settings: serde_json::Value::Null,
     };
     Ok(sensaug_log::metadata(&info).to_string())
+}
+
+/// The configuration digest a log records (`meta["config_sha256"]`) of the
+/// configuration given as JSON text.
+#[pyfunction]
+fn config_sha256(config_json: &str) -> PyResult<String> {
+    let config = serde_json::from_str::<serde_json::Value>(config_json)
+        .map_err(|e| PyValueError::new_err(format!("config_json: not valid JSON: {e}")))?;
+    Ok(sensaug_log::config_sha256(&config))
 }
 
 /// One column's values while converting rows to numpy.
@@ -174,27 +187,39 @@ fn columns_to_rows(data: &Bound<'_, PyAny>) -> PyResult<Vec<Row>> {
     Ok(rows)
 }
 
+/// Writes the log to `<path>.partial`, then renames it over `path` (an
+/// older regular file is replaced only by a complete log; nothing else is
+/// ever opened or replaced: `sensaug_config::outputs`).
 fn write_file(
     path: &Path,
     meta: &serde_json::Value,
     rows: &[Row],
     end: &serde_json::Value,
 ) -> std::io::Result<()> {
-    if let Some(dir) = path.parent() {
-        if !dir.as_os_str().is_empty() {
-            std::fs::create_dir_all(dir)?;
-        }
+    let file = create_partial(path)?;
+    let written = write_rows(file, meta, rows, end).and_then(|()| replace(path));
+    if written.is_err() {
+        let _ = std::fs::remove_file(partial_path(path));
     }
-    let mut out = std::io::BufWriter::new(std::fs::File::create(path)?);
-    sensaug_log::write_header(&mut out, meta)?;
+    written
+}
+
+fn write_rows(
+    file: std::fs::File,
+    meta: &serde_json::Value,
+    rows: &[Row],
+    end: &serde_json::Value,
+) -> std::io::Result<()> {
+    let mut out = std::io::BufWriter::new(file);
+    let mut sum = sensaug_log::write_header(&mut out, meta)?;
     let mut line = Vec::with_capacity(1024);
     for r in rows {
         line.clear();
-        sensaug_log::format_row(r, &mut line);
+        sensaug_log::format_row(r, &mut sum, &mut line);
         out.write_all(&line)?;
     }
     if !end.is_null() {
-        sensaug_log::write_footer(&mut out, end)?;
+        sensaug_log::write_footer(&mut out, end, &mut sum)?;
     }
     out.flush()
 }
@@ -221,6 +246,8 @@ fn write_log(
         None => serde_json::Value::Null,
     };
     let rows = columns_to_rows(data)?;
+    sensaug_config::outputs::check_outputs(&[("path", &path)])
+        .map_err(crate::scenario::config_err)?;
     py.detach(|| write_file(&path, &meta, &rows, &end))
         .map_err(|e| PyOSError::new_err(format!("{}: cannot write the log: {e}", path.display())))
 }

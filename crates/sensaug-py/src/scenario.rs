@@ -35,6 +35,8 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(trial_memory, m)?)?;
     m.add_function(wrap_pyfunction!(available_memory, m)?)?;
     m.add_function(wrap_pyfunction!(config_check_file, m)?)?;
+    m.add_function(wrap_pyfunction!(config_load_file, m)?)?;
+    m.add_function(wrap_pyfunction!(check_output_paths, m)?)?;
     m.add_function(wrap_pyfunction!(config_load, m)?)?;
     m.add_function(wrap_pyfunction!(config_to_toml, m)?)?;
     m.add_function(wrap_pyfunction!(config_schema, m)?)?;
@@ -60,12 +62,33 @@ pub(crate) fn load(text: &str, fmt: &str) -> PyResult<ScenarioSpec> {
     sensaug_config::load_str(text, format(fmt)?).map_err(config_err)
 }
 
-/// Reads and validates a configuration file; returns it as JSON with every
-/// default filled in.
+/// Reads and validates a configuration file and checks its rig output paths
+/// against the file system, as `sensaug-rt --check` does; returns it as JSON
+/// with every default filled in.
 #[pyfunction]
 fn config_check_file(path: &str) -> PyResult<String> {
+    let spec = sensaug_config::check_file(Path::new(path)).map_err(config_err)?;
+    Ok(sensaug_config::to_json(&spec))
+}
+
+/// Reads and validates a configuration file (its output paths unchecked);
+/// returns it as JSON with every default filled in.
+#[pyfunction]
+fn config_load_file(path: &str) -> PyResult<String> {
     let spec = sensaug_config::load_file(Path::new(path)).map_err(config_err)?;
     Ok(sensaug_config::to_json(&spec))
+}
+
+/// Checks output paths, `(field, path)` each, as the rig's own are checked
+/// (`sensaug_config::outputs::check_outputs`): regular files or absent,
+/// distinct. Raises `ConfigError` naming the field.
+#[pyfunction]
+fn check_output_paths(outputs: Vec<(String, std::path::PathBuf)>) -> PyResult<()> {
+    let refs: Vec<(&str, &Path)> = outputs
+        .iter()
+        .map(|(f, p)| (f.as_str(), p.as_path()))
+        .collect();
+    sensaug_config::outputs::check_outputs(&refs).map_err(config_err)
 }
 
 /// Validates configuration text; returns it as JSON with every default filled in.

@@ -14,16 +14,23 @@
 //! then on the file stays a valid prefix and later records are counted lost,
 //! and the loop sees the failure ([`LogSink::failed`]) and stops under control.
 //!
+//! Every line carries the log's chained CRC-32 (`sensaug_log::Checksum`): the
+//! writer keeps the running value across passes, so the file is verifiable
+//! up to any point a crash cuts it.
+//!
 //! An old log is not replaced by a run that never starts: set-up writes
 //! `<log>.partial` (which also proves the path writable before the drive is
 //! enabled); the writer renames it to `<log>` when the first record arrives
 //! (the loop's tick 0), or at the end of a run without records. A run that
-//! never starts removes `<log>.partial` ([`LogWriter::abandon`]).
+//! never starts removes `<log>.partial` ([`LogWriter::abandon`]). Nothing
+//! but a regular file is ever opened or replaced ([`create_partial`],
+//! [`replace`]; `docs/safety.md`, "Output paths").
 
 use rtrb::{Consumer, Producer, RingBuffer};
+use sensaug_config::outputs::{create_partial, partial_path, replace};
 use sensaug_core::agent::Guard;
 use sensaug_core::controller::RobotTick;
-use sensaug_log::{format_row, write_footer, write_header, Row, UNKNOWN};
+use sensaug_log::{format_row, write_footer, write_header, Checksum, Row, UNKNOWN};
 use std::fs::File;
 use std::io::{self, Write};
 use std::path::{Path, PathBuf};
@@ -139,14 +146,6 @@ impl LogSink {
     }
 }
 
-/// `<path>.partial`: where an output is written until it is complete
-/// enough to replace an older one.
-pub fn partial_path(path: &Path) -> PathBuf {
-    let mut name = path.as_os_str().to_owned();
-    name.push(".partial");
-    PathBuf::from(name)
-}
-
 /// The log's place: `<path>.partial` until [`Place::publish`] renames it.
 #[derive(Debug)]
 struct Place {
@@ -158,7 +157,7 @@ impl Place {
     /// Renames `<path>.partial` to `path` (once).
     fn publish(&mut self) -> io::Result<()> {
         if !self.published {
-            std::fs::rename(partial_path(&self.path), &self.path)?;
+            replace(&self.path)?;
             self.published = true;
         }
         Ok(())
@@ -181,7 +180,16 @@ pub struct WriterStats {
 /// The writer thread and its stop flag.
 pub struct LogWriter {
     done: Arc<AtomicBool>,
-    handle: JoinHandle<(File, WriterStats, Place)>,
+    handle: JoinHandle<Written>,
+}
+
+/// What the writer thread hands back: the file, its counts, its place and
+/// the running checksum after the last line written.
+struct Written {
+    file: File,
+    stats: WriterStats,
+    place: Place,
+    sum: Checksum,
 }
 
 impl LogWriter {
@@ -192,7 +200,12 @@ impl LogWriter {
     /// record did it.
     pub fn finish(self, mut end: serde_json::Map<String, serde_json::Value>) -> WriterStats {
         self.done.store(true, Ordering::Release);
-        let (mut file, mut stats, mut place) = match self.handle.join() {
+        let Written {
+            mut file,
+            mut stats,
+            mut place,
+            mut sum,
+        } = match self.handle.join() {
             Ok(r) => r,
             Err(_) => {
                 return WriterStats {
@@ -216,7 +229,7 @@ impl LogWriter {
             );
             let mut line = Vec::new();
             // Writing to a Vec cannot fail.
-            let _ = write_footer(&mut line, &serde_json::Value::Object(end));
+            let _ = write_footer(&mut line, &serde_json::Value::Object(end), &mut sum);
             if let Err(e) = file.write_all(&line).and_then(|()| file.sync_all()) {
                 stats.write_errors += 1;
                 stats.error = Some(format!("end-status line: {e}"));
@@ -229,7 +242,7 @@ impl LogWriter {
     /// `<path>.partial`, leaving any older log at the path untouched.
     pub fn abandon(self) {
         self.done.store(true, Ordering::Release);
-        if let Ok((_, _, place)) = self.handle.join() {
+        if let Ok(Written { place, .. }) = self.handle.join() {
             if !place.published {
                 let _ = std::fs::remove_file(partial_path(&place.path));
             }
@@ -245,15 +258,13 @@ pub fn start(
     capacity: usize,
     meta: &serde_json::Value,
 ) -> io::Result<(LogSink, LogWriter)> {
-    if let Some(dir) = path.parent() {
-        if !dir.as_os_str().is_empty() {
-            std::fs::create_dir_all(dir)?;
-        }
-    }
-    let mut file = File::create(partial_path(path))?;
+    let mut file = create_partial(path)?;
     let mut head = Vec::new();
-    write_header(&mut head, meta)?;
-    file.write_all(&head)?;
+    let sum = write_header(&mut head, meta)?;
+    if let Err(e) = file.write_all(&head) {
+        let _ = std::fs::remove_file(partial_path(path));
+        return Err(e);
+    }
     let (mut producer, mut consumer) = RingBuffer::new(capacity);
     touch_every_slot(&mut producer, &mut consumer);
     let done = Arc::new(AtomicBool::new(false));
@@ -265,7 +276,7 @@ pub fn start(
     };
     let handle = std::thread::Builder::new()
         .name("sensaug-log".into())
-        .spawn(move || write_loop(file, consumer, &flag, &failed_flag, place))?;
+        .spawn(move || write_loop(file, consumer, &flag, &failed_flag, place, sum))?;
     Ok((
         LogSink {
             producer,
@@ -305,15 +316,17 @@ fn touch_every_slot(producer: &mut Producer<LogRecord>, consumer: &mut Consumer<
 }
 
 /// The writer thread: every [`WRITE_PERIOD`], drain the ring into complete
-/// lines and write them to the file in one call (publishing the file at its
-/// path before the first); the first failure raises `failed`.
+/// lines (each with its running checksum, `sum`) and write them to the file
+/// in one call (publishing the file at its path before the first); the
+/// first failure raises `failed`.
 fn write_loop(
     mut file: File,
     mut consumer: Consumer<LogRecord>,
     done: &AtomicBool,
     failed: &AtomicBool,
     mut place: Place,
-) -> (File, WriterStats, Place) {
+    mut sum: Checksum,
+) -> Written {
     let mut stats = WriterStats::default();
     let mut lines = Vec::with_capacity(1 << 20);
     loop {
@@ -322,7 +335,7 @@ fn write_loop(
         let finished = done.load(Ordering::Acquire);
         let mut n = 0u64;
         while let Ok(r) = consumer.pop() {
-            format_row(&r.to_row(), &mut lines);
+            format_row(&r.to_row(), &mut sum, &mut lines);
             n += 1;
         }
         if n > 0 {
@@ -343,14 +356,20 @@ fn write_loop(
         }
         std::thread::sleep(WRITE_PERIOD);
     }
-    (file, stats, place)
+    Written {
+        file,
+        stats,
+        place,
+        sum,
+    }
 }
 
 #[cfg(test)]
 mod tests {
-    use super::{start, write_loop, LogRecord};
+    use super::{partial_path, replace, start, write_loop, LogRecord};
     use sensaug_core::agent::Guard;
     use sensaug_core::controller::RobotTick;
+    use sensaug_log::Checksum;
 
     fn record(tick: u64) -> LogRecord {
         LogRecord {
@@ -414,21 +433,59 @@ mod tests {
         let text = std::fs::read_to_string(&path).unwrap();
         let _ = std::fs::remove_dir_all(&dir);
         assert_eq!(stats.records_written + overflows, 40);
-        let lines: Vec<&str> = text.lines().collect();
-        assert_eq!(lines[0], sensaug_log::FORMAT_LINE);
-        assert_eq!(lines[2], sensaug_log::header_row());
-        let rows: Vec<_> = lines[3..lines.len() - 1]
-            .iter()
-            .map(|l| sensaug_log::parse_row(l).unwrap())
-            .collect();
-        assert_eq!(rows.len() as u64, stats.records_written);
-        let mut first = Vec::new();
-        sensaug_log::format_row(&record(0).to_row(), &mut first);
-        assert_eq!(format!("{}\n", lines[3]).as_bytes(), &first[..]);
-        let end: serde_json::Value =
-            serde_json::from_str(lines.last().unwrap().strip_prefix("# ").unwrap()).unwrap();
-        assert_eq!(end["end"]["stop_reason"], "completed");
-        assert_eq!(end["end"]["records_written"], stats.records_written);
+        // Every checksum verifies, across the writer's passes.
+        let log = sensaug_log::read(&text).unwrap();
+        assert_eq!(log.rows.len() as u64, stats.records_written);
+        // Debug text: NaN fields compare equal.
+        let first = format!("{:?}", record(0).to_row());
+        assert_eq!(format!("{:?}", log.rows[0]), first);
+        let end = log.end.unwrap();
+        assert_eq!(end["stop_reason"], "completed");
+        assert_eq!(end["records_written"], stats.records_written);
+        assert_eq!(log.meta["source"], "rig");
+    }
+
+    #[test]
+    fn nothing_but_a_regular_file_is_opened_or_replaced() {
+        let dir = std::env::temp_dir().join(format!("sensaug-log-kinds-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let meta = serde_json::json!({"source": "rig"});
+        // A stale regular `.partial` (a run killed before its rename) is
+        // replaced; a FIFO there is refused at once (not opened: no block).
+        let stale = dir.join("stale.csv");
+        std::fs::write(partial_path(&stale), b"stale").unwrap();
+        let (_sink, writer) = start(&stale, 16, &meta).unwrap();
+        writer.abandon();
+        assert!(!partial_path(&stale).exists());
+        let fifo = dir.join("fifo.csv");
+        let made = std::process::Command::new("mkfifo")
+            .arg(partial_path(&fifo))
+            .status()
+            .unwrap();
+        assert!(made.success());
+        let e = start(&fifo, 16, &meta).err().unwrap().to_string();
+        assert!(e.contains("is a FIFO"), "{e}");
+        // A link at `.partial` is not followed.
+        let target = dir.join("target");
+        std::fs::write(&target, b"keep").unwrap();
+        let linked = dir.join("linked.csv");
+        std::os::unix::fs::symlink(&target, partial_path(&linked)).unwrap();
+        assert!(start(&linked, 16, &meta).is_err());
+        assert_eq!(std::fs::read(&target).unwrap(), b"keep");
+        // Something not a regular file at the path itself is not replaced.
+        let dev = dir.join("dev.csv");
+        std::os::unix::fs::symlink("/dev/null", &dev).unwrap();
+        std::fs::write(partial_path(&dev), b"out").unwrap();
+        let e = replace(&dev).unwrap_err().to_string();
+        assert!(
+            e.contains("symbolic link to /dev/null") && e.contains("stays at"),
+            "{e}"
+        );
+        assert!(std::fs::symlink_metadata(&dev)
+            .unwrap()
+            .file_type()
+            .is_symlink());
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]
@@ -439,10 +496,10 @@ mod tests {
         std::fs::write(&path, b"old log\n").unwrap();
         let meta = serde_json::json!({"source": "rig"});
         let (_sink, writer) = start(&path, 16, &meta).unwrap();
-        assert!(super::partial_path(&path).exists());
+        assert!(partial_path(&path).exists());
         writer.abandon();
         assert_eq!(std::fs::read(&path).unwrap(), b"old log\n");
-        assert!(!super::partial_path(&path).exists());
+        assert!(!partial_path(&path).exists());
         let (mut sink, writer) = start(&path, 16, &meta).unwrap();
         sink.push(record(0));
         // The writer publishes the file with the first record.
@@ -451,7 +508,7 @@ mod tests {
             assert!(t0.elapsed() < std::time::Duration::from_secs(10));
             std::thread::sleep(std::time::Duration::from_millis(5));
         }
-        assert!(!super::partial_path(&path).exists());
+        assert!(!partial_path(&path).exists());
         let stats = writer.finish(serde_json::Map::new());
         let text = std::fs::read_to_string(&path).unwrap();
         let _ = std::fs::remove_dir_all(&dir);
@@ -471,14 +528,15 @@ mod tests {
         for k in 0..5 {
             producer.push(record(k)).unwrap();
         }
-        std::fs::write(super::partial_path(&path), b"").unwrap();
+        std::fs::write(partial_path(&path), b"").unwrap();
         let done = std::sync::atomic::AtomicBool::new(true);
         let failed = std::sync::atomic::AtomicBool::new(false);
         let place = super::Place {
             path: path.clone(),
             published: false,
         };
-        let (_, stats, _) = write_loop(file, consumer, &done, &failed, place);
+        let written = write_loop(file, consumer, &done, &failed, place, Checksum::new());
+        let stats = written.stats;
         let _ = std::fs::remove_dir_all(&dir);
         assert!(failed.load(std::sync::atomic::Ordering::Relaxed));
         assert_eq!(stats.write_errors, 1);

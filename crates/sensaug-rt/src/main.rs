@@ -2,18 +2,21 @@
 //! Validates the whole configuration (the one schema, `sensaug-config`)
 //! before anything moves; prints and saves the loop statistics at the end.
 //! Exit code 0 only when the protocol completed; 2 for a configuration or
-//! set-up error (the outputs are checked before the drive is enabled); 3
+//! set-up error (the output paths are checked, and the outputs created,
+//! before the drive is enabled: `docs/safety.md`, "Output paths"); 3
 //! when another controller was seen on the bus before enabling; the other
 //! stop reasons have their own codes (`StopReason::exit_code`,
 //! docs/realtime.md).
 
 use clap::Parser;
+use sensaug_config::outputs::{create_partial, partial_path, replace};
 use sensaug_config::Resolved;
 use sensaug_config::{load_file, validate, ConfigError, ScenarioSpec};
 use sensaug_core::controller::Robot;
 use sensaug_rt::config::{drive_link, loop_settings};
 use sensaug_rt::control::{LoopSettings, Rig, StartError, StopReason};
 use sensaug_rt::{log, os};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::AtomicUsize;
@@ -29,8 +32,8 @@ struct Args {
     /// file plus an optional [rig] table. `python -m sensaug schema` prints
     /// every field.
     config: PathBuf,
-    /// Validate the configuration, print "valid" and exit (exit 2 and the
-    /// first bad field on stderr when it is not).
+    /// Validate the configuration and its output paths, print "valid" and
+    /// exit (exit 2 and the first bad field on stderr when it is not).
     #[arg(long)]
     check: bool,
     /// Print the configuration with every default filled in, as JSON, and exit.
@@ -118,27 +121,23 @@ impl From<String> for RunError {
     }
 }
 
-/// Creates `<stats>.partial` (and its directory) before the drive is
-/// enabled: proves the path writable; renamed to the path once written.
-fn open_stats(path: &Path) -> std::io::Result<std::fs::File> {
-    if let Some(dir) = path.parent() {
-        if !dir.as_os_str().is_empty() {
-            std::fs::create_dir_all(dir)?;
-        }
-    }
-    std::fs::File::create(log::partial_path(path))
-}
-
-/// Writes the statistics to the file [`open_stats`] made, then renames it
-/// to `path` (an older file is replaced only by a complete one).
+/// Writes the statistics to `<stats>.partial` (made at set-up by
+/// [`create_partial`]), then renames it to `path` (an older regular
+/// file is replaced only by a complete one; anything else is not replaced).
+/// On failure the `.partial` is removed.
 fn write_stats(mut file: std::fs::File, path: &Path, json: &str) -> std::io::Result<()> {
-    use std::io::Write;
-    file.write_all(json.as_bytes())?;
-    file.sync_all()?;
-    std::fs::rename(log::partial_path(path), path)
+    let written = file
+        .write_all(json.as_bytes())
+        .and_then(|()| file.sync_all())
+        .and_then(|()| replace(path));
+    if written.is_err() {
+        let _ = std::fs::remove_file(partial_path(path));
+    }
+    written
 }
 
-/// The file, with the command line's overrides applied, validated as a whole.
+/// The file, with the command line's overrides applied, validated as a
+/// whole; its output paths checked too unless only printing it.
 fn load(args: &Args) -> Result<ScenarioSpec, ConfigError> {
     let mut spec = load_file(&args.config)?;
     if let Some(url) = &args.can {
@@ -151,6 +150,9 @@ fn load(args: &Args) -> Result<ScenarioSpec, ConfigError> {
         spec.rig.stats = p.clone();
     }
     validate(&spec)?;
+    if !args.print_resolved {
+        sensaug_config::check_rig_outputs(&spec)?;
+    }
     Ok(spec)
 }
 
@@ -189,16 +191,16 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, RunError> {
         log::start(&log_path, rig.ring_capacity as usize, &meta).map_err(|e| {
             format!(
                 "rig.log: cannot write {}: {e}; choose a writable path (--log)",
-                log::partial_path(&log_path).display()
+                partial_path(&log_path).display()
             )
         })?;
-    let stats_file = match open_stats(&stats_path) {
+    let stats_file = match create_partial(&stats_path) {
         Ok(f) => f,
         Err(e) => {
             writer.abandon();
             return Err(RunError::Setup(format!(
                 "rig.stats: cannot write {}: {e}; choose a writable path (--stats)",
-                log::partial_path(&stats_path).display()
+                partial_path(&stats_path).display()
             )));
         }
     };
@@ -259,7 +261,7 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, RunError> {
             // The run never started: any older log and statistics stay.
             writer.abandon();
             drop(stats_file);
-            let _ = std::fs::remove_file(log::partial_path(&stats_path));
+            let _ = std::fs::remove_file(partial_path(&stats_path));
             return Err(RunError::Start(e));
         }
     };
@@ -299,8 +301,18 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, RunError> {
     report.log_records_lost = written.records_lost;
     report.log_error = written.error;
     let json = serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?;
-    write_stats(stats_file, &stats_path, &json)
-        .map_err(|e| format!("rig.stats: {}: {e}", stats_path.display()))?;
+    // A failure to save the statistics loses only that file: the run's stop
+    // reason and exit code stand, and the statistics still reach stdout.
+    if let Err(e) = write_stats(stats_file, &stats_path, &json) {
+        eprintln!(
+            "warning: rig.stats: cannot write {}: {e}; the statistics are printed on stdout \
+             only, not saved ({} keeps what it held before); the run itself: {}, exit {}",
+            stats_path.display(),
+            stats_path.display(),
+            report.stop_reason,
+            reason.exit_code()
+        );
+    }
     say(&mut std::io::stdout(), &json);
     Ok(reason)
 }

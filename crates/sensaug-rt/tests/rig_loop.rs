@@ -8,7 +8,7 @@ use sensaug_bridge::transport::UdpBus;
 use sensaug_config::{load_str, resolve, Format};
 use sensaug_core::controller::Robot;
 use sensaug_core::protocol::Protocol;
-use sensaug_log::{parse_row, Row};
+use sensaug_log::Row;
 use sensaug_rt::config::drive_link;
 use sensaug_rt::control::{LoopSettings, Rig, StopReason};
 use sensaug_rt::log;
@@ -97,13 +97,8 @@ fn run_loop(answer_for: u64, stop_after: Option<Duration>, spin_us: u32) -> Outc
     let report = rig.report(reason);
     let text = std::fs::read_to_string(dir.join("log.csv")).unwrap();
     let _ = std::fs::remove_dir_all(&dir);
-    // After the format line, the metadata and the header; before the end line.
-    let rows = text
-        .lines()
-        .skip(3)
-        .filter(|l| !l.starts_with('#'))
-        .map(|l| parse_row(l).unwrap())
-        .collect();
+    // Every line's checksum verified.
+    let rows = sensaug_log::read(&text).unwrap().rows;
     Outcome {
         reason,
         allocations,
