@@ -70,8 +70,10 @@ def _recorded_config(log: Log, allow_edited: bool) -> tuple[ScenarioConfig, bool
     if "config" not in log.meta:
         raise ValueError("log.meta: no 'config' recorded; pass config= (the configuration of the run)")
     recorded = log.meta.get("config_sha256")
-    now = _core.config_sha256(to_json(log.meta["config"]))
+    config = log.meta["config"]
+    now = _core.config_sha256(to_json(config))
     if recorded is None:
+        config = _without_retired_fields(config)
         warnings.warn(
             "log.meta: no config_sha256 (a log written before format 2): the recorded configuration "
             "cannot be checked against the run's; replaying with it as it stands",
@@ -95,7 +97,29 @@ def _recorded_config(log: Log, allow_edited: bool) -> tuple[ScenarioConfig, bool
                 UnverifiedLogWarning,
                 stacklevel=3,
             )
-    return ScenarioConfig.from_dict(log.meta["config"]), matches
+    return ScenarioConfig.from_dict(config), matches
+
+
+#: Settings a format-1 log may hold that later versions retired, and why a
+#: replay may drop them (it never reads the rig's stop).
+RETIRED_FIELDS = {
+    ("rig", "ramp_down_s"): "the open-loop ramp, replaced by the controlled stop (rig.stop_*; issue 17)",
+}
+
+
+def _without_retired_fields(config: dict) -> dict:
+    """``config`` without :data:`RETIRED_FIELDS` (a warning names each dropped)."""
+    out = {k: dict(v) if isinstance(v, dict) else v for k, v in config.items()}
+    for (table, name), why in RETIRED_FIELDS.items():
+        if isinstance(out.get(table), dict) and name in out[table]:
+            del out[table][name]
+            warnings.warn(
+                f"log.meta.config: {table}.{name} dropped: a setting of an older version ({why}); "
+                "the replay does not use it",
+                UnverifiedLogWarning,
+                stacklevel=4,
+            )
+    return out
 
 
 def replay(log: str | Path | Log, config: ScenarioConfig | None = None, *, allow_edited_config: bool = False) -> Log:
