@@ -30,8 +30,19 @@ NODE = 1
 REPO = Path(__file__).resolve().parents[1]
 
 
+#: SCHED_FIFO priority of the loop and the virtual drive in these tests
+#: (rig.realtime.fifo_priority; CI runs as root). A simulated drive held off
+#: the CPU by the machine's other work answered tens of ms late, and the
+#: estimators' predict-only stretches moved the converged stage-1 gains by
+#: 10-30% (2.11 and 2.19 for Lhh = 2 in a CI run; 168-782 ticks without fresh
+#: feedback per 5 s run at load 7 here, 0-95 under SCHED_FIFO). Refused
+#: (not root): both warn and run as before.
+RIG_TEST_FIFO_PRIORITY = 20
+
+
 def short_config(gain_s: float = 3.0, other_s: float = 1.0) -> ScenarioConfig:
     cfg = presets.hi5_rig(phase_s=gain_s)
+    cfg.rig.realtime.fifo_priority = RIG_TEST_FIFO_PRIORITY
     cfg.phases[0].duration_s = gain_s
     cfg.phases[0].robot_target[1] = type(cfg.phases[0].robot_target[1])(
         amplitude=2.0, f0_hz=0.0, f1_hz=2.0, duration_s=gain_s
@@ -52,7 +63,8 @@ class Processes:
         cfg.to_toml(self.toml)
         self.log, self.stats = tmp / "log.csv", tmp / "stats.json"
         self.monitor = can.Bus(interface="sensaug_udp", channel=self.port)
-        self.drive = rig.start_drive(self.port, duration_s=120, extra=drive_args, drive=cfg.rig.drive)
+        self.drive = rig.start_drive(self.port, duration_s=120, extra=drive_args, drive=cfg.rig.drive,
+                                     fifo_priority=cfg.rig.realtime.fifo_priority)
         self.controller: subprocess.Popen | None = None
 
     def start_controller(self) -> subprocess.Popen:

@@ -166,10 +166,19 @@ VIRTUAL_DRIVES = {"hi5": "sensaug_bridge.virtual_hi5", "cia402": "sensaug_bridge
 
 
 def start_drive(
-    port: int, *, duration_s: float, extra: list[str] | None = None, drive: str = "hi5"
+    port: int,
+    *,
+    duration_s: float,
+    extra: list[str] | None = None,
+    drive: str = "hi5",
+    fifo_priority: int | None = None,
 ) -> subprocess.Popen:
     """The virtual drive of profile ``drive`` ("hi5" or "cia402",
-    :data:`VIRTUAL_DRIVES`) as a subprocess on the loopback bus at ``port``."""
+    :data:`VIRTUAL_DRIVES`) as a subprocess on the loopback bus at ``port``;
+    under SCHED_FIFO at ``fifo_priority`` when given (the loop's
+    ``rig.realtime.fifo_priority``: a real drive is hardware that never
+    stalls, and a simulated one held off the CPU starves the loop of
+    feedback)."""
     if drive not in VIRTUAL_DRIVES:
         raise ValueError(f"rig.drive: {drive!r} is not a drive profile; use one of {sorted(VIRTUAL_DRIVES)}")
     cmd = [
@@ -181,6 +190,7 @@ def start_drive(
         "--duration",
         f"{duration_s:g}",
         "-q",
+        *([] if fifo_priority is None else ["--fifo-priority", str(fifo_priority)]),
         *(extra or []),
     ]
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -249,7 +259,8 @@ def run_virtual_rig(
     captured: Optional[CaptureStats] = None
     drive: Optional[subprocess.Popen] = None
     try:
-        drive = start_drive(port, duration_s=budget + 5.0, drive=cfg.rig.drive)
+        drive = start_drive(port, duration_s=budget + 5.0, drive=cfg.rig.drive,
+                            fifo_priority=cfg.rig.realtime.fifo_priority)
         time.sleep(0.5)
         with _ElapsedBar(cfg.duration_s, progress):
             proc = subprocess.run(

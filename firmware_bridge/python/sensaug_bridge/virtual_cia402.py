@@ -48,6 +48,7 @@ import canopen
 from canopen.sdo import SdoAbortedError
 
 from sensaug_bridge.virtual_hi5 import (
+    BACKLOG_MAX,
     DriveConfig,
     DriveLog,
     add_drive_args,
@@ -66,8 +67,6 @@ EDS_PATH = Path(__file__).resolve().parents[2] / "cia402_drive.eds"
 MODE_CST = 10  # 0x6060: cyclic synchronous torque
 SYNC_COB_ID = 0x080
 _I32 = (-(2**31), 2**31 - 1)
-#: Most frames handled as one backlog (:meth:`VirtualCia402.run`).
-BACKLOG_MAX = 256
 _COUNTER_MAX = 255
 
 

@@ -15,7 +15,9 @@ behaviour, the choices and their reasons are in ``docs/virtual_hi5.md``; in shor
   last accepted) and ``|torque|`` within the torque limit: then step the 1-DoF
   plant (``sensaug.Plant``) once and reply with one Feedback echoing the
   sequence. The plant's clock is the host's command stream (one step per
-  command), so a run is deterministic.
+  command), so a run is deterministic. Commands queued while the process was
+  off the CPU are read as one backlog: each steps the plant, only the last
+  is answered (an answer to a superseded command would reach the host stale).
 * Bad CRC, wrong DLC, unknown id, out-of-range torque (rejected, never
   clamped): dropped and counted (Heartbeat counters, saturating at 255); no
   Feedback. A valid command with another sequence while ENABLED (a second
@@ -31,7 +33,9 @@ behaviour, the choices and their reasons are in ``docs/virtual_hi5.md``; in shor
 from __future__ import annotations
 
 import argparse
+import gc
 import math
+import os
 import signal
 import sys
 import threading
@@ -47,6 +51,9 @@ from sensaug_bridge.protocol import FaultFlag, State
 __all__ = ["DriveConfig", "VirtualHi5", "encoder_counts", "main", "new_plant", "parse_args"]
 
 _COUNTER_MAX = 255
+#: Most frames handled as one backlog (:meth:`VirtualHi5.run`): bounded so
+#: that a flood cannot starve the heartbeat and the watchdog.
+BACKLOG_MAX = 256
 
 
 @dataclass
@@ -249,6 +256,9 @@ class VirtualHi5:
         #: Resets done (:meth:`reset`).
         self.resets = 0
         self._reset_requested = False
+        #: Answer the TorqueCommand being handled (False for one a later
+        #: command in the same backlog supersedes).
+        self._answer = True
         self.log: Optional[DriveLog] = DriveLog() if log else None
         #: The handle coasts (zero torque, real time) from here while not ENABLED.
         self._coast_s = 0.0
@@ -327,8 +337,29 @@ class VirtualHi5:
             if msg is None:
                 read_until = self._clock()
             else:
-                read_until = self.received_at(msg)
-                self.handle(msg, read_until)
+                read_until = self._handle_backlog(self._backlog(msg))
+
+    def _backlog(self, first: can.Message) -> list[can.Message]:
+        """``first`` and the frames already queued behind it (at most
+        :data:`BACKLOG_MAX`)."""
+        frames = [first]
+        while len(frames) < BACKLOG_MAX and (msg := self.bus.recv(0.0)) is not None:
+            frames.append(msg)
+        return frames
+
+    def _handle_backlog(self, frames: list[can.Message]) -> float:
+        """Handles ``frames`` in order, answering only the last TorqueCommand
+        among them (every one steps the plant); returns the last frame's
+        arrival time."""
+        commands = {i for i, m in enumerate(frames) if m.arbitration_id == self._ids["TorqueCommand"]}
+        last_command = max(commands, default=-1)
+        at = self._clock()
+        for i, msg in enumerate(frames):
+            self._answer = i == last_command or i not in commands
+            at = self.received_at(msg)
+            self.handle(msg, at)
+        self._answer = True
+        return at
 
     def received_at(self, msg: can.Message) -> float:
         """When ``msg`` arrived, on the drive's clock: the kernel's receive
@@ -419,7 +450,8 @@ class VirtualHi5:
             torque_limited=False,
             fault_active=bool(self.fault_flags),
         ).encode(cfg.node)
-        self.bus.send(reply)
+        if self._answer:
+            self.bus.send(reply)
         if self.log is not None:
             self.log.add(now - self._t0, cmd.sequence, cmd.torque_nm, torque, x_q, v, time.perf_counter() - t_rx)
 
@@ -591,6 +623,12 @@ def add_drive_args(ap: argparse.ArgumentParser, d: DriveConfig) -> None:
     ap.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     ap.add_argument("--log", default=None, metavar="FILE.npz",
                     help="save the handle's record: t_s, torque_nm, position_rad, velocity_rad_s, free, ...")
+    ap.add_argument(
+        "--fifo-priority", type=int, default=None, metavar="1..99",
+        help="run under SCHED_FIFO at this priority (needs CAP_SYS_NICE; refused: a warning, and the "
+             "default scheduler). A real drive never stalls; this keeps the simulated one from being "
+             "held off the CPU by other processes (docs/virtual_hi5.md)",
+    )
     ap.add_argument("-q", "--quiet", action="store_true", help="no summary line on stderr at exit")
 
 
@@ -629,6 +667,15 @@ def serve(prog: str, args: argparse.Namespace, config: DriveConfig, make_drive: 
 
     signal.signal(signal.SIGINT, _on_signal)
     signal.signal(signal.SIGTERM, _on_signal)
+    if args.fifo_priority is not None:
+        if not 1 <= args.fifo_priority <= 99:
+            print(f"{prog}: --fifo-priority: must be 1..99, got {args.fifo_priority}", file=sys.stderr)
+            return 2
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(args.fifo_priority))
+        except OSError as err:
+            print(f"{prog}: warning: SCHED_FIFO {args.fifo_priority} refused ({err.strerror}); "
+                  "running under the default scheduler", file=sys.stderr)
     try:
         bus = can.Bus(interface=args.interface, channel=args.channel)
     except (can.CanError, ValueError, OSError, NotImplementedError) as err:
@@ -638,6 +685,12 @@ def serve(prog: str, args: argparse.Namespace, config: DriveConfig, make_drive: 
         drive = make_drive(bus)
         signal.signal(signal.SIGUSR1, lambda signum, frame: drive.request_reset())
         drive.start()
+        # Everything built so far (canopen's dictionary, python-can, numpy)
+        # moves out of the collector's reach: a collection then walks only
+        # the frames' short-lived objects, not the whole heap, and pauses
+        # the drive for microseconds, not milliseconds.
+        gc.collect()
+        gc.freeze()
         try:
             drive.run(stop=stop, duration_s=args.duration)
         finally:
