@@ -365,6 +365,37 @@ impl GainEstimator {
         [x[GAINS], x[GAINS + 1], x[GAINS + 2]]
     }
 
+    /// After ticks without a measurement, before fusing `y1`: the measured
+    /// rows `[e, v, e_h]` restart from `y1` with their initial covariance
+    /// (`P0`'s block) and no correlation with the gains; the gains keep
+    /// their mean and covariance (docs/model.md, "Feedback gaps").
+    ///
+    /// Why: predicted without measurements, the bilinear partner term
+    /// (`Lh . z`) couples the gains' uncertainty into the motion's mean
+    /// and covariance, so the first measurement after the gap moves the
+    /// gains by its whole accumulated innovation; one 20-tick gap in the
+    /// last second of a 3 s gain phase moved the window's Lhh by up to 0.2
+    /// (of 2). The gap's motion carries no information this filter can use
+    /// reliably; the gains learn again from the next tick on.
+    pub fn resync(&mut self, y: &Vector3<f64>) -> Result<(), UkfError> {
+        let mut x = *self.ukf.x();
+        let mut P = *self.ukf.P();
+        let P0 = *self.ukf.reset_covariance();
+        for (row, &i) in [0, 1, E_H].iter().enumerate() {
+            x[i] = y[row];
+            for j in 0..6 {
+                P[(i, j)] = 0.0;
+                P[(j, i)] = 0.0;
+            }
+        }
+        for &i in &[0, 1, E_H] {
+            for &j in &[0, 1, E_H] {
+                P[(i, j)] = P0[(i, j)];
+            }
+        }
+        self.ukf.reset(x, P)
+    }
+
     /// The filter (posterior `x`, `P`, counters).
     pub fn filter(&self) -> &Ukf<6, 3, 13> {
         &self.ukf

@@ -119,6 +119,9 @@ pub struct Identifier {
     /// Stage 2's gain pseudo-measurement, fixed at the hand-off; `None`
     /// until stage 2 starts.
     pseudo_gains: Option<[f64; 3]>,
+    /// Stage 1 has predicted without a measurement since its last one
+    /// ([`GainEstimator::resync`] before the next).
+    stage1_gap: bool,
     tally: FilterTally,
 }
 
@@ -154,6 +157,7 @@ impl Identifier {
             },
             prior_gains,
             pseudo_gains: None,
+            stage1_gap: false,
             tally: FilterTally::default(),
         })
     }
@@ -194,9 +198,17 @@ impl Identifier {
     /// is one, add the estimate to the gain window when `sample` is in it,
     /// and return it.
     fn update_gains(&mut self, sample: &Sample<'_>, y: Option<Vector3<f64>>) -> PartnerEstimate {
-        if let Some(y) = y {
-            let r = self.stage1.update(&y);
-            self.tally.note(r);
+        match y {
+            Some(y) => {
+                if self.stage1_gap {
+                    let r = self.stage1.resync(&y);
+                    self.tally.note(r.map(|()| Status::Nominal));
+                    self.stage1_gap = false;
+                }
+                let r = self.stage1.update(&y);
+                self.tally.note(r);
+            }
+            None => self.stage1_gap = true,
         }
         let gains = self.stage1.gains();
         if self.window.contains(sample.k, sample.end) {
