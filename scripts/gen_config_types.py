@@ -28,6 +28,7 @@ CLASS = {
     "SigmaSpec": "SigmaConfig",
     "GainFilterSpec": "GainFilterConfig",
     "TrajectoryFilterSpec": "TrajectoryFilterConfig",
+    "ChannelSpec": "ChannelConfig",
     "IntegratorSpec": "IntegratorConfig",
     "RobotSpec": "RobotConfig",
     "PartnerSpec": "PartnerConfig",

@@ -214,8 +214,9 @@ CONSTRUCTORS: list[Ctor] = [
             "R": covariance_bad(2, definite=False),
             "x0": vector_bad(2),
             "P0": covariance_bad(2, definite=True),
-            "partner_window_s": scalar_bad("pos", required=False),
-            **_SIGMA,
+            "gate": scalar_bad("pos", required=False),
+            "window_n0": scalar_bad("pos", required=False),
+            "hold_max_s": scalar_bad("pos", required=False),
         },
     ),
     Ctor(

@@ -59,7 +59,7 @@ def _mutate(path, value):
         ("robot.stage1.Q", [1.0] * 5, r"robot\.stage1\.Q: expected 6 diagonal entries"),
         ("robot.stage1.R", [1e-7, -1e-7, 1e-7], r"robot\.stage1\.R: must be positive definite; raise the diagonal"),
         ("robot.stage2.P0", [[1.0, 2.0], [0.0, 1.0]], r"robot\.stage2\.P0: expected 6"),
-        ("robot.stage3.partner_window_s", 0.0, r"robot\.stage3\.partner_window_s"),
+        ("robot.stage3.channel.gate", 0.0, r"robot\.stage3\.channel\.gate"),
         ("robot.sigma.alpha", 0.0, r"robot\.sigma\.alpha"),
         ("partner.gains", [0.0, 1.0], r"partner\.gains: has 2 entries; give exactly 3"),
         ("phases.0.duration_s", 0.0, r"phases\[0\]\.duration_s"),

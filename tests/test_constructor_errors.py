@@ -75,7 +75,7 @@ def test_array_likes_give_the_same_filter(convert) -> None:
 
 def test_integer_and_zero_variance_covariances_are_accepted() -> None:
     """Ints convert; a zero variance is a valid (positive semidefinite) noise."""
-    sensaug.GoalIntegrator(mass=1, Q=[[0, 0], [0, 1]], R=[[1, 0], [0, 0]], x0=[0, 0], P0=[[1, 0], [0, 1]])
+    sensaug.GoalIntegrator(mass=1, Q=[[1, 0], [0, 0]], R=[[1, 0], [0, 0]], x0=[0, 0], P0=[[1, 0], [0, 1]])
     sensaug.Plant(mass=2, dt_s=1)
 
 

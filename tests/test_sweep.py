@@ -29,10 +29,10 @@ def test_set_path_reaches_fields_lists_and_named_gains():
     set_path(cfg, "partner.gains.lhh", 1.5)
     set_path(cfg, "partner.gains[0]", 0.25)
     set_path(cfg, "phases[*].target_noise_std", 0.3)
-    set_path(cfg, "robot.stage3.partner_window_s", 0.4)
+    set_path(cfg, "robot.stage3.channel.hold_max_s", 0.4)
     assert cfg.partner.gains == [0.25, 0.0, 1.5]
     assert [p.target_noise_std for p in cfg.phases] == [0.3, 0.3, 0.3]
-    assert cfg.robot.stage3.partner_window_s == 0.4
+    assert cfg.robot.stage3.channel.hold_max_s == 0.4
     cfg.validate()
 
 

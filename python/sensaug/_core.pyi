@@ -198,7 +198,12 @@ class TrajectoryEstimator:
 
 @final
 class GoalIntegrator:
-    """Stage 3: ``[x - tau, xdot]`` with and without the partner channel ``x - tau_h^``."""
+    """Stage 3: ``[x - tau, xdot]`` with the adaptive partner channel ``x - tau_h^``
+    (a bank of Kalman filters over the channel's variance, docs/model.md).
+
+    ``x``, ``var``: the mixture (goal integration with the partner);
+    ``x_own``, ``var_own``: member 0 (own sensing only); as of the last update.
+    """
 
     def __init__(
         self,
@@ -210,52 +215,59 @@ class GoalIntegrator:
         P0: npt.ArrayLike,
         damping: float = 0.0,
         dt: float = 1e-3,
-        partner_window_s: float = 0.2,
-        alpha: float = 1.0,
-        beta: float = 2.0,
-        kappa: float = 0.0,
+        gate: float = 4.0,
+        window_n0: float = 80.0,
+        hold_max_s: float = 0.25,
     ) -> None: ...
-    def update(self, y: NDArray[np.float64], partner_floor: float = 0.0) -> str:
-        """``y`` = ``[x - tau, xdot]`` or ``[x - tau, xdot, x - tau_h^]``."""
+    def update(self, y: NDArray[np.float64]) -> str:
+        """``y`` = ``[x - tau, xdot]`` or ``[x - tau, xdot, x - tau_h^]`` (NaN channel: none)."""
     def predict(self, u: float, dtau: float = 0.0, dtau_h: float = 0.0) -> str:
         """``u``: all known torque (own plus estimated partner); ``dtau_h`` must be 0."""
+    def set_own_noise(self, R: npt.ArrayLike) -> None:
+        """Phase start: the own measurement's covariance (sets the grid and the score window)."""
+    def reset(self, x0: npt.ArrayLike) -> None:
+        """Phase start: every member at ``x0`` with ``P0``, scores 0."""
     def run(
         self,
         y: NDArray[np.float64],
         u: NDArray[np.float64],
         dtau: NDArray[np.float64],
         *,
-        partner_floor: float = 0.0,
         strict: bool = True,
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """update(y[k], partner_floor) then predict(u[k], dtau[k]) for every k, in one core call.
+        """update(y[k]) then predict(u[k], dtau[k]) for every k, in one core call.
 
         Arguments:
             y: (T, 2) own measurements, or (T, 3) with the partner channel ``x - tau_h^``.
-            u, dtau: (T,) each. partner_floor, strict: as ``update`` and ``GainEstimator.run``.
+            u, dtau: (T,) each. strict: as ``GainEstimator.run``.
 
         Returns:
-            ``(xs, Pdiag)``, each (T, 2), of the integrated filter.
+            ``(xs, var)``, each (T, 2), of the mixture.
 
         Raises:
-            ValueError: a shape or length that does not fit, or a bad ``partner_floor``.
+            ValueError: a shape or length that does not fit.
             UkfStepError: with strict, if any step errored.
         """
     @property
     def x(self) -> NDArray[np.float64]: ...
     @property
-    def P(self) -> NDArray[np.float64]: ...
+    def var(self) -> NDArray[np.float64]: ...
     @property
     def x_own(self) -> NDArray[np.float64]: ...
     @property
-    def P_own(self) -> NDArray[np.float64]: ...
+    def var_own(self) -> NDArray[np.float64]: ...
     @property
-    def x_prior(self) -> NDArray[np.float64]: ...
+    def weights(self) -> NDArray[np.float64]: ...
     @property
-    def P_prior(self) -> NDArray[np.float64]: ...
+    def members(self) -> NDArray[np.float64]: ...
+    @property
+    def grid(self) -> NDArray[np.float64]: ...
+    @property
+    def change_point(self) -> bool: ...
+    @property
+    def channel_admitted(self) -> bool: ...
     @property
     def partner_variance(self) -> float: ...
-    def recoveries(self) -> dict[str, int]: ...
 
 # --- scenario ---
 

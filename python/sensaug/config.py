@@ -26,6 +26,7 @@ import tomli_w
 from sensaug import _core
 from sensaug.config_types import (
     SHAPES,
+    ChannelConfig,
     Chirp,
     Constant,
     Covariance,
@@ -66,6 +67,7 @@ __all__ = [
     "GainFilterConfig",
     "TrajectoryFilterConfig",
     "IntegratorConfig",
+    "ChannelConfig",
     "RobotConfig",
     "PartnerConfig",
     "PartnerIntegrationConfig",

@@ -467,24 +467,55 @@ class TrajectoryFilterConfig:
 
 
 @dataclass
+class ChannelConfig:
+    """`[robot.stage3.channel]`: how the partner channel's trust adapts (docs/model.md, stage 3).
+    The defaults are the design's; the same for every preset.
+    """
+
+    gate: float = 4.0
+    """Change-point and readmission threshold, in standard deviations of the own position
+    innovation.
+    """
+    hold_max_s: float = 0.25
+    """Longest suspension of the partner channel after a target jump (s)."""
+    window_n0: float = 80.0
+    """Scale of the score window: n0 (1 + R_e / A) ticks, R_e the own view's variance, A the own-
+    only filter's.
+    """
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> ChannelConfig:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        return cls(**kw)
+
+
+@dataclass
 class IntegratorConfig:
-    """`[robot.stage3]`: the goal-integration filters on [x - tau, xdot]."""
+    """`[robot.stage3]`: goal integration on [x - tau, xdot]: a bank of Kalman filters over the
+    partner channel's variance (docs/model.md, stage 3).
+    """
 
     P0: Covariance = field(default_factory=lambda: [0.01, 0.01])
-    """Initial covariance P0 (2 diagonal entries or a 2x2 matrix)."""
+    """Initial covariance P0 of every filter of the bank (2 diagonal entries or a 2x2 matrix)."""
     Q: Covariance = field(default_factory=lambda: [0.01, 0.01])
-    """Process noise Q (2 diagonal entries or a 2x2 matrix)."""
+    """Process noise Q per step (2 diagonal entries or a 2x2 matrix): the first entry is the
+    random walk of x - tau standing for the unknown target motion (> 0), the second the
+    velocity's (the motor noise, (dt sigma_motor / M)^2).
+    """
     R_sensor: Covariance = field(default_factory=lambda: [1e-07, 1e-07])
     """Own sensor noise on [x - tau, xdot] before the phase's target noise is added (2 diagonal
     entries or a 2x2 matrix).
     """
-    partner_window_s: float = 0.2
-    """Window of the partner channel's online variance estimate (s)."""
+    channel: ChannelConfig = field(default_factory=lambda: ChannelConfig.from_dict({'gate': 4.0, 'hold_max_s': 0.25, 'window_n0': 80.0}))
+    """The adaptive partner channel's settings."""
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> IntegratorConfig:
         """From a plain dict as the schema describes it (already validated)."""
         kw = dict(d)
+        if 'channel' in kw:
+            kw['channel'] = ChannelConfig.from_dict(kw['channel'])
         return cls(**kw)
 
 
@@ -514,7 +545,7 @@ class RobotConfig:
     """Stage 1 (partner gains)."""
     stage2: TrajectoryFilterConfig = field(default_factory=lambda: TrajectoryFilterConfig.from_dict({'P0': [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0], 'Q': [0.01, 0.01, 0.01, 0.01, 0.01, 0.01], 'R': [1e-07, 1e-07, 1e-07, 1e-07, 1e-07], 'gains0': [0.0, 0.0, 0.0]}))
     """Stage 2 (partner trajectory)."""
-    stage3: IntegratorConfig = field(default_factory=lambda: IntegratorConfig.from_dict({'P0': [0.01, 0.01], 'Q': [0.01, 0.01], 'R_sensor': [1e-07, 1e-07], 'partner_window_s': 0.2}))
+    stage3: IntegratorConfig = field(default_factory=lambda: IntegratorConfig.from_dict({'P0': [0.01, 0.01], 'Q': [0.01, 0.01], 'R_sensor': [1e-07, 1e-07], 'channel': {'gate': 4.0, 'hold_max_s': 0.25, 'window_n0': 80.0}}))
     """Stage 3 (goal integration)."""
     torque_limit: float = 1000.0
     """Torque limit of the controller (model torque unit)."""
@@ -572,7 +603,7 @@ class ScenarioConfig:
     """The handle as the controller models it."""
     rig: RigConfig = field(default_factory=lambda: RigConfig.from_dict({'can': 'udp:47100', 'cia402': {'heartbeat_timeout_ms': 100}, 'drive': 'hi5', 'feedback_step_margin_rad': 0.01, 'feedback_timeout_ms': 20.0, 'feedback_velocity_margin_rad_s': 0.05, 'log': 'out/rig_log.csv', 'max_estimator_errors': 10, 'max_feedback_velocity_rad_s': 8.0, 'max_missing_feedback_fraction': 0.5, 'max_stale_feedback_ticks': 100, 'node_id': 1, 'position_unit': 'deg', 'realtime': {'mlockall': True, 'spin_us': 0}, 'ring_capacity': 65536, 'stats': 'out/rig_stats.json', 'stop_rest_velocity_rad_s': 0.01, 'stop_time_constant_s': 0.004, 'stop_time_limit_s': 0.2, 'stop_torque_limit_nm': 3.0, 'torque_limit_nm': 3.0, 'virtual_human': True, 'watchdog_ms': 50}))
     """The real-time loop and its CAN link (`sensaug-rt`; the simulation ignores it)."""
-    robot: RobotConfig = field(default_factory=lambda: RobotConfig.from_dict({'gain_window_s': 8.0, 'integrate': True, 'q_pos': 1.0, 'q_vel': 0.0, 'seed': 1, 'sigma': {'alpha': 1.0, 'beta': 2.0, 'kappa': 0.0}, 'stage1': {'P0': [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0], 'Q': [0.01, 0.01, 0.01, 0.01, 0.01, 0.01], 'R': [1e-07, 1e-07, 1e-07], 'gains0': [0.0, 0.0, 0.0]}, 'stage2': {'P0': [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0], 'Q': [0.01, 0.01, 0.01, 0.01, 0.01, 0.01], 'R': [1e-07, 1e-07, 1e-07, 1e-07, 1e-07], 'gains0': [0.0, 0.0, 0.0]}, 'stage3': {'P0': [0.01, 0.01], 'Q': [0.01, 0.01], 'R_sensor': [1e-07, 1e-07], 'partner_window_s': 0.2}, 'torque_limit': 1000.0}))
+    robot: RobotConfig = field(default_factory=lambda: RobotConfig.from_dict({'gain_window_s': 8.0, 'integrate': True, 'q_pos': 1.0, 'q_vel': 0.0, 'seed': 1, 'sigma': {'alpha': 1.0, 'beta': 2.0, 'kappa': 0.0}, 'stage1': {'P0': [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0], 'Q': [0.01, 0.01, 0.01, 0.01, 0.01, 0.01], 'R': [1e-07, 1e-07, 1e-07], 'gains0': [0.0, 0.0, 0.0]}, 'stage2': {'P0': [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0], 'Q': [0.01, 0.01, 0.01, 0.01, 0.01, 0.01], 'R': [1e-07, 1e-07, 1e-07, 1e-07, 1e-07], 'gains0': [0.0, 0.0, 0.0]}, 'stage3': {'P0': [0.01, 0.01], 'Q': [0.01, 0.01], 'R_sensor': [1e-07, 1e-07], 'channel': {'gate': 4.0, 'hold_max_s': 0.25, 'window_n0': 80.0}}, 'torque_limit': 1000.0}))
     """The robot's controller and estimators."""
     world: WorldConfig = field(default_factory=lambda: WorldConfig.from_dict({'motor_noise_std': 0.001, 'position_noise_std': 0.00031622776601683794, 'seed': 0, 'v0': 0.0, 'velocity_noise_std': 0.00031622776601683794, 'x0': 0.0}))
     """Simulation only: noise, seed and initial state of the simulated world."""

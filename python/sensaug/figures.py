@@ -68,7 +68,14 @@ CONDITIONS = {
 }
 
 DEG = "deg"
-TRQ_PER_DEG = r"N m/deg"  # the Hi5 presets' model torque unit per degree (docs/model.md, Units)
+#: The Hi5 gains' unit. The presets' torque unit is (pi/180) N m (docs/model.md,
+#: Units), so a gain of one model unit per degree is (pi/180) N m per degree:
+#: 1 N m/rad. Velocity gains: N m s/rad.
+GAIN_UNIT = "N m/rad"
+VELOCITY_GAIN_UNIT = "N m s/rad"
+#: The motor noise of fig:lhrv's second panel: an independent reproduction's
+#: level, 10x the preset's (the preset's estimates barely move).
+LHRV_NOISY_MOTOR = 1e-2
 
 
 @dataclass(frozen=True)
@@ -92,13 +99,15 @@ class Results:
 
     budget: Budget
     hi5: Trial  # Lhh = 2, seed 0: references, lhrv, tau_est
+    hi5_noisy: Trial  # the same with motor noise LHRV_NOISY_MOTOR: lhrv's second panel
     games: Any  # DataFrame: partner.gains.lhh x seeds
     rmse: Any  # DataFrame: phases[2].target_noise_std x seeds
     sensitivity: list[tuple[str, str, Any]]  # (parameter, value, DataFrame)
+    sim_sensitivity: list[tuple[str, dict[str, np.ndarray]]]  # (choice, condition -> seeds x [robot, human] ratio)
     same_weight: Trial  # simulation section, seed 0
     same_weight_seeds: list[Trial]
     integration: dict[str, Trial]  # condition -> trial (integrating), seed 0
-    integration_seeds: dict[str, list[tuple[Trial, Trial]]]  # condition -> [(with, without)]
+    integration_seeds: dict[str, list[tuple[Trial, Trial, Trial]]]  # condition -> [(with, without, x*)]
     seconds: dict[str, float] = field(default_factory=dict)
 
 
@@ -114,7 +123,7 @@ def measure(budget: Budget | None = None, *, progress: bool | None = None) -> Re
     from tqdm.auto import tqdm
 
     b = budget or Budget()
-    steps = ["hi5", "games", "rmse", "sensitivity", "simulation", "integration"]
+    steps = ["hi5", "games", "rmse", "sensitivity", "simulation sensitivity", "simulation", "integration"]
     bar = tqdm(total=len(steps), desc="figures", unit="group", disable=None if progress is None else not progress)
     secs: dict[str, float] = {}
 
@@ -127,6 +136,7 @@ def measure(budget: Budget | None = None, *, progress: bool | None = None) -> Re
         return out
 
     hi5 = step("hi5", lambda: experiment.run(presets.hi5_experiment(2.0, seed=0)))
+    hi5_noisy = experiment.run(presets.hi5_experiment(2.0, seed=0, motor_noise_std=LHRV_NOISY_MOTOR))
     games = step(
         "games",
         lambda: _sweep(presets.hi5_experiment(), {"partner.gains.lhh": list(presets.HI5_LHH_VALUES)}, b.games_seeds),
@@ -136,15 +146,19 @@ def measure(budget: Budget | None = None, *, progress: bool | None = None) -> Re
         lambda: _sweep(presets.hi5_experiment(2.0), {"phases[2].target_noise_std": list(b.rmse_noise)}, b.rmse_seeds),
     )
     sens = step("sensitivity", lambda: _sensitivity(b.sensitivity_seeds))
+    sim_sens = step("simulation sensitivity", lambda: _sim_sensitivity(b.sensitivity_seeds))
     sims = step("simulation", lambda: [experiment.run(presets.simulation_section(seed=s)) for s in range(b.sim_seeds)])
 
     def integration():
-        out: dict[str, list[tuple[Trial, Trial]]] = {}
+        # Per seed: with and without integration driving both agents'
+        # commands, and x*: both seeing their target without noise.
+        out: dict[str, list[tuple[Trial, Trial, Trial]]] = {}
         for name, (r_robot, r_partner) in CONDITIONS.items():
             out[name] = [
-                tuple(
-                    experiment.run(presets.simulation_integration(r_robot, r_partner, integrate=on, seed=s))
-                    for on in (True, False)
+                (
+                    experiment.run(presets.simulation_integration(r_robot, r_partner, integrate=True, seed=s)),
+                    experiment.run(presets.simulation_integration(r_robot, r_partner, integrate=False, seed=s)),
+                    experiment.run(presets.simulation_integration(0.0, 0.0, integrate=False, seed=s)),
                 )
                 for s in range(b.sim_seeds)
             ]
@@ -155,9 +169,11 @@ def measure(budget: Budget | None = None, *, progress: bool | None = None) -> Re
     return Results(
         budget=b,
         hi5=hi5,
+        hi5_noisy=hi5_noisy,
         games=games,
         rmse=rmse,
         sensitivity=sens,
+        sim_sensitivity=sim_sens,
         same_weight=sims[0],
         same_weight_seeds=sims,
         integration={k: v[0][0] for k, v in integ.items()},
@@ -166,13 +182,48 @@ def measure(budget: Budget | None = None, *, progress: bool | None = None) -> Re
     )
 
 
+#: Stage 3's velocity process noise in the Hi5 preset: the motor noise's.
+_HI5_QV = presets.motor_velocity_variance(1e-3, 1e-3, 0.0035)
 #: The sensitivity grid: (parameter, dotted path, values). The Hi5 default is
 #: marked in the report.
 SENSITIVITY = (
     ("motor noise std", "world.motor_noise_std", (1e-3, 3e-3, 1e-2, 3e-2)),
     ("chirp amplitude (deg)", "phases[0].robot_target[1].amplitude", (1.0, 2.0, 4.0)),
-    ("stage-3 process noise Q", "robot.stage3.Q", ([1e-3, 1e-3], [1e-2, 1e-2], [1e-1, 1e-1])),
+    ("stage-3 Q = [target walk Q_e, Q_v]", "robot.stage3.Q", ([1e-3, _HI5_QV], [1e-2, _HI5_QV], [1e-1, _HI5_QV], [1e-2, 1e-2])),
+    ("stage-2 Q (paper: 1e-2 I6; velocity entry from the motor noise)", "robot.stage2.Q", ([1e-2] * 6, [1e-2, _HI5_QV] + [1e-2] * 4)),
+    ("channel gate (std)", "robot.stage3.channel.gate", (3.0, 4.0, 5.0)),
+    ("channel window n0 (ticks)", "robot.stage3.channel.window_n0", (40.0, 80.0, 160.0)),
 )
+
+#: The simulation's goal-integration choices (docs/model.md, "Process noise
+#: from the motor noise"): (label, {dotted path: value}); {} is the preset.
+_SIM_QV = presets.motor_velocity_variance(1.0, 1e-3, 6.0)
+SIM_SENSITIVITY = (
+    ("the preset: walk 1e-4, Q_v from the motor noise", None, None),
+    ("walk 4e-5 (the square wave's mean squared step)", [4e-5, _SIM_QV, 4e-5] + [1e-10] * 3, [4e-5, _SIM_QV]),
+    ("stage-2/3 Q_v = 1e-4 (before issue 22)", [1e-4] * 3 + [1e-10] * 3, [1e-4, 1e-4]),
+)
+
+
+def _sim_sensitivity(seeds: int) -> list[tuple[str, dict[str, np.ndarray]]]:
+    """Each choice of ``SIM_SENSITIVITY`` over the three conditions: per
+    seed, integrated / own RMSE of the robot and of the human."""
+    out = []
+    for label, q2, q3 in SIM_SENSITIVITY:
+        per = {}
+        for name, (r_robot, r_partner) in CONDITIONS.items():
+            ratios = []
+            for s in range(seeds):
+                cfg = presets.simulation_integration(r_robot, r_partner, seed=s)
+                if q2 is not None:
+                    cfg.robot.stage2.Q, cfg.robot.stage3.Q = q2, q3
+                tr = experiment.run(cfg)
+                m = tr.phase_mask(tr.phases_of("integration")[0], skip_s=2.0)
+                rr, hh = metrics.integration_rmse(tr.data, m), metrics.partner_integration_rmse(tr.data, m)
+                ratios.append((rr["integrated"] / rr["own"], hh["integrated"] / hh["own"]))
+            per[name] = np.array(ratios)
+        out.append((label, per))
+    return out
 
 
 def _sensitivity(seeds: int) -> list[tuple[str, str, Any]]:
@@ -200,7 +251,9 @@ def _sensitivity(seeds: int) -> list[tuple[str, str, Any]]:
 
 def _fmt_value(v) -> str:
     if isinstance(v, list):
-        return f"{v[0]:g} I2"
+        if len(set(v)) == 1:
+            return f"{v[0]:g} I{len(v)}"
+        return "[" + ", ".join(f"{x:.2g}" for x in v) + "]"
     return f"{v:g}"
 
 
@@ -249,8 +302,8 @@ def fig_varying_games(games) -> Figure:
     means = games.groupby("partner.gains.lhh")["Lhh_hat"].mean()
     a.plot(means.index, means.to_numpy(), "rx", ms=10, mew=2, label="mean")
     a.set(
-        xlabel=rf"true $L_{{h,h}}$ ({TRQ_PER_DEG})",
-        ylabel=rf"estimated $\hat L_{{h,h}}$ ({TRQ_PER_DEG}), mean of last 8 s",
+        xlabel=rf"true $L_{{h,h}}$ ({GAIN_UNIT})",
+        ylabel=rf"estimated $\hat L_{{h,h}}$ ({GAIN_UNIT}), mean of last 8 s",
         title="Virtual-human gain estimates",
     )
     a.xaxis.label.set_visible(False)
@@ -259,39 +312,46 @@ def fig_varying_games(games) -> Figure:
     b.axhline(0.0, color="0.6", ls=":", lw=1.0)
     b.plot(x, 1e3 * (y - x), "o", mfc="none", mec="k", ms=6)
     b.plot(means.index, 1e3 * (means.to_numpy() - means.index.to_numpy()), "rx", ms=10, mew=2)
-    b.set(xlabel=rf"true $L_{{h,h}}$ ({TRQ_PER_DEG})", ylabel=r"$\hat L_{h,h} - L_{h,h}$ ($10^{-3}$ " + TRQ_PER_DEG + ")")
+    b.set(xlabel=rf"true $L_{{h,h}}$ ({GAIN_UNIT})", ylabel=r"$\hat L_{h,h} - L_{h,h}$ ($10^{-3}$ " + GAIN_UNIT + ")")
     return fig
 
 
-def fig_lhrv(trial: Trial) -> Figure:
+def fig_lhrv(trial: Trial, noisy: Trial) -> Figure:
     """fig:lhrv: the robot's gain estimates over the gain phase at L_h =
-    [0, 0, 2] (red L_hx, green L_hv, blue L_hh), dashed: last-8-s means."""
-    i = trial.phases_of("gains")[0]
-    m = trial.phase_mask(i)
-    last = trial.phase_mask(i, last_s=trial.config.robot.gain_window_s)
-    t = trial["t"][m]
-    fig, ax = _fig()
+    [0, 0, 2] (red L_hx, green L_hv, blue L_hh), dashed: last-8-s means; left
+    at the preset's motor noise, right at ``LHRV_NOISY_MOTOR`` (the level of
+    an independent reproduction), where the oscillation the paper's caption
+    describes shows. Same axes."""
+    fig, ax = _fig(1, 2, size=(11.0, 3.6), sharey=True)
+    for a, tr in zip(ax[0], (trial, noisy)):
+        i = tr.phases_of("gains")[0]
+        m = tr.phase_mask(i)
+        last = tr.phase_mask(i, last_s=tr.config.robot.gain_window_s)
+        t = tr["t"][m]
+        for col, c, lab in (
+            ("Lhx_hat", "r", r"$\hat L_{h,x}$"),
+            ("Lhv_hat", "g", r"$\hat L_{h,\dot x}$ (" + VELOCITY_GAIN_UNIT + ")"),
+            ("Lhh_hat", "b", r"$\hat L_{h,h}$"),
+        ):
+            a.plot(t, tr[col][m], c, lw=0.8, label=lab)
+            a.axhline(tr[col][last].mean(), color=c, ls="--", lw=1.2)
+        a.set(
+            xlabel=r"$t$ (s)",
+            title=f"motor noise std {tr.config.world.motor_noise_std:g}"
+            + (" (the preset)" if tr is trial else " (10x)"),
+        )
     a = ax[0, 0]
-    settled = trial.phase_mask(i, skip_s=2.0)
-    for col, c, lab in (
-        ("Lhx_hat", "r", r"$\hat L_{h,x}$"),
-        ("Lhv_hat", "g", r"$\hat L_{h,\dot x}$"),
-        ("Lhh_hat", "b", r"$\hat L_{h,h}$"),
-    ):
-        a.plot(t, trial[col][m], c, lw=0.8, label=lab)
-        a.axhline(trial[col][last].mean(), color=c, ls="--", lw=1.2)
-    _converged_ylim(a, [trial[c][settled] for c in ("Lhx_hat", "Lhv_hat", "Lhh_hat")])
-    a.set(
-        xlabel=r"$t$ (s)",
-        ylabel=f"gain estimate ({TRQ_PER_DEG}; " + r"$\hat L_{h,\dot x}$ in N m s/deg)",
-        title=r"Gain estimates over time, $L_h = [0, 0, 2]$ (dashed: mean of the last 8 s)",
-    )
+    a.set_ylabel(f"gain estimate ({GAIN_UNIT})")
+    a.set_ylim(-0.5, 2.7)
     a.legend(loc="center right", fontsize=8)
+    fig.suptitle(r"Gain estimates over the gain phase, $L_h = [0, 0, 2]$ (dashed: mean of the last 8 s)", fontsize=10)
     return fig
 
 
 def fig_tau_est(trial: Trial) -> Figure:
-    """fig:tau_est: estimated (black) vs true (red) partner trajectory."""
+    """fig:tau_est: estimated (black) vs true (red) partner trajectory; below,
+    the error on a symmetric-log axis so that both the spikes at the zero
+    crossings of the cube-root sine and the small error between them show."""
     m = trial.phase_mask(trial.phases_of("trajectory")[0])
     t = trial["t"][m]
     fig, ax = _fig(2, 1, size=(7.0, 5.0), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
@@ -302,10 +362,21 @@ def fig_tau_est(trial: Trial) -> Figure:
     a.set_ylim(-10, 12.5)
     a.legend(loc="upper center", fontsize=8, ncol=2)
     b = ax[1, 0]
-    b.plot(t, trial["tau_h_hat"][m] - trial["tau_h"][m], "k-", lw=0.6)
-    settled = trial.phase_mask(trial.phases_of("trajectory")[0], skip_s=2.0)
-    _converged_ylim(b, [trial["tau_h_hat"][settled] - trial["tau_h"][settled]])
-    b.set(xlabel=r"$t$ (s)", ylabel=rf"$\hat\tau_h - \tau_h$ ({DEG})")
+    err = trial["tau_h_hat"][m] - trial["tau_h"][m]
+    settled = trial.phase_mask(trial.phases_of("trajectory")[0], skip_s=2.0)[m]
+    b.plot(t, err, "k-", lw=0.6)
+    peak = float(np.abs(err[settled]).max())
+    linear = float(np.percentile(np.abs(err[settled]), 99.0))
+    b.set_yscale("symlog", linthresh=max(linear, 1e-6))
+    b.axhline(0.0, color="0.6", lw=0.6)
+    b.set_ylim(-1.3 * peak, 1.3 * peak)
+    b.set(
+        xlabel=r"$t$ (s)",
+        ylabel=rf"$\hat\tau_h - \tau_h$ ({DEG})",
+        title=f"error (symlog axis, linear within +-{linear:.2g} deg): spikes up to {peak:.2f} deg "
+        "at the target's zero crossings",
+    )
+    b.title.set_fontsize(8)
     return fig
 
 
@@ -434,36 +505,54 @@ def fig_integration(trials: dict[str, Trial]) -> Figure:
     return fig
 
 
-def fig_is_tracking(pairs: dict[str, list[tuple[Trial, Trial]]]) -> Figure:
-    """fig.is_tracking: left, tracking with a superior human and an inferior
-    robot, with and without integration; right, the tracking RMSE of the
-    three conditions (mean over seeds, bars: range)."""
-    fig, ax = _fig(1, 2, size=(11.0, 3.8))
-    name = list(pairs)[2]
-    on, off = pairs[name][0]
+def _tracking_differences(runs: list[tuple[Trial, Trial, Trial]]) -> tuple[np.ndarray, np.ndarray]:
+    """Per seed, with - without integration (m): ``RMSE(x - tau)`` and
+    ``RMSE(x - x*)``, ``x*`` the run with perfect target views (the
+    tracking error the estimate causes), after the phase's first 2 s."""
+    d_tau, d_star = [], []
+    for on, off, star in runs:
+        m = on.phase_mask(on.phases_of("integration")[0], skip_s=2.0)
+        d_tau.append(metrics.tracking_rmse(on.data, m) - metrics.tracking_rmse(off.data, m))
+        rms = [float(np.sqrt(np.mean((tr["x"][m] - star["x"][m]) ** 2))) for tr in (on, off)]
+        d_star.append(rms[0] - rms[1])
+    return np.array(d_tau), np.array(d_star)
+
+
+def fig_is_tracking(runs: dict[str, list[tuple[Trial, Trial, Trial]]]) -> Figure:
+    """fig.is_tracking: left, the tracking error the estimate causes, ``x -
+    x*`` (``x*``: the run with perfect target views), with and without
+    integration, superior human and inferior robot; right, per condition and
+    seed the paired difference with - without of the tracking RMSE (dots:
+    seeds, bar: mean), against ``tau`` and against ``x*``. Below zero:
+    integration tracks better."""
+    fig, ax = _fig(1, 2, size=(11.0, 4.0))
+    name = list(runs)[2]
+    on, off, star = runs[name][0]
     i = on.phases_of("integration")[0]
     late = on.phase_mask(i, last_s=4.0)
     t = on["t"]
     a = ax[0, 0]
-    a.plot(t[late], on["tau"][late], "k-", lw=1.2, label=r"target $\tau$")
-    a.plot(t[late], off["x"][late], ":", color="tab:red", lw=1.2, label="x, without integration")
-    a.plot(t[late], on["x"][late], "-", color="tab:green", lw=0.9, label="x, with integration")
-    a.set(xlabel=r"$t$ (s)", ylabel="position (m)", title=f"{name}: tracking")
+    a.plot(t[late], 1e3 * (off["x"] - star["x"])[late], "-", color="tab:red", lw=0.9, label="without integration")
+    a.plot(t[late], 1e3 * (on["x"] - star["x"])[late], "-", color="tab:green", lw=0.9, label="with integration")
+    a.axhline(0.0, color="0.6", lw=0.6)
+    a.set(xlabel=r"$t$ (s)", ylabel=r"$x - x^*$ (mm)", title=f"{name}: tracking error caused by the estimate (seed 0)")
+    a.title.set_fontsize(9)
     a.legend(loc="upper right", fontsize=7)
     a = ax[0, 1]
-    xs = np.arange(len(pairs))
-    for k, (lab, idx, c) in enumerate((("without", 1, "tab:red"), ("with", 0, "tab:green"))):
-        vals = np.array(
-            [
-                [metrics.tracking_rmse(p[idx].data, p[idx].phase_mask(i, skip_s=2.0)) for p in runs]
-                for runs in pairs.values()
-            ]
-        )
-        mean = vals.mean(axis=1)
-        a.bar(xs + (k - 0.5) * 0.38, 1e3 * mean, 0.38, color=c, label=f"{lab} integration",
-              yerr=[1e3 * (mean - vals.min(axis=1)), 1e3 * (vals.max(axis=1) - mean)], capsize=3)
-    a.set_xticks(xs, [n.split(":")[0] for n in pairs])
-    a.set(xlabel="condition", ylabel=r"tracking RMSE of $x - \tau$ (mm)", title="Tracking error, integration phase")
+    a.axhline(0.0, color="k", lw=0.8)
+    for k, (cond, rs) in enumerate(runs.items()):
+        d_tau, d_star = _tracking_differences(rs)
+        for off_x, d, c, lab in ((-0.15, d_tau, "tab:gray", r"RMSE($x - \tau$)"), (0.15, d_star, "tab:purple", r"RMSE($x - x^*$)")):
+            a.plot(np.full(len(d), k + off_x), 1e3 * d, "o", ms=3, mfc="none", color=c, label=lab if k == 0 else None)
+            a.plot([k + off_x - 0.1, k + off_x + 0.1], [1e3 * d.mean()] * 2, "-", color=c, lw=2.0)
+    a.set_xticks(range(len(runs)), [n.split(":")[0] for n in runs])
+    n_seeds = len(next(iter(runs.values())))
+    a.set(
+        xlabel="condition",
+        ylabel="with - without integration (mm)",
+        title=f"Tracking RMSE difference per seed ({n_seeds} seeds; bar: mean; < 0: better with)",
+    )
+    a.title.set_fontsize(9)
     a.legend(loc="upper left", fontsize=8)
     return fig
 
@@ -493,7 +582,7 @@ def _claims(r: Results) -> list[list[str]]:
     err = (g["Lhh_hat"] - g["partner.gains.lhh"]).abs()
     rows.append([
         "fig:varying_games: the robot always estimates a value near the partner's gain, with a small error",
-        f"max over {len(g)} trials of abs(Lhh^ - Lhh) = {err.max():.4f} N m/deg; max abs(Lhx^) = "
+        f"max over {len(g)} trials of abs(Lhh^ - Lhh) = {err.max():.4f} {GAIN_UNIT}; max abs(Lhx^) = "
         f"{g['Lhx_hat'].abs().max():.4f}, max abs(Lhv^) = {g['Lhv_hat'].abs().max():.5f}",
         f"Lhh in {{0, 0.5, 1, 1.5, 2}}, seeds 0-{b.games_seeds - 1}, mean of the last 8 s",
         "yes (every trial within 0.01)" if err.max() < 0.01 else "**no** (some trial off by >= 0.01)",
@@ -522,10 +611,11 @@ def _claims(r: Results) -> list[list[str]]:
         "yes (> 1.5x in every trial)" if worst_hi > 1.5 else "**no**",
     ])
     rows.append([
-        "fig:rmse: similar with or without integration at low noise",
+        "fig:rmse: similar with or without integration at low noise (it does not hurt a well-sensing robot)",
         f"integrated / own RMSE at sigma = {lo:g} deg: mean {rel_lo.mean():.3f}, max {rel_lo.max():.3f}",
         "same",
-        "yes (within 2%)" if rel_lo.max() < 1.02 else "**no**",
+        ("yes, and better: lower on every seed" if rel_lo.max() < 1.0 else "yes (within 2%)") if rel_lo.max() < 1.02
+        else "**no**",
     ])
     sims = r.same_weight_seeds
     mid = []
@@ -568,24 +658,41 @@ def _claims(r: Results) -> list[list[str]]:
         f"seeds 0-{b.sim_seeds - 1}, after 2 s",
         "yes, the error is at the jumps",
     ])
+    seeds = f"seeds 0-{b.sim_seeds - 1}, after 2 s"
     for name, runs in r.integration_seeds.items():
-        own_r, fus_r, own_h, fus_h, trk_on, trk_off = [], [], [], [], [], []
-        for on, off in runs:
-            i = on.phases_of("integration")[0]
-            m = on.phase_mask(i, skip_s=2.0)
+        q_r, q_h, own_r, fus_r, own_h, fus_h = [], [], [], [], [], []
+        for on, _, _ in runs:
+            m = on.phase_mask(on.phases_of("integration")[0], skip_s=2.0)
             rr = metrics.integration_rmse(on.data, m)
             hh = metrics.partner_integration_rmse(on.data, m)
-            own_r.append(rr["own"]); fus_r.append(rr["integrated"])
-            own_h.append(hh["own"]); fus_h.append(hh["integrated"])
-            trk_on.append(metrics.tracking_rmse(on.data, m)); trk_off.append(metrics.tracking_rmse(off.data, m))
-        better = np.mean(fus_r) < 0.99 * np.mean(own_r) and np.mean(fus_h) < 0.99 * np.mean(own_h)
+            own_r.append(rr["own"]), fus_r.append(rr["integrated"])
+            own_h.append(hh["own"]), fus_h.append(hh["integrated"])
+            q_r.append(rr["integrated"] / rr["own"]), q_h.append(hh["integrated"] / hh["own"])
+        worst = max(max(q_r), max(q_h))
         rows.append([
-            f"fig.integration {name.split(':')[0]}: both partners estimate better with integration "
-            "(fig.is_tracking: and track better)",
-            f"robot {1e3 * np.mean(own_r):.2f} -> {1e3 * np.mean(fus_r):.2f} mm, human {1e3 * np.mean(own_h):.2f} -> "
-            f"{1e3 * np.mean(fus_h):.2f} mm (own -> integrated); tracking {1e3 * np.mean(trk_off):.2f} -> {1e3 * np.mean(trk_on):.2f} mm",
-            f"{name.split(': ')[1]}, seeds 0-{b.sim_seeds - 1}, after 2 s",
-            "yes" if better else "**no** (within 1% or worse: the partner channel lags every jump of the square wave, row fig.same-weight B)",
+            f"fig.integration {name.split(':')[0]}: both partners estimate their target better with integration",
+            f"robot {1e3 * np.mean(own_r):.2f} -> {1e3 * np.mean(fus_r):.2f} mm (worst seed x{max(q_r):.3f}), human "
+            f"{1e3 * np.mean(own_h):.2f} -> {1e3 * np.mean(fus_h):.2f} mm (worst seed x{max(q_h):.3f}) (own -> integrated)",
+            f"{name.split(': ')[1]}, {seeds}",
+            "yes (both, every seed)" if worst < 1.0 else f"**no** (worst seed x{worst:.3f})",
+        ])
+    for name, runs in r.integration_seeds.items():
+        d_tau, d_star = _tracking_differences(runs)
+        rows.append([
+            f"fig.is_tracking {name.split(':')[0]}: integration improves tracking",
+            f"RMSE(x - x*) with - without: mean {1e3 * d_star.mean():+.2f} mm, worst seed {1e3 * d_star.max():+.2f} mm "
+            f"({(d_star < 0).sum()}/{len(d_star)} seeds better); RMSE(x - tau) with - without: mean "
+            f"{1e3 * d_tau.mean():+.2f} mm, worst seed {1e3 * d_tau.max():+.2f} mm",
+            f"{name.split(': ')[1]}, {seeds}; x*: the run with perfect target views",
+            "yes (every seed)" if d_star.max() < 0 else "**no**" + (" (worse on average)" if d_star.mean() > 0 else " (not on every seed)"),
+        ])
+    g1 = r.rmse[r.rmse[key] == 1.0]["rmse_integrated"] if 1.0 in set(r.rmse[key]) else None
+    if g1 is not None and len(g1):
+        rows.append([
+            "issue 22 goal: integrated RMSE <= 0.08 deg at sigma_r = 1 deg (Hi5)",
+            f"mean {g1.mean():.4f} deg, worst seed {g1.max():.4f} deg",
+            f"Lhh = 2, seeds 0-{b.rmse_seeds - 1}",
+            "yes (every seed)" if g1.max() <= 0.08 else ("**mean only**" if g1.mean() <= 0.08 else "**no**"),
         ])
     return rows
 
@@ -607,6 +714,14 @@ def _sensitivity_rows(r: Results) -> list[list[str]]:
             f"{(hi['rmse_own'] / hi['rmse_integrated']).mean():.2f}x",
             f"{(lo['rmse_integrated'] / lo['rmse_own']).mean():.3f}",
         ])
+    return rows
+
+
+def _sim_sensitivity_rows(r: Results) -> list[list[str]]:
+    rows = []
+    for label, per in r.sim_sensitivity:
+        cells = [f"{q[:, k].mean():.3f}, {q[:, k].max():.3f}" for k in (0, 1) for q in per.values()]
+        rows.append([label] + cells)
     return rows
 
 
@@ -633,19 +748,25 @@ def report(r: Results, figures: list[str]) -> str:
         f"* Hi5 (`presets.hi5_experiment`): M = 0.0035, C = 0, degrees, dt = 1 ms, three {hi5.phases[0].duration_s:g} s phases "
         "(gains, trajectory, integration); robot Q_x = 1, Q_xdot = 0; virtual human L_h = [0, 0, Lhh]; Q_k = 1e-2 I6, "
         "R = 1e-7; motor noise std 1e-3 (not given in the paper), chirp 2 deg, 0-2 Hz over the gain phase (amplitude "
-        "not given), stage-3 Q = 1e-2 I2 (not given); the partner-channel variance is estimated online (docs/model.md). "
+        "not given), stage-3 Q = [1e-2, (dt sigma_motor / M)^2 = 8.2e-8] (not given: the target's random walk of Q_k, "
+        "the motor noise's velocity variance); the partner channel's trust adapts online (a bank of 8 filters over its "
+        "variance, docs/model.md). Gains are in N m/rad: the presets' torque unit is (pi/180) N m, so one unit per "
+        "degree is 1 N m/rad. "
         "Gains are the mean of the last 8 s of the gain phase; RMSEs skip the first 2 s of a phase.",
-        "* fig:rmse: both stage-3 filters run on the same data in one trial (the command uses the integrated one); "
-        "'with' and 'without' are their RMSEs against the true x - tau.",
+        "* fig:rmse: the bank's mixture (with) and its member 0 (without: own sensing, with the change-point "
+        "inflation) run on the same data in one trial (the command uses the mixture); both RMSEs against the true x - tau.",
         "* Simulation section (`presets.simulation_section`): M = 6 kg, Q_x = 20000, Q_xdot = 2 for both, motor noise "
         "std 1 N (not given), Q_k = R = 1e-10, the literal reading of the targets (robot 1 m + sines, human 0.1 m square + "
         "cosines; docs/model.md). 20 s per phase.",
         "* Goal integration in simulation (`presets.simulation_integration`): after the gain and trajectory phases, "
         "both track the same 0.1 m, 2 s square wave; superior R = 1e-5, inferior R = 1e-3 (m^2) on each agent's view of "
-        "the target; the human runs the robot's controller mirrored (`partner.integration`). **Choice:** stage-2 and "
-        "stage-3 process noise 1e-4 per step on the error states (the paper's 1e-10 makes the estimated partner target "
-        "lag each jump and the fused estimate worse than the own one). fig.integration shows one run per condition "
-        "(both filters on the same data); fig.is_tracking compares runs with and without integration driving the commands.",
+        "the target; the human runs the robot's controller mirrored (`partner.integration`, the same bank). **Choices:** "
+        "stage-2 and stage-3 random walk 1e-4 m^2 per step on the error states (the unknown target motion; the paper's "
+        "1e-10 makes the estimated partner target lag each jump), velocity entry the motor noise's (dt sigma_motor / "
+        "M)^2 = 2.8e-8 (before issue 22: 1e-4, with which stage 2 explains the partner's torque away as noise); rows "
+        "below. fig.integration shows one run per condition (own and integrated on the same data); fig.is_tracking "
+        "compares paired runs with and without integration driving both agents' commands, and against x*, the run "
+        "with perfect target views. The channel's design was tuned on seeds 1000-1009; every seed here is unseen.",
         "",
         "## Sensitivity to the parameters the paper leaves out (Hi5, Lhh = 2 unless stated)",
         "",
@@ -658,10 +779,16 @@ def report(r: Results, figures: list[str]) -> str:
             _sensitivity_rows(r),
         ),
         "",
-        "Defaults: motor noise 1e-3, chirp 2 deg, stage-3 Q 1e-2 I2, virtual human acting on the measured state. "
+        "Defaults: motor noise 1e-3, chirp 2 deg, stage-3 Q [1e-2, 8.2e-8], stage-2 Q the paper's 1e-2 I6, channel "
+        "gate 4, window n0 80, virtual human acting on the measured state. "
         "The gain conclusion does not hinge on the chirp amplitude, the stage-3 Q or the state source; it does on the "
-        "motor noise, whose bias grows roughly with its square (docs/model.md). The size of the goal-integration benefit "
-        "at high noise depends on the stage-3 Q (compare its rows); at low noise the change stays small either way.",
+        "motor noise, whose bias grows roughly with its square (docs/model.md).",
+        "",
+        "Goal integration in simulation, each choice of the preset varied (integrated / own RMSE, mean and worst seed; "
+        f"seeds 0-{b.sensitivity_seeds - 1}):",
+        "",
+        _table(["choice"] + [f"{n.split(':')[0]} robot" for n in CONDITIONS] + [f"{n.split(':')[0]} human" for n in CONDITIONS],
+               _sim_sensitivity_rows(r)),
         "",
         "## Run",
         "",
@@ -687,7 +814,7 @@ def write_results(r: Results, out: str | Path, *, progress: bool | None = None) 
     makers = {
         "fig_references": lambda: fig_references(r.hi5),
         "fig_varying_games": lambda: fig_varying_games(r.games),
-        "fig_lhrv": lambda: fig_lhrv(r.hi5),
+        "fig_lhrv": lambda: fig_lhrv(r.hi5, r.hi5_noisy),
         "fig_tau_est": lambda: fig_tau_est(r.hi5),
         "fig_rmse": lambda: fig_rmse(r.rmse),
         "fig_same-weight": lambda: fig_same_weight(r.same_weight),

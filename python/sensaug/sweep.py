@@ -10,7 +10,7 @@ its worker by the configuration's TOML text, so the same seeds give
 bit-identical numbers whatever executor runs them.
 
 Grid keys are dotted paths of the configuration schema (``docs/config.md``):
-``robot.stage3.partner_window_s``, ``phases[2].target_noise_std``,
+``robot.stage3.channel.gate``, ``phases[2].target_noise_std``,
 ``phases[*].target_noise_std`` (every phase), and the gain lists by index or by
 name (``partner.gains[2]`` is ``partner.gains.lhh``; ``lhx``, ``lhv``,
 ``lhh``).
@@ -69,7 +69,7 @@ def _segments(path: str) -> list[str | int]:
     for part in path.split("."):
         m = _SEGMENT.fullmatch(part)
         if m is None:
-            raise ConfigError(f"{path}: not a dotted path of the configuration (e.g. robot.stage3.partner_window_s)")
+            raise ConfigError(f"{path}: not a dotted path of the configuration (e.g. robot.stage3.channel.gate)")
         out.append(m.group(1))
         for idx in re.findall(r"\[(\d+|\*)\]", m.group(2)):
             out.append("*" if idx == "*" else int(idx))

@@ -35,7 +35,8 @@ TABLES = {
     "robot.sigma": "alpha = 1.0\nbeta = 2.0\nkappa = 0.0\n",
     "robot.stage1": "Q = [0.01, 0.01, 0.01, 0.01, 0.01, 0.01]\nR = [1e-7, 1e-7, 1e-7]\nP0 = [1e-4, 1e-4, 1e-4, 1.0, 1.0, 1.0]\ngains0 = [0.0, 0.0, 0.0]\n",
     "robot.stage2": "Q = [0.01, 0.01, 0.01, 0.01, 0.01, 0.01]\nR = [1e-7, 1e-7, 1e-7, 1e-7, 1e-7]\n",
-    "robot.stage3": "Q = [0.01, 0.01]\nR_sensor = [1e-7, 1e-7]\nP0 = [0.01, 0.01]\npartner_window_s = 0.2\n",
+    "robot.stage3": "Q = [0.01, 0.01]\nR_sensor = [1e-7, 1e-7]\nP0 = [0.01, 0.01]\n",
+    "robot.stage3.channel": "gate = 4.0\nwindow_n0 = 80.0\nhold_max_s = 0.25\n",
     "partner": "gains = [0.0, 0.0, 2.0]\ntorque_limit = 1000.0\nestimates_robot = false\n",
     "rig": 'can = "udp:47100"\nnode_id = 1\nposition_unit = "deg"\ntorque_limit_nm = 3.0\nwatchdog_ms = 50\n'
     'feedback_timeout_ms = 20.0\nstop_time_limit_s = 0.2\nstop_time_constant_s = 0.004\n'
@@ -275,7 +276,6 @@ for table, key, value, name in [
     ("robot.sigma", "alpha", "0.0", "alpha_zero"),
     ("robot.sigma", "alpha", "2.0", "alpha_two"),
     ("robot.sigma", "kappa", "-10.0", "kappa_very_negative"),
-    ("robot.sigma", "kappa", "-3.0", "kappa_stage3"),
     ("robot.sigma", "beta", "nan", "beta_nan"),
     ("robot.stage1", "Q", "[0.01, 0.01, 0.01, 0.01, 0.01]", "Q_five"),
     ("robot.stage1", "R", "[1e-7, -1e-7, 1e-7]", "R_negative"),
@@ -286,7 +286,8 @@ for table, key, value, name in [
     ("robot.stage3", "Q", "[[0.01, 0.02], [0.0, 0.01]]", "stage3_Q_asymmetric"),
     ("robot.stage3", "Q", "[[0.01, 0.02], [0.02, 0.01]]", "stage3_Q_indefinite"),
     ("robot.stage3", "R_sensor", "[0.0, 1e-7]", "stage3_R_singular"),
-    ("robot.stage3", "partner_window_s", "0.0", "partner_window_zero"),
+    ("robot.stage3.channel", "gate", "0.0", "channel_gate_zero"),
+    ("robot.stage3.channel", "hold_max_s", "-1.0", "channel_hold_negative"),
     ("partner", "torque_limit", "0.0", "partner_torque_zero"),
     ("partner", "gains", "[0.0, 0.0, inf]", "partner_gain_inf"),
     ("partner", "gains", "[0.0, 0.0, 1e9]", "partner_gain_huge"),

@@ -14,7 +14,8 @@ use crate::schema::{
 };
 use nalgebra::{SVector, Vector2};
 use sensaug_core::controller::{Robot, RobotConfig};
-use sensaug_core::estimator::{ExtendedFilterConfig, GoalIntegratorConfig, HandleModel};
+use sensaug_core::estimator::{ExtendedFilterConfig, HandleModel};
+use sensaug_core::goal::{ChannelConfig, GoalIntegratorConfig};
 use sensaug_core::plant::{PlantParams, PlantState};
 use sensaug_core::protocol::{Phase, PhaseKind, Protocol};
 use sensaug_core::riccati::agent_gains;
@@ -153,16 +154,6 @@ fn robot(r: &RobotSpec, model: HandleModel) -> Result<RobotConfig, ConfigError> 
         beta: r.sigma.beta,
         kappa: r.sigma.kappa,
     };
-    // Stage 3 has the fewest states (2): n + kappa > 0 must hold there too.
-    if 2.0 + sigma.kappa <= 0.0 {
-        return Err(ConfigError::new(
-            "robot.sigma.kappa",
-            format!(
-                "{} leaves no valid sigma points for the 2-state stage-3 filter; use kappa > -2",
-                num(sigma.kappa)
-            ),
-        ));
-    }
     let s1 = &r.stage1;
     let s2 = &r.stage2;
     let s3 = &r.stage3;
@@ -176,8 +167,11 @@ fn robot(r: &RobotSpec, model: HandleModel) -> Result<RobotConfig, ConfigError> 
             P0: s3.P0.matrix("robot.stage3.P0")?,
             Q: s3.Q.matrix("robot.stage3.Q")?,
             R_own: s3.R_sensor.matrix("robot.stage3.R_sensor")?,
-            partner_window_s: s3.partner_window_s,
-            sigma,
+            channel: ChannelConfig {
+                gate: s3.channel.gate,
+                window_n0: s3.channel.window_n0,
+                hold_max_s: s3.channel.hold_max_s,
+            },
         },
         integrate: r.integrate,
         gain_window_s: r.gain_window_s,
@@ -347,6 +341,11 @@ fn core_error(e: ScenarioError) -> ConfigError {
             "plant",
             "rejected by the plant model; mass > 0, damping and coulomb >= 0, dt_s > 0",
         ),
+        // Stage 3 has no sigma points: its own message names the setting.
+        ScenarioError::Estimator {
+            stage: "stage3",
+            error,
+        } => ConfigError::new("robot.stage3", format!("rejected: {error}")),
         ScenarioError::Estimator { stage, .. } => ConfigError::new(
             format!("robot.{stage}"),
             "rejected by the filter; check its covariances and robot.sigma",

@@ -340,20 +340,24 @@ impl Default for TrajectoryFilterSpec {
     }
 }
 
-/// `[robot.stage3]`: the goal-integration filters on [x - tau, xdot].
+/// `[robot.stage3]`: goal integration on [x - tau, xdot]: a bank of Kalman
+/// filters over the partner channel's variance (docs/model.md, stage 3).
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct IntegratorSpec {
-    /// Process noise Q (2 diagonal entries or a 2x2 matrix).
+    /// Process noise Q per step (2 diagonal entries or a 2x2 matrix): the
+    /// first entry is the random walk of x - tau standing for the unknown
+    /// target motion (> 0), the second the velocity's (the motor noise,
+    /// (dt sigma_motor / M)^2).
     pub Q: Cov<2>,
     /// Own sensor noise on [x - tau, xdot] before the phase's target noise is
     /// added (2 diagonal entries or a 2x2 matrix).
     pub R_sensor: Cov<2>,
-    /// Initial covariance P0 (2 diagonal entries or a 2x2 matrix).
+    /// Initial covariance P0 of every filter of the bank (2 diagonal entries
+    /// or a 2x2 matrix).
     pub P0: Cov<2>,
-    /// Window of the partner channel's online variance estimate (s).
-    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = MAX_DURATION_S))]
-    pub partner_window_s: f64,
+    /// The adaptive partner channel's settings.
+    pub channel: ChannelSpec,
 }
 
 impl Default for IntegratorSpec {
@@ -362,7 +366,37 @@ impl Default for IntegratorSpec {
             Q: Cov::diagonal([1e-2; 2]),
             R_sensor: Cov::diagonal([1e-7; 2]),
             P0: Cov::diagonal([1e-2; 2]),
-            partner_window_s: 0.2,
+            channel: ChannelSpec::default(),
+        }
+    }
+}
+
+/// `[robot.stage3.channel]`: how the partner channel's trust adapts
+/// (docs/model.md, stage 3). The defaults are the design's; the same for
+/// every preset.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct ChannelSpec {
+    /// Change-point and readmission threshold, in standard deviations of the
+    /// own position innovation.
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = 100.0))]
+    pub gate: f64,
+    /// Scale of the score window: n0 (1 + R_e / A) ticks, R_e the own view's
+    /// variance, A the own-only filter's.
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = 1e6))]
+    pub window_n0: f64,
+    /// Longest suspension of the partner channel after a target jump (s).
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = MAX_DURATION_S))]
+    pub hold_max_s: f64,
+}
+
+impl Default for ChannelSpec {
+    fn default() -> Self {
+        let d = sensaug_core::goal::ChannelConfig::default();
+        ChannelSpec {
+            gate: d.gate,
+            window_n0: d.window_n0,
+            hold_max_s: d.hold_max_s,
         }
     }
 }

@@ -107,8 +107,9 @@ pub struct Step {
 /// fields, `alpha`, `beta`, `kappa`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum EstimatorError {
-    /// A field of [`HandleModel`] (or `partner_window_s`) is out of range,
-    /// or makes the model's step overflow.
+    /// A field of [`HandleModel`] (or a stage-3 setting,
+    /// [`GoalIntegratorConfig`](crate::goal::GoalIntegratorConfig)) is out
+    /// of range, or makes the model's step overflow.
     InvalidModel(&'static str),
     /// The underlying UKF rejected its set-up (names the argument).
     Ukf(UkfError),
@@ -147,9 +148,25 @@ impl core::fmt::Display for EstimatorError {
                      that damping * dt / mass is finite"
                 }
                 "dt_s" => "dt_s: must be finite and > 0 (the step, s), with dt^2 finite",
-                "partner_window_s" => {
-                    "partner_window_s: must be finite and > 0 (the time constant of the \
-                     partner channel's variance estimate, s; 0.2 is the default)"
+                "stage3.Q_e" => {
+                    "Q: its (0, 0) entry must be finite and > 0 (stage 3's random walk of \
+                     x - tau per step, standing for the unknown target motion)"
+                }
+                "stage3.R_e" => {
+                    "R: its (0, 0) entry must be finite and > 0 (the own view's variance of \
+                     x - tau), and within a factor 1e300 of Q's"
+                }
+                "gate" => {
+                    "gate: must be finite and > 0 (the change-point test's threshold, \
+                     standard deviations; 4 is the default)"
+                }
+                "window_n0" => {
+                    "window_n0: must be finite and > 0 (the score window's scale, \
+                     ticks; 80 is the default)"
+                }
+                "hold_max_s" => {
+                    "hold_max_s: must be finite and > 0 (the longest suspension of \
+                     the partner channel after a target jump, s; 0.25 is the default)"
                 }
                 other => other,
             }),
@@ -289,12 +306,6 @@ pub const GAIN_MEASUREMENT: Selection<6, 3> = checked(Selection::new([0, 1, E_H]
 /// `y2 = [e, v, Lhx, Lhv, Lhh]`.
 pub const TRAJECTORY_MEASUREMENT: Selection<6, 5> =
     checked(Selection::new([0, 1, GAINS, GAINS + 1, GAINS + 2]));
-
-/// Own sensing in goal integration: `y = [e, v]`.
-pub const OWN_MEASUREMENT: Selection<2, 2> = checked(Selection::new([0, 1]));
-
-/// Goal integration with the partner channel: `y = [e, v, e]`.
-pub const FUSED_MEASUREMENT: Selection<2, 3> = checked(Selection::new([0, 1, 0]));
 
 /// Stage-1 measurement function [`GAIN_MEASUREMENT`]: `y1 = [e, v, e_h]`.
 pub fn gain_measurement(z: &Extended) -> Vector3<f64> {
@@ -489,227 +500,4 @@ pub fn error_transition(step: &Step, u: f64, dtau: f64) -> (SMatrix<f64, 2, 2>, 
     let F = SMatrix::<f64, 2, 2>::new(1.0, step.dx_v, 0.0, step.v_v);
     let b = Vector2::new(step.dx_f * u - dtau, step.v_f * u);
     (F, b)
-}
-
-/// Own sensing only ([`OWN_MEASUREMENT`]): `y = [e, v]`.
-pub fn own_measurement(s: &Vector2<f64>) -> Vector2<f64> {
-    OWN_MEASUREMENT.apply(s)
-}
-
-/// With the partner channel (section "Goal integration",
-/// [`FUSED_MEASUREMENT`]): `y = [e, v, e]`, the third entry being
-/// `x - tau_h^`, another view of `x - tau` when both agents track the same
-/// target.
-pub fn fused_measurement(s: &Vector2<f64>) -> Vector3<f64> {
-    FUSED_MEASUREMENT.apply(s)
-}
-
-/// Online variance of the partner channel `x - tau_h^` (a Mehra-style
-/// covariance matching, `docs/model.md`).
-///
-/// The channel's innovation against the integrated filter's prior,
-/// `d = (x - tau_h^) - e^-`, has variance `var(channel) + P-_ee` when the
-/// channel error and the prior error are independent, so
-/// `var(channel) = E[d^2] - P-_ee`. `E[d^2]` is tracked by an exponentially
-/// weighted mean with time constant `window_s`, short enough to follow the
-/// spikes of the stage-2 error at fast target motion. The result is floored
-/// by the stage-2 posterior variance of `x - tau_h` (the channel is never
-/// trusted beyond what stage 2 itself claims).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PartnerVariance {
-    weight: f64,
-    mean_sq: Option<f64>,
-}
-
-impl PartnerVariance {
-    /// `weight = dt / window_s`, clamped to `(0, 1]`.
-    pub fn new(dt_s: f64, window_s: f64) -> Self {
-        let w = dt_s / window_s;
-        let weight = if w.is_finite() && w > 0.0 {
-            w.min(1.0)
-        } else {
-            1.0
-        };
-        PartnerVariance {
-            weight,
-            mean_sq: None,
-        }
-    }
-
-    /// Feeds one innovation `d` and returns
-    /// `max(E[d^2] - prior_var, floor)`, `prior_var` being `P-_ee`.
-    pub fn observe(&mut self, d: f64, prior_var: f64, floor: f64) -> f64 {
-        let d2 = d * d;
-        let m = match self.mean_sq {
-            None => d2,
-            Some(m) => m + self.weight * (d2 - m),
-        };
-        self.mean_sq = Some(m);
-        (m - prior_var).max(floor)
-    }
-}
-
-/// The outcome of two filters' calls as one: an error wins (the own
-/// filter's first), then a repair, else nominal.
-fn combine(a: Result<Status, UkfError>, b: Result<Status, UkfError>) -> Result<Status, UkfError> {
-    match (a?, b?) {
-        (Status::Nominal, Status::Nominal) => Ok(Status::Nominal),
-        (Status::Nominal, repaired) | (repaired, _) => Ok(repaired),
-    }
-}
-
-/// Variance given to a missing partner channel: its gain is then below 1e-90
-/// of the own channel's, while `S` stays far from overflow when squared.
-const UNINFORMATIVE_VARIANCE: f64 = 1e100;
-
-/// Stage 3 (section "Goal integration"): two filters on `[e, v]` fed the same
-/// data, one with the partner channel and one without, so the benefit of
-/// integration is measured on the same noise realisation. The caller picks
-/// which one drives its control.
-#[derive(Clone, Debug)]
-pub struct GoalIntegrator {
-    model: HandleModel,
-    /// `model`'s step, computed once at set-up.
-    step: Step,
-    own: Ukf<2, 2, 5>,
-    fused: Ukf<2, 3, 5>,
-    r_own: SMatrix<f64, 2, 2>,
-    variance: PartnerVariance,
-    last_partner_variance: f64,
-    P0: SMatrix<f64, 2, 2>,
-    window_s: f64,
-}
-
-/// Settings of the [`GoalIntegrator`].
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct GoalIntegratorConfig {
-    /// Initial `[e, v]`.
-    pub x0: Vector2<f64>,
-    /// Initial covariance (also the reset covariance).
-    pub P0: SMatrix<f64, 2, 2>,
-    /// Per-step process noise (absorbs the unknown target motion).
-    pub Q: SMatrix<f64, 2, 2>,
-    /// The agent's own sensor noise covariance on `[e, v]`.
-    pub R_own: SMatrix<f64, 2, 2>,
-    /// Time constant of the partner-channel variance estimate (s).
-    pub partner_window_s: f64,
-    /// Sigma-point parameters.
-    pub sigma: MerweParams,
-}
-
-impl GoalIntegrator {
-    /// Set-up: validates the model and both filters' settings.
-    pub fn new(model: HandleModel, cfg: &GoalIntegratorConfig) -> Result<Self, EstimatorError> {
-        model.validate()?;
-        if !(cfg.partner_window_s.is_finite() && cfg.partner_window_s > 0.0) {
-            return Err(EstimatorError::InvalidModel("partner_window_s"));
-        }
-        let own = Ukf::new(cfg.x0, cfg.P0, cfg.Q, cfg.R_own, cfg.sigma)?;
-        check_covariances(&cfg.P0, &cfg.Q, &cfg.R_own)?;
-        let mut r3 = SMatrix::<f64, 3, 3>::zeros();
-        r3.fixed_view_mut::<2, 2>(0, 0).copy_from(&cfg.R_own);
-        r3[(2, 2)] = cfg.R_own[(0, 0)];
-        let fused = Ukf::new(cfg.x0, cfg.P0, cfg.Q, r3, cfg.sigma)?;
-        Ok(GoalIntegrator {
-            model,
-            step: model.step(),
-            own,
-            fused,
-            r_own: cfg.R_own,
-            variance: PartnerVariance::new(model.dt_s, cfg.partner_window_s),
-            last_partner_variance: f64::NAN,
-            P0: cfg.P0,
-            window_s: cfg.partner_window_s,
-        })
-    }
-
-    /// Per tick: fuse the own measurement `[x - tau, xdot]` in both filters
-    /// and, when `partner = Some((x - tau_h^, floor))`, the partner channel
-    /// in the fused one with the online variance ([`PartnerVariance`]).
-    /// Returns the fused filter's status (the own filter's error, if any, wins).
-    pub fn update(
-        &mut self,
-        y_own: &Vector2<f64>,
-        partner: Option<(f64, f64)>,
-    ) -> Result<Status, UkfError> {
-        let own_status = self.own.update_selected(y_own, &OWN_MEASUREMENT);
-        let fused_status = match partner {
-            Some((e_partner, floor)) if e_partner.is_finite() && floor.is_finite() => {
-                let prior_e = self.fused.x()[0];
-                let prior_var = self.fused.P()[(0, 0)];
-                let var = self.variance.observe(e_partner - prior_e, prior_var, floor);
-                self.last_partner_variance = var;
-                let mut r = SMatrix::<f64, 3, 3>::zeros();
-                r.fixed_view_mut::<2, 2>(0, 0).copy_from(&self.r_own);
-                r[(2, 2)] = var;
-                let y = Vector3::new(y_own[0], y_own[1], e_partner);
-                self.fused
-                    .update_selected_with_r(&y, &r, &FUSED_MEASUREMENT)
-            }
-            _ => {
-                // No usable channel this tick: the fused filter degrades to own sensing.
-                let mut r = SMatrix::<f64, 3, 3>::zeros();
-                r.fixed_view_mut::<2, 2>(0, 0).copy_from(&self.r_own);
-                r[(2, 2)] = UNINFORMATIVE_VARIANCE;
-                let y = Vector3::new(y_own[0], y_own[1], y_own[0]);
-                self.fused
-                    .update_selected_with_r(&y, &r, &FUSED_MEASUREMENT)
-            }
-        };
-        combine(own_status, fused_status)
-    }
-
-    /// Per tick: propagate both filters with the known torque `u` (own plus
-    /// estimated partner) and the own target's increment (0 when unknown).
-    /// The process is affine ([`error_transition`]), so the unscented
-    /// predict is the exact `F x + b`, `F P F' + Q` (`Ukf::predict_linear`).
-    pub fn predict(&mut self, u: f64, dtau: f64) -> Result<Status, UkfError> {
-        let (F, b) = error_transition(&self.step, u, dtau);
-        let own_status = self.own.predict_linear(&F, &b);
-        let fused_status = self.fused.predict_linear(&F, &b);
-        combine(own_status, fused_status)
-    }
-
-    /// Set-up or phase start: the own sensor noise covariance on `[e, v]`
-    /// (e.g. a phase's injected target-view noise added). Must be finite.
-    pub fn set_own_noise(&mut self, R_own: SMatrix<f64, 2, 2>) -> Result<(), UkfError> {
-        self.own.set_R(R_own)?;
-        self.r_own = R_own;
-        Ok(())
-    }
-
-    /// Phase start: restart both filters from `x0` with the configured `P0`
-    /// and forget the partner-variance history.
-    pub fn reset(&mut self, x0: Vector2<f64>) -> Result<(), UkfError> {
-        let P0 = self.P0;
-        self.own.reset(x0, P0)?;
-        self.fused.reset(x0, P0)?;
-        self.variance = PartnerVariance::new(self.model.dt_s, self.window_s);
-        self.last_partner_variance = f64::NAN;
-        Ok(())
-    }
-
-    /// Posterior `[e, v]` with (`integrated`) or without the partner channel.
-    pub fn estimate(&self, integrated: bool) -> Vector2<f64> {
-        if integrated {
-            *self.fused.x()
-        } else {
-            *self.own.x()
-        }
-    }
-
-    /// The filter using the partner channel.
-    pub fn fused_filter(&self) -> &Ukf<2, 3, 5> {
-        &self.fused
-    }
-
-    /// The filter using own sensing only.
-    pub fn own_filter(&self) -> &Ukf<2, 2, 5> {
-        &self.own
-    }
-
-    /// The partner-channel variance used in the last update (NaN before the first).
-    pub fn partner_variance(&self) -> f64 {
-        self.last_partner_variance
-    }
 }

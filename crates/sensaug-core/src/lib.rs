@@ -23,6 +23,7 @@ pub mod agent;
 pub mod controller;
 mod error;
 pub mod estimator;
+pub mod goal;
 pub mod identifier;
 pub mod linalg;
 pub mod plant;

@@ -13,7 +13,8 @@
 //! length errors are reported before anything runs.
 
 use crate::controller::{Robot, RobotCounters, RobotTick};
-use crate::estimator::{GainEstimator, GoalIntegrator, TrajectoryEstimator};
+use crate::estimator::{GainEstimator, TrajectoryEstimator};
+use crate::goal::GoalIntegrator;
 use crate::plant::Plant;
 use crate::ukf::{Phase, RunReport, Status, StepError, UkfError};
 use nalgebra::{SMatrix, SVector, Vector2};
@@ -84,8 +85,6 @@ pub enum ReplayArg {
     Xs,
     /// Posterior variances out.
     Pdiag,
-    /// The partner channel's variance floor.
-    PartnerFloor,
     /// Plant torques.
     Torques,
     /// Plant velocities out.
@@ -104,7 +103,6 @@ impl ReplayArg {
             ReplayArg::DtauH => "dtau_h",
             ReplayArg::Xs => "xs",
             ReplayArg::Pdiag => "Pdiag",
-            ReplayArg::PartnerFloor => "partner_floor",
             ReplayArg::Torques => "torques",
             ReplayArg::Vs => "vs",
             ReplayArg::RobotTicks => "out",
@@ -299,35 +297,27 @@ replay_extended!(GainEstimator, 3);
 replay_extended!(TrajectoryEstimator, 5);
 
 /// Stage-3 replay: rows `[x - tau, xdot]`, or `[x - tau, xdot, x - tau_h^]`
-/// with the partner channel; the posterior is the integrated filter's.
+/// with the partner channel (a NaN channel entry: no channel that tick); the
+/// posterior is the integrated estimate (the bank's mixture).
 #[derive(Debug)]
 pub struct GoalReplay<'a> {
     integrator: &'a mut GoalIntegrator,
-    partner_floor: Option<f64>,
+    with_channel: bool,
 }
 
 impl<'a> GoalReplay<'a> {
-    /// `partner_floor = Some(floor)` reads the partner channel, whose online
-    /// variance is floored at `floor` (finite, >= 0).
-    pub fn new(
-        integrator: &'a mut GoalIntegrator,
-        partner_floor: Option<f64>,
-    ) -> Result<Self, ReplayError> {
-        if partner_floor.is_some_and(|f| !(f.is_finite() && f >= 0.0)) {
-            return Err(ReplayError::OutOfRange {
-                which: ReplayArg::PartnerFloor,
-            });
-        }
-        Ok(GoalReplay {
+    /// `with_channel`: the rows carry the partner channel as a third entry.
+    pub fn new(integrator: &'a mut GoalIntegrator, with_channel: bool) -> Self {
+        GoalReplay {
             integrator,
-            partner_floor,
-        })
+            with_channel,
+        }
     }
 }
 
 impl Replay for GoalReplay<'_> {
     fn measurement_len(&self) -> usize {
-        2 + usize::from(self.partner_floor.is_some())
+        2 + usize::from(self.with_channel)
     }
     fn state_len(&self) -> usize {
         2
@@ -337,16 +327,17 @@ impl Replay for GoalReplay<'_> {
     }
     fn update_row(&mut self, y: &[f64]) -> Result<Status, UkfError> {
         let own = row::<2>(y);
-        let partner = self.partner_floor.map(|floor| (row::<3>(y)[2], floor));
+        let channel = self.with_channel.then(|| row::<3>(y)[2]);
         self.integrator
-            .update(&Vector2::new(own[0], own[1]), partner)
+            .update(&Vector2::new(own[0], own[1]), channel)
     }
     fn predict_input(&mut self, i: Input) -> Result<Status, UkfError> {
         self.integrator.predict(i.u, i.dtau)
     }
     fn posterior(&self, x: &mut [f64], var: &mut [f64]) {
-        let f = self.integrator.fused_filter();
-        write_posterior(f.x(), f.P(), x, var)
+        let e = self.integrator.estimate(true);
+        x[..2].copy_from_slice(e.as_slice());
+        var[..2].copy_from_slice(&self.integrator.variance(true));
     }
 }
 

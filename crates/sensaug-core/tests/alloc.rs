@@ -10,7 +10,8 @@ mod common;
 use alloc_counter::allocations;
 
 use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector2, Vector3};
-use sensaug_core::estimator::{GainEstimator, GoalIntegrator, TrajectoryEstimator};
+use sensaug_core::estimator::{GainEstimator, TrajectoryEstimator};
+use sensaug_core::goal::GoalIntegrator;
 use sensaug_core::plant::{Plant, PlantParams};
 use sensaug_core::riccati::{care, dare};
 use sensaug_core::world::{Scenario, TickRecord};
@@ -70,7 +71,7 @@ fn estimator_steps_do_not_allocate() {
             let _ = g.predict(0.1 * s, 1e-3, 1e-3);
             let _ = t.update(&SVector::<f64, 5>::new(s, 0.1, 0.0, 0.0, 2.0));
             let _ = t.predict(0.1 * s, 1e-3, 0.0);
-            let _ = gi.update(&Vector2::new(s, 0.1), Some((s, 1e-4)));
+            let _ = gi.update(&Vector2::new(s, 0.1), Some(s));
             let _ = gi.predict(0.1, 0.0);
         }
     });
@@ -129,7 +130,7 @@ fn batch_replays_do_not_allocate() {
         };
         let report = replay(&mut g, &rec, &mut out).unwrap();
         std::hint::black_box(report);
-        let mut r = GoalReplay::new(&mut gi, Some(1e-6)).unwrap();
+        let mut r = GoalReplay::new(&mut gi, true);
         let rec = Recording {
             dtau_h: None,
             ..rec

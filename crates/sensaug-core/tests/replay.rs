@@ -6,7 +6,8 @@
 mod common;
 
 use nalgebra::{Vector2, Vector3};
-use sensaug_core::estimator::{GainEstimator, GoalIntegrator};
+use sensaug_core::estimator::GainEstimator;
+use sensaug_core::goal::GoalIntegrator;
 use sensaug_core::plant::{Plant, PlantParams};
 use sensaug_core::replay::{
     replay, simulate, GoalReplay, Posteriors, Recording, ReplayArg, ReplayError,
@@ -80,10 +81,10 @@ fn gain_replay_equals_stepping_update_then_predict() {
 fn goal_replay_equals_stepping_with_and_without_the_partner_channel() {
     let (y, u, dtau, _) = recording();
     let model = common::model();
-    for floor in [None, Some(1e-6)] {
+    for with_channel in [false, true] {
         let mut gi = GoalIntegrator::new(model, &common::robot().stage3).unwrap();
         let mut step = gi.clone();
-        let m = if floor.is_some() { 3 } else { 2 };
+        let m = if with_channel { 3 } else { 2 };
         let y: Vec<f64> = y.chunks(3).flat_map(|r| r[..m].to_vec()).collect();
         let (mut xs, mut var) = (vec![0.0; 2 * T], vec![0.0; 2 * T]);
         let rec = Recording {
@@ -96,12 +97,13 @@ fn goal_replay_equals_stepping_with_and_without_the_partner_channel() {
             x: &mut xs,
             var: &mut var,
         };
-        let mut r = GoalReplay::new(&mut gi, floor).unwrap();
+        let mut r = GoalReplay::new(&mut gi, with_channel);
         assert_eq!(replay(&mut r, &rec, &mut out).unwrap().errors, 0);
         for k in 0..T {
             let row = &y[m * k..m * (k + 1)];
-            let _ = step.update(&Vector2::new(row[0], row[1]), floor.map(|f| (row[2], f)));
-            assert_eq!(&xs[2 * k..2 * k + 2], step.fused_filter().x().as_slice());
+            let _ = step.update(&Vector2::new(row[0], row[1]), with_channel.then(|| row[2]));
+            assert_eq!(&xs[2 * k..2 * k + 2], step.estimate(true).as_slice());
+            assert_eq!(&var[2 * k..2 * k + 2], step.variance(true).as_slice());
             let _ = step.predict(u[k], dtau[k]);
         }
     }
@@ -166,13 +168,7 @@ fn shape_errors_name_the_slice_and_nothing_runs() {
     assert_eq!(g.filter().recoveries().updates, 0, "nothing ran");
 
     let mut gi = GoalIntegrator::new(model, &common::robot().stage3).unwrap();
-    assert_eq!(
-        GoalReplay::new(&mut gi, Some(f64::NAN)).unwrap_err(),
-        ReplayError::OutOfRange {
-            which: ReplayArg::PartnerFloor
-        }
-    );
-    let mut r = GoalReplay::new(&mut gi, Some(0.0)).unwrap();
+    let mut r = GoalReplay::new(&mut gi, true);
     let mut out = Posteriors {
         x: &mut xs[..2 * T],
         var: &mut var[..2 * T],

@@ -7,11 +7,11 @@
 mod common;
 
 use nalgebra::SMatrix;
-use sensaug_core::estimator::{EstimatorError, GainEstimator, GoalIntegrator, HandleModel};
-use sensaug_core::estimator::{GoalIntegratorConfig, TrajectoryEstimator};
+use sensaug_core::estimator::{EstimatorError, GainEstimator, HandleModel, TrajectoryEstimator};
+use sensaug_core::goal::{ChannelConfig, GoalIntegrator, GoalIntegratorConfig};
 use sensaug_core::plant::{Plant, PlantError, PlantParams, PlantState};
 use sensaug_core::protocol::Protocol;
-use sensaug_core::ukf::{Arg, MerweParams};
+use sensaug_core::ukf::Arg;
 use sensaug_core::world::{check_log_memory, log_budget, log_bytes};
 
 fn plant(mass: f64, damping: f64, coulomb: f64, dt_s: f64) -> Result<Plant, PlantError> {
@@ -116,12 +116,7 @@ fn estimator_covariances_must_be_covariances() {
         P0: SMatrix::identity(),
         Q: SMatrix::identity(),
         R_own: -SMatrix::<f64, 2, 2>::identity(),
-        partner_window_s: 0.2,
-        sigma: MerweParams {
-            alpha: 1.0,
-            beta: 2.0,
-            kappa: 0.0,
-        },
+        channel: ChannelConfig::default(),
     };
     let e = GoalIntegrator::new(model, &goal).unwrap_err();
     assert!(
@@ -129,6 +124,31 @@ fn estimator_covariances_must_be_covariances() {
             .starts_with("R: must be positive semidefinite"),
         "{e}"
     );
+    // Stage 3's own settings: the target's random walk and the channel's.
+    let mut zero_q = goal;
+    zero_q.R_own = SMatrix::identity();
+    zero_q.Q[(0, 0)] = 0.0;
+    let e = GoalIntegrator::new(model, &zero_q).unwrap_err();
+    assert!(e.to_string().starts_with("Q: its (0, 0) entry"), "{e}");
+    for (field, set) in [
+        (
+            "gate",
+            (|c: &mut ChannelConfig| c.gate = 0.0) as fn(&mut ChannelConfig),
+        ),
+        ("window_n0", |c| c.window_n0 = f64::NAN),
+        ("hold_max_s", |c| c.hold_max_s = -1.0),
+    ] {
+        let mut bad = goal;
+        bad.R_own = SMatrix::identity();
+        set(&mut bad.channel);
+        let e = GoalIntegrator::new(model, &bad).unwrap_err();
+        assert_eq!(e, EstimatorError::InvalidModel(field));
+        assert!(
+            e.to_string()
+                .starts_with(&format!("{field}: must be finite and > 0")),
+            "{e}"
+        );
+    }
 }
 
 #[test]

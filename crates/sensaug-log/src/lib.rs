@@ -248,7 +248,7 @@ schema! {
     e_hat_fused: Float, "pos", "stage 3: (x - tau)^ with the partner channel (goal integration)";
     e_hat_own_var: Float, "pos^2", "posterior variance of e_hat_own";
     e_hat_fused_var: Float, "pos^2", "posterior variance of e_hat_fused";
-    partner_var: Float, "pos^2", "stage 3: variance of the partner channel used";
+    partner_var: Float, "pos^2", "stage 3: the partner channel's effective variance (inf when not fused)";
     Lx_hat: Float, "trq/pos", "partner's mirrored estimate of the robot gain Lx (simulation section; NaN otherwise)";
     Lv_hat: Float, "trq s/pos", "partner's mirrored estimate of the robot gain Lv";
     Lh_hat: Float, "trq/pos", "partner's mirrored estimate of the robot gain Lh";

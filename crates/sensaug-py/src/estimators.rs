@@ -11,11 +11,10 @@ use numpy::{PyUntypedArrayMethods, ToPyArray};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+use sensaug_core::estimator::GainEstimator as CoreGain;
 use sensaug_core::estimator::TrajectoryEstimator as CoreTrajectory;
-use sensaug_core::estimator::{
-    EstimatorError, ExtendedFilterConfig, GoalIntegratorConfig, HandleModel,
-};
-use sensaug_core::estimator::{GainEstimator as CoreGain, GoalIntegrator as CoreGoal};
+use sensaug_core::estimator::{EstimatorError, ExtendedFilterConfig, HandleModel};
+use sensaug_core::goal::{ChannelConfig, GoalIntegrator as CoreGoal, GoalIntegratorConfig};
 use sensaug_core::replay::{replay, GoalReplay, Posteriors, Recording, Replay};
 use sensaug_core::ukf::MerweParams;
 
@@ -249,26 +248,34 @@ extended_estimator!(
     }
 );
 
-/// The partner floor a measurement of `len` entries reads (`None`: own only).
-fn partner(len: usize, floor: f64) -> PyResult<Option<f64>> {
+/// Whether a measurement of `len` entries carries the partner channel.
+fn with_channel(len: usize) -> PyResult<bool> {
     match len {
-        2 => Ok(None),
-        3 => Ok(Some(floor)),
+        2 => Ok(false),
+        3 => Ok(true),
         n => Err(PyValueError::new_err(format!(
             "y: expected 2 entries [x - tau, xdot] or 3 [x - tau, xdot, x - tau_h^], got {n}"
         ))),
     }
 }
 
-estimator_class!(
-    GoalIntegrator,
-    CoreGoal,
-    fused_filter,
-    "Stage 3: goal integration on `[x - tau, xdot]`, with and without the partner channel `x - tau_h^`, side by side; `x`, `P` are the integrated filter's.",
-    {
+/// Stage 3: goal integration on `[x - tau, xdot]` with the adaptive partner
+/// channel (a bank of Kalman filters over the channel's variance, weighted by
+/// their predictions of the own measurement; docs/model.md). `x`, `var` are
+/// the mixture's (with the partner), `x_own`, `var_own` member 0's (own
+/// sensing only), as of the last update.
+#[pyclass(module = "sensaug._core")]
+pub struct GoalIntegrator {
+    inner: CoreGoal,
+}
+
+#[pymethods]
+impl GoalIntegrator {
     #[new]
-    #[pyo3(signature = (*, mass, Q, R, x0, P0, damping = None, dt = None, partner_window_s = None, alpha = None, beta = None, kappa = None))]
-    #[pyo3(text_signature = "(*, mass, Q, R, x0, P0, damping=0.0, dt=1e-3, partner_window_s=0.2, alpha=1.0, beta=2.0, kappa=0.0)")]
+    #[pyo3(signature = (*, mass, Q, R, x0, P0, damping = None, dt = None, gate = None, window_n0 = None, hold_max_s = None))]
+    #[pyo3(
+        text_signature = "(*, mass, Q, R, x0, P0, damping=0.0, dt=1e-3, gate=4.0, window_n0=80.0, hold_max_s=0.25)"
+    )]
     #[allow(clippy::too_many_arguments)]
     fn new(
         mass: &Bound<'_, PyAny>,
@@ -278,32 +285,36 @@ estimator_class!(
         P0: &Bound<'_, PyAny>,
         damping: Opt<'_, '_>,
         dt: Opt<'_, '_>,
-        partner_window_s: Opt<'_, '_>,
-        alpha: Opt<'_, '_>,
-        beta: Opt<'_, '_>,
-        kappa: Opt<'_, '_>,
+        gate: Opt<'_, '_>,
+        window_n0: Opt<'_, '_>,
+        hold_max_s: Opt<'_, '_>,
     ) -> PyResult<Self> {
-        let Common { model, sigma } = Common::new(mass, [damping, dt, alpha, beta, kappa])?;
+        let model = HandleModel {
+            mass: real(mass, "mass")?,
+            damping: real_or(damping, "damping", 0.0)?,
+            dt_s: real_or(dt, "dt", 1e-3)?,
+        };
+        let d = ChannelConfig::default();
         let cfg = GoalIntegratorConfig {
             x0: vector(x0, "x0")?,
             P0: matrix(P0, "P0")?,
             Q: matrix(Q, "Q")?,
             R_own: matrix(R, "R")?,
-            partner_window_s: real_or(partner_window_s, "partner_window_s", 0.2)?,
-            sigma,
+            channel: ChannelConfig {
+                gate: real_or(gate, "gate", d.gate)?,
+                window_n0: real_or(window_n0, "window_n0", d.window_n0)?,
+                hold_max_s: real_or(hold_max_s, "hold_max_s", d.hold_max_s)?,
+            },
         };
         let inner = CoreGoal::new(model, &cfg).map_err(setup_error)?;
         Ok(Self { inner })
     }
 
     /// Fuse `y = [x - tau, xdot]` (own sensing only) or
-    /// `y = [x - tau, xdot, x - tau_h^]` (with the partner channel, whose
-    /// variance is estimated online and floored at `partner_floor`).
-    #[pyo3(signature = (y, partner_floor = 0.0))]
-    fn update(&mut self, y: PyReadonlyArray1<'_, f64>, partner_floor: f64) -> PyResult<String> {
+    /// `y = [x - tau, xdot, x - tau_h^]` (with the partner channel; NaN: none).
+    fn update(&mut self, y: PyReadonlyArray1<'_, f64>) -> PyResult<String> {
         let y = slice(&y, "y")?;
-        let floor = partner(y.len(), partner_floor)?;
-        let mut one_tick = GoalReplay::new(&mut self.inner, floor).map_err(py_err)?;
+        let mut one_tick = GoalReplay::new(&mut self.inner, with_channel(y.len())?);
         one_tick.update_row(y).map(status_str).map_err(py_err)
     }
 
@@ -320,39 +331,91 @@ estimator_class!(
         self.inner.predict(u, dtau).map(status_str).map_err(py_err)
     }
 
-    /// For each k: `update(y[k], partner_floor)`, then `predict(u[k], dtau[k])`.
-    /// The posteriors are the integrated filter's.
-    #[pyo3(signature = (y, u, dtau, *, partner_floor = 0.0, strict = true))]
+    /// Phase start: the own measurement's covariance (target-view noise
+    /// included), which sets the channel grid and the score window.
+    fn set_own_noise(&mut self, R: &Bound<'_, PyAny>) -> PyResult<()> {
+        let R = matrix(R, "R")?;
+        self.inner.set_own_noise(R).map_err(setup_error)
+    }
+
+    /// Phase start: every member at `x0` with `P0`, scores 0.
+    fn reset(&mut self, x0: &Bound<'_, PyAny>) -> PyResult<()> {
+        let x0 = vector(x0, "x0")?;
+        self.inner.reset(x0).map_err(py_err)
+    }
+
+    /// For each k: `update(y[k])`, then `predict(u[k], dtau[k])`.
+    /// The posteriors are the mixture's.
+    #[pyo3(signature = (y, u, dtau, *, strict = true))]
     fn run<'py>(
         &mut self,
         py: Python<'py>,
         y: PyReadonlyArray2<'py, f64>,
         u: PyReadonlyArray1<'py, f64>,
         dtau: PyReadonlyArray1<'py, f64>,
-        partner_floor: f64,
         strict: bool,
     ) -> PyResult<Batch<'py>> {
-        let floor = partner(y.shape()[1], partner_floor)?;
-        let mut r = GoalReplay::new(&mut self.inner, floor).map_err(py_err)?;
+        let mut r = GoalReplay::new(&mut self.inner, with_channel(y.shape()[1])?);
         run_batch(py, &mut r, &y, &u, [Some(&dtau), None], strict)
     }
 
-    /// Own-sensing posterior `[x - tau, xdot]`.
+    /// The mixture's `[x - tau, xdot]` (goal integration with the partner).
+    #[getter]
+    fn x<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        vec_to(py, &self.inner.estimate(true))
+    }
+
+    /// The mixture's variances `[var(x - tau), var(xdot)]`.
+    #[getter]
+    fn var<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        self.inner.variance(true).to_pyarray(py)
+    }
+
+    /// Member 0's `[x - tau, xdot]` (own sensing only).
     #[getter]
     fn x_own<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        vec_to(py, self.inner.own_filter().x())
+        vec_to(py, &self.inner.estimate(false))
     }
 
-    /// Own-sensing posterior covariance.
+    /// Member 0's variances.
     #[getter]
-    fn P_own<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-        mat_to(py, self.inner.own_filter().P())
+    fn var_own<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        self.inner.variance(false).to_pyarray(py)
     }
 
-    /// The partner-channel variance used in the last update (NaN before).
+    /// The mixture weights of the last update (member 0 first).
+    #[getter]
+    fn weights<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        self.inner.weights().to_pyarray(py)
+    }
+
+    /// Each member's `x - tau` (posterior after update, prior after predict).
+    #[getter]
+    fn members<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        self.inner.members().to_pyarray(py)
+    }
+
+    /// The members' channel variances (member 0: inf).
+    #[getter]
+    fn grid<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        self.inner.grid().to_pyarray(py)
+    }
+
+    /// The last update detected a change point (a target jump).
+    #[getter]
+    fn change_point(&self) -> bool {
+        self.inner.change_point()
+    }
+
+    /// The last update fused the partner channel.
+    #[getter]
+    fn channel_admitted(&self) -> bool {
+        self.inner.channel_admitted()
+    }
+
+    /// The channel's effective variance in the last update (inf: not fused).
     #[getter]
     fn partner_variance(&self) -> f64 {
         self.inner.partner_variance()
     }
 }
-);

@@ -8,11 +8,12 @@
 #[path = "../../tests/common/mod.rs"]
 mod common;
 
-use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector3};
+use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector2, Vector3};
 use sensaug_core::controller::Robot;
 use sensaug_core::estimator::{
     ExtendedFilterConfig, GainEstimator, HandleModel, TrajectoryEstimator,
 };
+use sensaug_core::goal::{ChannelConfig, GoalIntegrator, GoalIntegratorConfig};
 use sensaug_core::protocol::Protocol;
 use sensaug_core::riccati::{care, dare};
 use sensaug_core::ukf::MerweParams;
@@ -81,6 +82,34 @@ pub fn ukf_step_3() -> Call {
         let s = (k as f64 * 1e-3).sin();
         let _ = g.update(black_box(&Vector3::new(s, 0.1, s)));
         let _ = g.predict(black_box(0.01 * s), 1e-3, 1e-3);
+    })
+}
+
+/// Stage 3, the adaptive partner channel's bank of 8 filters: `update(y,
+/// channel)` then `predict(u)`, with the Hi5 preset's stage-3 settings at a
+/// 1 deg target-view noise; the own measurement and the channel follow a
+/// rounded square with a jump every 2000 calls (change points, suspensions).
+pub fn goal_integrator_step() -> Call {
+    let qv = (DT * 1e-3 / MASS) * (DT * 1e-3 / MASS);
+    let cfg = GoalIntegratorConfig {
+        x0: Vector2::zeros(),
+        P0: Matrix2::identity() * 1e-2,
+        Q: Matrix2::new(1e-2, 0.0, 0.0, qv),
+        R_own: Matrix2::new(1.0 + 1e-7, 0.0, 0.0, 1e-7),
+        channel: ChannelConfig::default(),
+    };
+    let mut g = GoalIntegrator::new(model(), &cfg).expect("valid integrator");
+    let _ = g
+        .update(&Vector2::new(0.1, 0.0), Some(0.1))
+        .expect("first update");
+    assert!(g.estimate(true).iter().all(|v| v.is_finite()));
+    let mut k = 0u64;
+    Box::new(move || {
+        k += 1;
+        let jump = if (k / 2000) % 2 == 0 { 8.0 } else { -8.0 };
+        let s = jump + (k as f64 * 0.7).sin();
+        let _ = g.update(black_box(&Vector2::new(s, 0.0)), black_box(Some(jump)));
+        let _ = g.predict(black_box(0.01), 0.0);
     })
 }
 
@@ -248,10 +277,11 @@ pub fn trial() -> (Call, usize) {
 
 /// Every workload by name (the names of the criterion benches and of the
 /// rows of `BENCHMARKS.md`).
-pub fn all() -> [Workload; 9] {
+pub fn all() -> [Workload; 10] {
     [
         ("ukf_step/6_states_3_measurements", ukf_step_3),
         ("ukf_step/6_states_5_measurements", ukf_step_5),
+        ("goal_integrator/8_members", goal_integrator_step),
         ("care/2_states", care_2),
         ("care/3_states", care_3),
         ("dare/2_states", dare_2),

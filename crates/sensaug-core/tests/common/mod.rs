@@ -3,7 +3,8 @@
 #![allow(dead_code)]
 use nalgebra::{SMatrix, SVector, Vector2};
 use sensaug_core::controller::RobotConfig;
-use sensaug_core::estimator::{ExtendedFilterConfig, GoalIntegratorConfig, HandleModel};
+use sensaug_core::estimator::{ExtendedFilterConfig, HandleModel};
+use sensaug_core::goal::{ChannelConfig, GoalIntegratorConfig};
 use sensaug_core::plant::{PlantParams, PlantState};
 use sensaug_core::protocol::{Phase, PhaseKind};
 use sensaug_core::target::{Shape, Target};
@@ -75,12 +76,7 @@ pub fn robot() -> RobotConfig {
             P0: SMatrix::identity() * 1e-2,
             Q: SMatrix::identity() * 1e-2,
             R_own: SMatrix::identity() * 1e-7,
-            partner_window_s: 0.2,
-            sigma: MerweParams {
-                alpha: 1.0,
-                beta: 2.0,
-                kappa: 0.0,
-            },
+            channel: ChannelConfig::default(),
         },
         integrate: true,
         gain_window_s: 8.0,
