@@ -190,8 +190,10 @@ def rig_demo(
     if "gains" in done:
         window = run.gain_window_s()
         print(f"Stage 1: partner gains (mean over the last {window:g} s of the gain phase)")
-        print(_table(["gain", "true", "estimated", "error"], [
-            [name, f"{t:.4f}", f"{e:.4f}", f"{e - t:+.4f}"] for name, t, e in zip(experiment.GAIN_SYMBOLS, true, run.gain_estimate())
+        units = [run.log.units.get(c, "") for c in ("Lhx_hat", "Lhv_hat", "Lhh_hat")]
+        print(_table(["gain", "unit", "true", "estimated", "error"], [
+            [name, u, f"{t:.4f}", f"{e:.4f}", f"{e - t:+.4f}"]
+            for name, u, t, e in zip(experiment.GAIN_SYMBOLS, units, true, run.gain_estimate())
         ]))
     else:
         print(f"Stage 1: {cut('gains')}")

@@ -79,8 +79,21 @@ def trajectories_figure(log: Log, title: str) -> Figure:
     ax.plot(t, log["tau_h"], "--", lw=0.8, label=NAMES["tau_h"])
     ax.plot(t, log["x"], lw=1.0, label=NAMES["x"])
     ax.set(xlabel="t (s)", ylabel=f"position ({_unit(log, 'x')})", title=f"{title}: trajectories")
+    _mark_phases(ax, log)
     _legend(ax)
     return fig
+
+
+def _mark_phases(ax, log: Log) -> None:
+    """A thin line where each phase begins, its name under the top edge."""
+    phase, t = log["phase"], log["t"]
+    names = log.meta.get("phase_names", [])
+    starts = [0, *(np.flatnonzero(np.diff(phase)) + 1)] if len(phase) else []
+    for i in starts:
+        if 0 <= phase[i] < len(names):
+            ax.axvline(t[i], color="0.6", lw=0.6)
+            ax.text(t[i], 0.98, f" {names[phase[i]]}", transform=ax.get_xaxis_transform(), va="top", fontsize=7,
+                    color="0.4")
 
 
 def gains_figure(log: Log, mask: np.ndarray, true_gains: np.ndarray, title: str) -> Figure:
@@ -113,8 +126,9 @@ def trajectory_figure(log: Log, mask: np.ndarray, title: str) -> Figure:
     """The partner's target and the robot's estimate of it in a trajectory phase."""
     fig, ax = _new()
     t = log["t"][mask]
-    ax.plot(t, log["tau_h"][mask], "r--", lw=1.0, label=NAMES["tau_h"])
-    ax.plot(t, log["tau_h_hat"][mask], "k", lw=0.8, label=NAMES["tau_h_hat"])
+    # The estimate under the truth: where they agree the dashed truth shows on it.
+    ax.plot(t, log["tau_h_hat"][mask], color="0.2", lw=2.0, label=NAMES["tau_h_hat"])
+    ax.plot(t, log["tau_h"][mask], "--", color="tab:red", lw=1.0, label=NAMES["tau_h"])
     ax.set(xlabel="t (s)", ylabel=f"position ({_unit(log, 'tau_h')})", title=f"{title}: partner target estimate")
     _legend(ax)
     return fig

@@ -7,6 +7,10 @@ drive's N m is ``trq * rad_per_unit``, so a ``trq`` is (pi/180) N m when
 positions are in degrees and a gain ``trq/pos`` is exactly N m/rad either
 way (docs/logs.md, docs/model.md "Units"). Everywhere a person reads a
 number (plots, CLI tables, ``Log.units``) the symbols are replaced by these.
+
+Known gap: the simulation-section presets model a linear handle (m, N,
+kg; docs/model.md) but the schema has no linear position unit, so they
+carry the default ``deg`` and are labelled as if rotational.
 """
 
 from __future__ import annotations
