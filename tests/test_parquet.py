@@ -53,3 +53,22 @@ def test_a_foreign_parquet_file_is_refused(tmp_path: Path) -> None:
     (tmp_path / "cut.parquet").write_bytes(b"PAR1" + b"\0" * 20)
     with pytest.raises(ValueError, match=r"cut\.parquet: not a readable Parquet file"):
         sensaug.load_log(tmp_path / "cut.parquet")
+
+
+def test_a_changed_byte_is_caught_by_the_page_checksums(trial: sensaug.Trial, tmp_path: Path) -> None:
+    """Parquet's CRC-32 page checksums are written and verified, as the CSV's
+    line checksums are (docs/logs.md)."""
+    path = trial.save(tmp_path / "t.parquet")
+    raw = bytearray(path.read_bytes())
+    raw[len(raw) // 3] ^= 0x01
+    path.write_bytes(bytes(raw))
+    with pytest.raises(ValueError, match=r"t\.parquet: not a readable Parquet file"):
+        sensaug.load_log(path)
+
+
+def test_an_unverified_log_stays_unverified(trial: sensaug.Trial, tmp_path: Path) -> None:
+    unverified = sensaug.Log(data=trial.data, meta=dict(trial.meta), verified=False)
+    unverified.save(tmp_path / "u.parquet")
+    with pytest.warns(sensaug.logs.UnverifiedLogWarning, match="not verified when read"):
+        back = sensaug.load_log(tmp_path / "u.parquet")
+    assert not back.verified
