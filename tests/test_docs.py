@@ -41,12 +41,17 @@ def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     cfg = presets.hi5_rig(phase_s=2.0)
     cfg.rig.feedback_timeout_ms, cfg.rig.watchdog_ms = 300.0, 200  # this shared machine stalls now and then
     cfg.to_toml(cwd / "short.toml")
-    demo = subprocess.run(
-        [sys.executable, "-m", "sensaug", "demo", "--config", "short.toml", "--no-plots", "--no-capture", "--quiet"],
-        cwd=cwd, capture_output=True, text=True, timeout=180, env=_env(),
-    )
-    assert demo.returncode == 0, demo.stdout + demo.stderr
-    assert (cwd / "out" / "rig_log.csv").is_file()
+    # The examples need a rig log, not a perfect run: a run this shared
+    # machine stalls into a safety stop (exit 1) still writes one. A run that
+    # never started (the drive too slow to boot under load) is tried again.
+    for _attempt in range(2):
+        demo = subprocess.run(
+            [sys.executable, "-m", "sensaug", "demo", "--config", "short.toml", "--no-plots", "--no-capture", "--quiet"],
+            cwd=cwd, capture_output=True, text=True, timeout=180, env=_env(),
+        )
+        if (cwd / "out" / "rig_log.csv").is_file():
+            break
+    assert demo.returncode in (0, 1) and (cwd / "out" / "rig_log.csv").is_file(), demo.stdout + demo.stderr
     return cwd
 
 

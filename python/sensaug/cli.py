@@ -178,7 +178,7 @@ def rig_demo(
         print(f"sensaug-rt: {s['ticks']} ticks, stop: {s['stop_reason']}, exit {run.returncode}; "
               f"virtual drive exit {run.drive_returncode}\n")
     done = run.completed_phases()
-    why = "interrupted by the user" if run.interrupted else "the run stopped early: the stop reason above"
+    why = "interrupted by the user" if run.interrupted else f"the run stopped: {s['stop_reason']}"
 
     def cut(kind: str) -> str:
         m = run.log["phase"] == run.log.phase_code(kind)

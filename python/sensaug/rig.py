@@ -98,12 +98,17 @@ class RigRun:
         return metrics.gain_estimate(self.log, self.phase_mask("gains", last_s=self.gain_window_s(last_s)))
 
     def completed_phases(self) -> list[str]:
-        """The phase kinds the run went through to their end (a later phase
-        began, or the run completed), in order."""
-        reached = [k for k in ("gains", "trajectory", "integration") if (self.log["phase"] == self.log.phase_code(k)).any()]
-        if self.stats.get("stop_reason") == "completed" and not self.interrupted:
-            return reached
-        return reached[:-1]
+        """The phase kinds the run went through to their end: every tick the
+        configuration gives them is in the log (one tick short allowed: the
+        last tick of a stopped run may be its first stop tick), in order."""
+        dt = self.config.plant.dt_s
+        done = []
+        for kind in ("gains", "trajectory", "integration"):
+            planned = round(sum(p.duration_s for p in self.config.phases if p.kind == kind) / dt)
+            ran = int((self.log["phase"] == self.log.phase_code(kind)).sum())
+            if planned and ran >= planned - 1:
+                done.append(kind)
+        return done
 
     def partner_target_rmse(self, skip_s: float = 2.0) -> float:
         return metrics.partner_target_rmse(self.log, self.phase_mask("trajectory", skip_s=skip_s))
