@@ -1,5 +1,6 @@
 """The package as a user installs it: the three wheels (scripts/build-wheels.sh,
-from the repository's warm cargo target dir) installed into a fresh virtual
+manylinux2014, from its own build environment) checked for their tags, the
+glibc their binaries need and their metadata, then installed into a fresh virtual
 environment outside the checkout, then run from a folder outside it with an
 environment that names nothing of the checkout.
 
@@ -11,10 +12,12 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 import time
 import tomllib
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -59,35 +62,113 @@ def _clean_env() -> dict[str, str]:
     return env
 
 
+@dataclass
+class Wheels:
+    folder: Path
+    names: list[str]
+    build_log: str
+
+
 @pytest.fixture(scope="module")
-def installed(tmp_path_factory: pytest.TempPathFactory) -> Installed:
-    root = tmp_path_factory.mktemp("install")
-    assert not root.resolve().is_relative_to(REPO)
-    wheels, venv, cwd = root / "wheels", root / "venv", root / "work"
-    cwd.mkdir()
+def wheels(tmp_path_factory: pytest.TempPathFactory) -> Wheels:
+    """The three wheels as ``scripts/build-wheels.sh`` builds them (its own
+    build environment, zig for glibc 2.17; nothing of the test venv)."""
+    folder = tmp_path_factory.mktemp("wheels")
     t0 = time.perf_counter()
     built = subprocess.run(
-        ["bash", str(REPO / "scripts" / "build-wheels.sh"), str(wheels)],
+        ["bash", str(REPO / "scripts" / "build-wheels.sh"), str(folder)],
         capture_output=True,
         text=True,
-        env=dict(os.environ, SENSAUG_SKIP_SETUP="1"),
-        timeout=1200,
+        env=_clean_env(),
+        timeout=1800,
     )
     assert built.returncode == 0, built.stdout + built.stderr
-    t1 = time.perf_counter()
-    names = sorted(p.name for p in wheels.glob("*.whl"))
+    names = sorted(p.name for p in folder.glob("*.whl"))
     assert [n.split("-")[0] for n in names] == ["sensaug", "sensaug_bridge", "sensaug_rt"], names
+    print(f"\nwheels built in {time.perf_counter() - t0:.1f} s: {', '.join(names)}")
+    return Wheels(folder=folder, names=names, build_log=built.stdout + built.stderr)
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory: pytest.TempPathFactory, wheels: Wheels) -> Installed:
+    root = tmp_path_factory.mktemp("install")
+    assert not root.resolve().is_relative_to(REPO)
+    venv, cwd = root / "venv", root / "work"
+    cwd.mkdir()
+    t1 = time.perf_counter()
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, env=_clean_env(), timeout=300)
     pip = subprocess.run(
-        [str(venv / "bin" / "python"), "-m", "pip", "install", "-q", *(str(wheels / n) for n in names)],
+        [str(venv / "bin" / "python"), "-m", "pip", "install", "-q", *(str(wheels.folder / n) for n in wheels.names)],
         capture_output=True,
         text=True,
         env=_clean_env(),
         timeout=1200,
     )
     assert pip.returncode == 0, pip.stdout + pip.stderr
-    print(f"\nwheels built in {t1 - t0:.1f} s ({', '.join(names)}); venv + pip install {time.perf_counter() - t1:.1f} s")
+    print(f"\nvenv + pip install {time.perf_counter() - t1:.1f} s")
     return Installed(venv=venv, cwd=cwd, env=_clean_env())
+
+
+#: The oldest glibc the wheels may need: manylinux2014 (CentOS 7's 2.17; every
+#: Ubuntu since 18.04 has more).
+GLIBC_FLOOR = (2, 17)
+
+
+def _wheel_file(wheel: Path, suffix: str) -> str:
+    with zipfile.ZipFile(wheel) as z:
+        (name,) = [n for n in z.namelist() if n.endswith(suffix)]
+        return z.read(name).decode()
+
+
+def _glibc_needed(binary: Path) -> tuple[int, int]:
+    """The highest ``GLIBC_x.y`` symbol version ``binary`` requires, read by
+    binutils' readelf (the ELF version-needs section), not by our build tools."""
+    out = subprocess.run(["readelf", "--version-info", "--wide", str(binary)], capture_output=True, text=True, check=True)
+    versions = {(int(a), int(b)) for a, b in re.findall(r"Name: GLIBC_(\d+)\.(\d+)", out.stdout)}
+    assert versions, f"{binary}: no GLIBC version needs found by readelf"
+    return max(versions)
+
+
+def test_wheels_are_manylinux2014_and_need_glibc_2_17_at_most(wheels: Wheels, tmp_path: Path) -> None:
+    """The tags a lab PC's pip matches (glibc 2.17+ for the two binary
+    wheels, any platform for the bridge) and, independently of the tags, the
+    glibc symbol versions the binaries inside really need."""
+    tags = {n.split("-")[0]: _wheel_file(wheels.folder / n, ".dist-info/WHEEL") for n in wheels.names}
+    platform_tags = {k: set(re.findall(r"^Tag: (\S+)$", v, re.M)) for k, v in tags.items()}
+    assert platform_tags == {
+        "sensaug": {"cp311-abi3-manylinux_2_17_x86_64", "cp311-abi3-manylinux2014_x86_64"},
+        "sensaug_rt": {"py3-none-manylinux_2_17_x86_64", "py3-none-manylinux2014_x86_64"},
+        "sensaug_bridge": {"py3-none-any"},
+    }, platform_tags
+    binaries = []
+    for n in wheels.names:
+        with zipfile.ZipFile(wheels.folder / n) as z:
+            for member in z.namelist():
+                if member.endswith(".so") or member.endswith("/scripts/sensaug-rt"):
+                    binaries.append(Path(z.extract(member, tmp_path / n)))
+    assert sorted(b.name for b in binaries) == ["_core.abi3.so", "sensaug-rt"], binaries
+    needed = {b.name: _glibc_needed(b) for b in binaries}
+    print(f"\nhighest GLIBC symbol version needed: {needed}")
+    assert all(v <= GLIBC_FLOOR for v in needed.values()), needed
+
+
+def test_wheel_metadata_is_complete(wheels: Wheels) -> None:
+    """What PyPI shows and what ``pip show`` prints: a description (the README
+    for sensaug), the license, classifiers; ``twine check --strict`` passed in
+    the build script (its output is in the build log)."""
+    assert wheels.build_log.count("PASSED") == 3, wheels.build_log[-2000:]
+    readme = (REPO / "README.md").read_text()
+    for n in wheels.names:
+        meta = _wheel_file(wheels.folder / n, ".dist-info/METADATA")
+        head, _, body = meta.partition("\n\n")
+        assert re.search(r"^Summary: \S", head, re.M), (n, head)
+        assert re.search(r"^License-Expression: MIT$", head, re.M), (n, head)
+        assert re.search(r"^License-File: LICENSE$", head, re.M), (n, head)
+        assert re.search(r"^Description-Content-Type: text/markdown", head, re.M), (n, head)
+        assert len(re.findall(r"^Classifier: ", head, re.M)) >= 4, (n, head)
+        assert len(body) > 200, (n, body)
+        if n.startswith("sensaug-"):
+            assert body.strip() == readme.strip()
 
 
 def test_pins_and_versions_are_the_cargo_workspace_version() -> None:
@@ -191,3 +272,13 @@ def test_a_missing_data_file_names_the_package_data() -> None:
     assert resources.data_file("hi5.dbc").is_file()
     with pytest.raises(FileNotFoundError, match=r"missing\.eds is not among sensaug_bridge's data files"):
         resources.data_file("missing.eds")
+
+
+def test_the_docs_pages_ship_with_the_package(installed: Installed) -> None:
+    """Messages and help name docs/NAME.md; the installed package has them."""
+    listing = installed.run(installed.bin("sensaug"), "docs")
+    assert listing.returncode == 0, listing.stderr
+    names = {ln.split()[0] for ln in listing.stdout.splitlines()[1:]}
+    assert names == {p.stem for p in (REPO / "docs").glob("*.md")}, listing.stdout
+    page = installed.run(installed.bin("sensaug"), "docs", "docs/logs.md")
+    assert page.returncode == 0 and page.stdout == (REPO / "docs" / "logs.md").read_text()

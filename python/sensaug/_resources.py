@@ -29,6 +29,19 @@ def package_version() -> str:
         return "0+unknown"
 
 
+def docs_dir() -> Path:
+    """The docs pages (``docs/*.md``): the wheel's copy (``sensaug/docs``,
+    put there by scripts/build-wheels.sh), else the checkout's ``docs/``."""
+    here = Path(__file__).resolve().parent
+    packaged = here / "docs"
+    if packaged.is_dir():
+        return packaged
+    checkout = here.parents[1] / "docs"
+    if checkout.is_dir():
+        return checkout
+    raise FileNotFoundError(f"the docs pages: neither {packaged} nor {checkout} exists; reinstall the sensaug wheel")
+
+
 def _checkout_binary() -> Path | None:
     """``target/release/sensaug-rt`` of the checkout this package runs from
     (an editable install), or None when it is not in a checkout."""

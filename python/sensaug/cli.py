@@ -1,29 +1,10 @@
-"""Command line: ``python -m sensaug {demo,paper,run,rig,preset}``.
+"""The ``sensaug`` command (``sensaug.cli:main``; also ``python -m sensaug``).
 
-* ``demo`` runs the Hi5 experiment end to end on the virtual rig (the
-  virtual drive and the real-time binary over the loopback CAN bus) on the
-  embedded default, prints the results and the loop statistics, and writes
-  plots (the README's main job).
-* ``paper`` reproduces the paper's headline numbers in simulation (Hi5 gain
-  sweep, trajectory, goal integration, simulation section) as tables.
-* ``run CONFIG.toml`` runs one simulated trial and saves its log (``.csv``,
-  ``sensaug.load_log``; docs/logs.md); a trial whose log would not fit in
-  memory (half of what is available, or ``--max-memory GB``) is refused
-  before it runs, naming the fields that make it large.
-* ``rig CONFIG.toml`` runs one trial on the virtual rig.
-* ``preset {hi5,hi5-rig,simulation}`` prints a preset as TOML.
-* ``sweep FILE --grid PATH=V1,V2 --seeds N --out DIR`` runs a grid over seeds
-  (a seed field in the grid is swept; ``--max-memory GB`` as for ``run``).
-* ``figures --out DIR [--quick]`` writes every computational figure of the
-  paper (PNG and PDF, named after its label) and REPORT.md.
-* ``check FILE`` validates a configuration exactly as ``sensaug-rt --check``.
-* ``schema`` prints the configuration's JSON Schema.
-
-``demo`` and ``rig`` print the loopback bus port (``--port N`` to choose it)
-and record the bus into the output folder (``bus.log``, candump's log
-format; ``--no-capture`` to skip), which gets a ``README.txt`` of what each
-file is. ``paper``, ``sweep`` and ``demo`` show progress bars on a terminal
-(stderr), none with ``--quiet``.
+Each subcommand is a function here; ``sensaug --help`` lists them all (from
+the parser itself, so the list cannot go stale) and ``sensaug CMD --help``
+says what one does. Messages name the ``sensaug`` command. Ctrl-C on any
+command is reported as an interruption with exit code 130; the rig reports
+the results of the phases it completed.
 """
 
 from __future__ import annotations
@@ -40,7 +21,19 @@ from sensaug._resources import package_version
 from sensaug.config import ScenarioConfig
 from sensaug.lqr import agent_gains
 
-__all__ = ["main"]
+__all__ = ["main", "EXIT_INTERRUPTED"]
+
+#: Exit code after Ctrl-C (128 + SIGINT, as shells report it).
+EXIT_INTERRUPTED = 130
+
+_DESCRIPTION = """\
+sensaug: human-robot sensory augmentation (partner identification with UKFs
+and goal integration) on a simulated or a real 1-DoF rig.
+
+Start with `sensaug demo` (the Hi5 experiment on the virtual rig) or
+`sensaug paper` (the paper's headline numbers in simulation). Configurations
+are TOML: `sensaug preset hi5 > hi5.toml`, edit, `sensaug check hi5.toml`,
+`sensaug run hi5.toml`. `sensaug CMD --help` explains one command."""
 
 
 def _table(headers: list[str], rows: list[list[str]]) -> str:
@@ -52,10 +45,10 @@ def _table(headers: list[str], rows: list[list[str]]) -> str:
 
 
 def _bar(total: float, desc: str, unit: str, progress: bool | None):
-    """A tqdm progress bar on stderr; ``progress`` None: only on a terminal."""
-    from tqdm.auto import tqdm
+    """A progress bar on stderr; ``progress`` None: only on a terminal (``sensaug._jupyter``)."""
+    from sensaug._jupyter import bar
 
-    return tqdm(total=total, desc=desc, unit=unit, leave=False, disable=None if progress is None else not progress)
+    return bar(total=total, desc=desc, unit=unit, progress=progress, leave=False)
 
 
 def paper(seeds: int, out: Path | None, progress: bool | None = None) -> int:
@@ -75,7 +68,7 @@ def paper(seeds: int, out: Path | None, progress: bool | None = None) -> int:
         )
     )
 
-    print(f"\nStage 1, Hi5: mean estimated virtual-human gains over the last 8 s ({seeds} seeds each)")
+    print(f"\nStage 1, Hi5: the virtual human's gains estimated, mean over the last 8 s ({seeds} seeds each)")
     rows = []
     trials = {}
     bar = _bar(len(presets.HI5_LHH_VALUES) * seeds, "stage 1", "trial", progress)
@@ -98,7 +91,8 @@ def paper(seeds: int, out: Path | None, progress: bool | None = None) -> int:
             ]
         )
     bar.close()
-    print(_table(["true Lhh", "Lhx^", "Lhv^", "Lhh^", "max |Lhh^-Lhh|"], rows))
+    print(_table(["true L_hh", "est. L_hx", "est. L_hv", "est. L_hh", "max |est. L_hh - L_hh|"], rows))
+    print("(L_hx, L_hh in N m/rad, L_hv in N m s/rad: the Hi5 presets' positions are in deg)")
 
     print("\nStage 2, Hi5: partner-trajectory RMSE (after 2 s), % of the 8 deg amplitude")
     rows = []
@@ -153,6 +147,7 @@ def rig_demo(
     out: Path,
     plots: bool,
     *,
+    command: str = "demo",
     port: int | None = None,
     capture: str | None = "bus.log",
     progress: bool | None = None,
@@ -163,7 +158,8 @@ def rig_demo(
     phases = ", ".join(f"{p.kind} {p.duration_s:g} s" for p in config.phases)
     port = rig.bus_port(port)
     drive = _DRIVE_NAMES[config.rig.drive]
-    print(f"sensaug demo: the Hi5 experiment on the virtual rig ({phases})")
+    what = "the Hi5 experiment" if command == "demo" else "one trial"
+    print(f"sensaug {command}: {what} on the virtual rig ({phases})")
     print(f"virtual {drive} drive (Python, python-can) <-> sensaug-rt (Rust, 1 kHz) over the loopback CAN bus")
     print(f"bus: sensaug_udp port {port} (watch it: python -m can.viewer -i sensaug_udp -c {port})")
     print(f"capture: {out / capture} ({rig.capture_format(out / capture)})\n" if capture else "capture: off\n", flush=True)
@@ -174,34 +170,48 @@ def rig_demo(
         also = {f"plot {name}": out / name for name in RIG_PLOTS}
     run = rig.run_virtual_rig(config, out=out, port=port, capture=capture, progress=progress, also_written=also)
     s = run.stats
-    print(f"sensaug-rt: {s['ticks']} ticks, stop: {s['stop_reason']}, exit {run.returncode}; "
-          f"virtual drive exit {run.drive_returncode}\n")
-    reached = {k for k in ("gains", "trajectory", "integration") if (run.log["phase"] == run.log.phase_code(k)).any()}
-    missing = f"not reached (the run stopped: {s['stop_reason']})"
+    ran_s = float(run.log["t"][-1]) + config.plant.dt_s if len(run.log) else 0.0
+    if run.interrupted:
+        print(f"INTERRUPTED by the user (Ctrl-C) after {ran_s:.1f} s of {config.duration_s:g} s; "
+              f"sensaug-rt stopped the drive: {s['stop_reason']}, {s['ticks']} ticks\n")
+    else:
+        print(f"sensaug-rt: {s['ticks']} ticks, stop: {s['stop_reason']}, exit {run.returncode}; "
+              f"virtual drive exit {run.drive_returncode}\n")
+    done = run.completed_phases()
+    why = "interrupted by the user" if run.interrupted else f"the run stopped: {s['stop_reason']}"
+
+    def cut(kind: str) -> str:
+        m = run.log["phase"] == run.log.phase_code(kind)
+        if not m.any():
+            return f"not reached ({why})"
+        return f"cut off after {m.sum() * config.plant.dt_s:.1f} s ({why}); no result from a partial phase"
+
     true = np.array(s["partner_gains_true"])
-    if "gains" in reached:
-        est = run.gain_estimate()
-        print(f"Stage 1: partner gains (mean over the last {config.robot.gain_window_s:g} s of the gain phase)")
-        print(_table(["gain", "true", "estimated", "error"], [
-            [name, f"{t:.4f}", f"{e:.4f}", f"{e - t:+.4f}"] for name, t, e in zip(("Lhx", "Lhv", "Lhh"), true, est)
+    if "gains" in done:
+        window = run.gain_window_s()
+        print(f"Stage 1: partner gains (mean over the last {window:g} s of the gain phase)")
+        units = [run.log.units.get(c, "") for c in ("Lhx_hat", "Lhv_hat", "Lhh_hat")]
+        print(_table(["gain", "unit", "true", "estimated", "error"], [
+            [name, u, f"{t:.4f}", f"{e:.4f}", f"{e - t:+.4f}"]
+            for name, u, t, e in zip(experiment.GAIN_SYMBOLS, units, true, run.gain_estimate())
         ]))
     else:
-        print(f"Stage 1: {missing}")
-    if "trajectory" in reached:
+        print(f"Stage 1: {cut('gains')}")
+    if "trajectory" in done:
         amp = max(abs(sh.amplitude) for sh in config.phases[1].partner_target if hasattr(sh, "amplitude")) if len(config.phases) > 1 else 1.0
         rmse = run.partner_target_rmse()
-        print(f"\nStage 2: partner-target RMSE {rmse:.4f} ({100 * rmse / amp:.2f}% of the {amp:g} amplitude)")
+        unit = run.log.units.get("tau_h_hat", "")
+        print(f"\nStage 2: partner-target RMSE {rmse:.4f} {unit} ({100 * rmse / amp:.2f}% of the {amp:g} {unit} amplitude)")
     else:
-        print(f"\nStage 2: {missing}")
-    if "integration" in reached:
+        print(f"\nStage 2: {cut('trajectory')}")
+    if "integration" in done:
         r = run.integration_rmse()
         noise = config.phases[-1].target_noise_std
-        print(f"\nStage 3: RMSE of the robot's (x - tau) estimate, target-view noise std {noise:g}")
-        print(_table(["measured", "without integration", "with integration", "improvement"], [
-            [f"{r['measured']:.4f}", f"{r['own']:.4f}", f"{r['integrated']:.4f}", f"{r['own'] / r['integrated']:.2f}x"]
-        ]))
+        unit = run.log.units.get("e_meas", "")
+        print(f"\nStage 3: RMSE of the robot's estimate of x - tau ({unit}), target-view noise std {noise:g} {unit}")
+        print(_integration_table(r))
     else:
-        print(f"\nStage 3: {missing}")
+        print(f"\nStage 3: {cut('integration')}")
     print("\nLoop statistics (this machine, this run; no deadline is asserted)")
     rows = [[name, f"{h['p50_us']:.0f}", f"{h['p99_us']:.0f}", f"{h['p999_us']:.0f}", f"{h['max_us']:.0f}"]
             for name, h in (("wake-up latency (us)", s["wake_latency"]), ("tick compute (us)", s["compute"]))]
@@ -216,8 +226,8 @@ def rig_demo(
         print(f"bus capture: {c.frames} frames, {c.dropped_kernel} dropped by the kernel, "
               f"{c.cpu_s:.2f} s CPU in the launcher's capture thread" + (f", ERROR {c.error}" if c.error else ""))
     print(f"\nlog: {out / 'rig_log.csv'} (sensaug.load_log), stats: {out / 'rig_stats.json'}")
-    if plots and len(reached) < 3:
-        print(f"plots: skipped, the run did not reach every phase ({s['stop_reason']})")
+    if plots and len(done) < 3:
+        print(f"plots: skipped, the run did not complete every phase ({why})")
     elif plots:
         from sensaug import plots as pl
 
@@ -226,7 +236,16 @@ def rig_demo(
         run.write_readme(out, {Path(p).name: f"plot of the run: {Path(p).stem.replace('_', ' ')} (PNG)" for p in written})
     print(f"what is in {out}: {out / 'README.txt'}")
     print(f"\ndone in {time.perf_counter() - t_start:.1f} s")
+    if run.interrupted:
+        return EXIT_INTERRUPTED
     return 0 if run.returncode == 0 else 1
+
+
+def _integration_table(r: dict[str, float]) -> str:
+    """The goal-integration RMSEs (``Trial.integration_rmse``) as one table row."""
+    return _table(["measured", "own sensing only", "with goal integration", "improvement"], [
+        [f"{r['measured']:.4f}", f"{r['own']:.4f}", f"{r['integrated']:.4f}", f"{r['own'] / r['integrated']:.2f}x"]
+    ])
 
 
 def _fmt(v) -> str:
@@ -246,14 +265,24 @@ def run_config(path: Path, out: Path | None, max_memory_gb: float | None = None)
     cfg = ScenarioConfig.from_toml(path)
     trial = experiment.run(cfg, memory_budget=_budget(max_memory_gb))
     out = trial.save(out or path.with_suffix(".csv"))
-    print(f"{len(trial)} ticks; summary {trial.summary}; log -> {out}")
+    print(f"sensaug run: {path}, {len(trial)} ticks ({trial.config.duration_s:g} s)\n")
+    table = trial.metrics()
+    print("The paper's metrics (Trial.metrics())")
+    print(table.drop(columns="kind").to_string(index=False, float_format=lambda v: f"{v:.4f}", na_rep=""))
+    print(f"\nlog: {out} (sensaug.load_log)")
     return 0
 
 
 def _grid_values(text: str) -> list[object]:
-    """``0,0.5,true,udp:1`` -> [0, 0.5, True, 'udp:1'] (TOML scalars, else strings)."""
+    """``0,0.5,true`` -> [0, 0.5, True]; ``[1e-2,1e-3],[1e-3,1e-4]`` -> two
+    lists (a list field's values); ``udp:1,udp:2`` -> strings: the text is
+    read as the items of a TOML array, else split at commas (bare strings)."""
     import tomllib
 
+    try:
+        return list(tomllib.loads(f"v = [{text}]")["v"])
+    except tomllib.TOMLDecodeError:
+        pass
     out: list[object] = []
     for item in text.split(","):
         item = item.strip()
@@ -302,20 +331,48 @@ def sweep_command(
         "robot.seed = seed + 1000003, partner.integration.seed = seed + 2000003).\n"
     )
     keys = list(grid)
-    summary = df.groupby(keys)[[c for c in df.columns if c not in (*keys, "seed")]].mean() if keys else df.mean()
-    print(summary.to_string())
+    metrics_cols = [c for c in df.columns if c not in (*keys, "seed")]
+    print(f"sensaug sweep: {config}, {len(df)} trials; mean over seeds 0..{seeds - 1}"
+          + (f" per value of {', '.join(keys)}" if keys else ""))
+    if keys:
+        # A list-valued field (robot.stage1.Q=[...]) groups by its text.
+        view = df.assign(**{k: df[k].map(str) for k in keys if df[k].map(lambda v: isinstance(v, list)).any()})
+        print(view.groupby(keys)[metrics_cols].mean().to_string())
+    else:
+        print(df[metrics_cols].agg(["mean", "std"]).T.to_string())
     print(f"\n{len(df)} trials in {elapsed:.1f} s; results -> {out}")
     return 0
 
 
 def check(path: str) -> int:
-    """``valid`` and 0 for a good file; the first bad field on stderr and 2 otherwise."""
+    """``valid`` and 0 for a good file; the first bad field on stderr and 2
+    otherwise (the file itself is named when its syntax is bad)."""
     try:
         _core.config_check_file(path)
     except _core.ConfigError as e:
         print(e, file=sys.stderr)
         return 2
     print("valid")
+    return 0
+
+
+def docs(page: str | None) -> int:
+    """``sensaug docs``: the pages and their titles; ``sensaug docs NAME``: one page's text."""
+    from sensaug._resources import docs_dir
+
+    folder = docs_dir()
+    pages = {p.stem: p for p in sorted(folder.glob("*.md"))}
+    if page is None:
+        print(f"The docs pages ({folder}); `sensaug docs NAME` prints one:")
+        for name, path in pages.items():
+            title = path.read_text().split("\n", 1)[0].lstrip("# ")
+            print(f"  {name:14s} {title}")
+        return 0
+    name = Path(page).stem  # "logs", "logs.md" and "docs/logs.md" all work
+    if name not in pages:
+        print(f"error: docs: no page {page!r}; the pages are {', '.join(pages)}", file=sys.stderr)
+        return 2
+    sys.stdout.write(pages[name].read_text())
     return 0
 
 
@@ -350,10 +407,16 @@ def _rig_kwargs(args: argparse.Namespace) -> dict:
     return {"port": args.port, "capture": None if args.no_capture else args.capture, "progress": _progress(args)}
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="sensaug", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def build_parser() -> argparse.ArgumentParser:
+    """The ``sensaug`` command's parser: every subcommand, its options and help."""
+    parser = argparse.ArgumentParser(
+        prog="sensaug", description=_DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="Documentation: `sensaug docs` lists the pages that come with the package (messages name them "
+               "docs/NAME.md; `sensaug docs NAME` prints one); in a checkout, bash scripts/build-docs.sh builds "
+               "them with the API reference into a site.",
+    )
     parser.add_argument("--version", action="version", version=f"sensaug {package_version()}")
-    sub = parser.add_subparsers(dest="command", required=True)
+    sub = parser.add_subparsers(dest="command", required=True, title="commands", metavar="COMMAND")
     d = sub.add_parser("demo", help="the Hi5 experiment end to end on the virtual rig")
     d.add_argument("--config", type=Path, default=None, help="TOML (default: the embedded hi5-rig preset)")
     d.add_argument("--out", type=Path, default=Path("out"), help="folder for log, stats, plots (default ./out)")
@@ -397,12 +460,21 @@ def main(argv: list[str] | None = None) -> int:
     c = sub.add_parser("check", help="validate a configuration file exactly as sensaug-rt --check does")
     c.add_argument("config", help="TOML (or .json) configuration file")
     sub.add_parser("schema", help="print the configuration's JSON Schema (fields, units, defaults, bounds)")
+    dc = sub.add_parser("docs", help="list the documentation pages, or print one (docs/NAME.md)")
+    dc.add_argument("page", nargs="?", default=None, help="a page's name, e.g. logs or docs/logs.md")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.command == "check":
         return check(args.config)
     if args.command == "schema":
         print(_core.config_schema())
         return 0
+    if args.command == "docs":
+        return docs(args.page)
     try:
         if args.command == "demo":
             cfg = ScenarioConfig.from_toml(args.config) if args.config else presets.hi5_rig()
@@ -429,10 +501,13 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if args.command == "rig":
             cfg = _with_drive(ScenarioConfig.from_toml(args.config), args)
-            return rig_demo(cfg, args.out, True, **_rig_kwargs(args))
+            return rig_demo(cfg, args.out, True, command="rig", **_rig_kwargs(args))
         cfg = {"hi5": presets.hi5_experiment, "hi5-rig": presets.hi5_rig, "simulation": presets.simulation_section}[args.name]()
         sys.stdout.write(cfg.to_toml())
         return 0
     except (ValueError, FileNotFoundError, RuntimeError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"\nsensaug {args.command}: interrupted by the user (Ctrl-C); results are incomplete", file=sys.stderr)
+        return EXIT_INTERRUPTED

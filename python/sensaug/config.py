@@ -177,6 +177,31 @@ class ScenarioConfig(_ScenarioTables):
         """Length of the protocol (s)."""
         return math.fsum(p.duration_s for p in self.phases)
 
+    def __repr__(self) -> str:
+        """One line: the protocol, the step, the partner; ``to_toml()`` has it all."""
+        phases = ", ".join(f"{p.kind} {p.duration_s:g} s" for p in self.phases)
+        gains = self.partner.gains
+        partner = "partner LQR weights" if gains is None else "partner gains [" + ", ".join(f"{g:g}" for g in gains) + "]"
+        return (
+            f"<ScenarioConfig: {phases}; dt {self.plant.dt_s * 1e3:g} ms, mass {self.plant.mass:g}; "
+            f"{partner}; seed {self.world.seed}>"
+        )
+
+    def _repr_html_(self) -> str:
+        """Jupyter: the phases as a table, the whole TOML (with units) folded."""
+        import html
+
+        rows = "".join(
+            f"<tr><td>{i}</td><td>{p.kind}</td><td>{p.duration_s:g}</td><td>{p.target_noise_std:g}</td></tr>"
+            for i, p in enumerate(self.phases)
+        )
+        return (
+            f"<p>{html.escape(repr(self))}</p>"
+            "<table><tr><th>phase</th><th>kind</th><th>duration (s)</th><th>target noise std</th></tr>"
+            f"{rows}</table><details><summary>TOML (every field, its unit)</summary>"
+            f"<pre>{html.escape(self.to_toml())}</pre></details>"
+        )
+
 
 def check_file(path: str | Path) -> ScenarioConfig:
     """Reads and validates a configuration file (TOML, or JSON by extension),

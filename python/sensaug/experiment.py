@@ -13,14 +13,18 @@ import functools
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Literal, overload
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import pandas
+    from matplotlib.figure import Figure
 
 from sensaug import _core, logs, metrics
 from sensaug.config import ScenarioConfig
 
-__all__ = ["Trial", "run", "trial_memory", "TrialTooLargeError", "FIELDS", "PHASE_KINDS"]
+__all__ = ["Trial", "run", "trial_memory", "TrialTooLargeError", "FIELDS", "PHASE_KINDS", "PLOT_KINDS"]
 
 #: Raised by :func:`run` (and ``sweep``) before a trial whose log would not fit
 #: in memory; a :class:`~sensaug.config.ConfigError`.
@@ -32,6 +36,16 @@ FIELDS: tuple[str, ...] = logs.COLUMNS
 
 #: The phase kinds, in the order of their codes in logs.
 PHASE_KINDS: tuple[str, ...] = ("gains", "trajectory", "integration")
+
+#: What :meth:`Trial.plot` draws.
+PLOT_KINDS: tuple[str, ...] = ("trajectories", "gains", "trajectory", "integration")
+
+#: The partner's gains as the paper writes them: on position, velocity, its target.
+GAIN_SYMBOLS: tuple[str, ...] = ("L_hx", "L_hv", "L_hh")
+
+
+def _fmt(values: Any) -> str:
+    return "[" + ", ".join(f"{v:.4g}" for v in values) + "]"
 
 
 @dataclass(repr=False)
@@ -104,6 +118,67 @@ class Trial(logs.Log):
         """RMSE of the robot's ``(x - tau)^`` against the true ``x - tau`` in an
         integration phase: raw measurement, own sensing only, integrated."""
         return metrics.integration_rmse(self.data, self.phase_mask(self._default(index, "integration"), skip_s=skip_s))
+
+    def metrics(self) -> pandas.DataFrame:
+        """The paper's metrics of every phase, one row each, with its unit and
+        window: the gain estimates (mean over the last 8 s, or the whole
+        phase when shorter), the partner-target RMSE and the goal-integration
+        RMSEs (after the first 2 s, or half the phase when shorter).
+        ``sensaug run`` prints this table."""
+        import pandas as pd
+
+        units = self.units
+        rows: list[dict[str, Any]] = []
+        for i, phase in enumerate(self.config.phases):
+            at = {"phase": i, "kind": phase.kind}
+            if phase.kind == "gains":
+                window = min(8.0, phase.duration_s)
+                est = self.gain_estimate(i, last_s=window)
+                for name, col, true, e in zip(GAIN_SYMBOLS, metrics.GAIN_FIELDS, self.partner_gains, est):
+                    rows.append({**at, "quantity": f"partner gain {name}", "unit": units[col],
+                                 "window": f"last {window:g} s", "true": float(true), "estimate": float(e)})
+                continue
+            skip = min(2.0, phase.duration_s / 2)
+            window = f"after {skip:g} s"
+            if phase.kind == "trajectory":
+                rows.append({**at, "quantity": "RMSE of the partner-target estimate", "unit": units["tau_h_hat"],
+                             "window": window, "true": np.nan, "estimate": self.partner_target_rmse(i, skip_s=skip)})
+            else:
+                r = self.integration_rmse(i, skip_s=skip)
+                for key, what in (("measured", "measured"), ("own", "own sensing only"),
+                                  ("integrated", "with goal integration")):
+                    rows.append({**at, "quantity": f"RMSE of x - tau, {what}", "unit": units["e_meas"],
+                                 "window": window, "true": np.nan, "estimate": r[key]})
+        return pd.DataFrame(rows, columns=["phase", "kind", "quantity", "unit", "window", "true", "estimate"])
+
+    def _repr_html_(self) -> str:
+        import html
+
+        return (
+            f"<p>{html.escape(repr(self))}; partner gains {_fmt(self.partner_gains)}; columns: <code>trial[\"x\"]</code>, "
+            f"plots: <code>trial.plot(kind)</code> ({', '.join(PLOT_KINDS)})</p>"
+            + self.metrics().to_html(index=False, float_format=lambda v: f"{v:.4g}", na_rep="")
+        )
+
+    @overload
+    def plot(self, kind: Literal["all"] = "all") -> list[Figure]: ...
+    @overload
+    def plot(self, kind: Literal["trajectories", "gains", "trajectory", "integration"]) -> Figure: ...
+
+    def plot(self, kind: str = "all") -> Figure | list[Figure]:
+        """The quick-look plots (``sensaug.plots``) as matplotlib Figures:
+        ``"trajectories"``, ``"gains"``, ``"trajectory"``, ``"integration"``
+        (one Figure; the first phase of that kind) or ``"all"`` (a list, one
+        per plot ``sensaug run``, ``paper`` and ``demo`` write). In Jupyter a
+        Figure shows itself; elsewhere ``fig.savefig("x.png")``."""
+        from sensaug import _jupyter, plots
+
+        _jupyter.show_figures_inline()
+        if kind == "all":
+            return plots.trial_figures(self)
+        if kind not in PLOT_KINDS:
+            raise ValueError(f"kind: must be one of {('all', *PLOT_KINDS)}, got {kind!r}")
+        return plots.trial_figure(self, kind)
 
     def _default(self, index: int | None, kind: str) -> int:
         if index is not None:

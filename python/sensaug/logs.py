@@ -17,6 +17,13 @@ implementation independent of the Rust writer's, and raises ``ValueError``
 naming the file and the line at the first that fails. A format-1 log (no
 checksums) still loads, with an :class:`UnverifiedLogWarning` and
 ``log.verified`` False.
+
+The compact option: ``save("trial.parquet")`` writes the same columns and
+metadata as Apache Parquet (pyarrow, zstd; ``pip install "sensaug[parquet]"``),
+about a fifth of the CSV's size, and ``load_log`` reads it back bit for bit.
+Parquet's page checksums (CRC-32) are written and verified on reading.
+The CSV stays the rig's record: it is written line by line and survives a
+crash; a Parquet file is written whole, after the trial.
 """
 
 from __future__ import annotations
@@ -27,14 +34,17 @@ import warnings
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
 
 from sensaug import _core
 
+if TYPE_CHECKING:
+    import pandas
+
 __all__ = [
-    "COLUMNS", "DTYPE", "PHASE_NAMES", "UNITS", "UNKNOWN_INT",
+    "PARQUET_SUFFIX", "COLUMNS", "DTYPE", "PHASE_NAMES", "UNITS", "UNKNOWN_INT",
     "Log", "UnverifiedLogWarning", "from_columns", "from_records", "load_log", "to_json",
 ]  # fmt: skip
 
@@ -102,7 +112,7 @@ class Log:
     end)."""
 
     data: np.ndarray
-    meta: dict
+    meta: dict[str, Any]
     #: Every line's checksum was verified when the file was read (False for
     #: a format-1 log or ``load_log(..., verify=False)``); True for a log
     #: made in memory (a simulated trial).
@@ -120,7 +130,17 @@ class Log:
 
     @property
     def units(self) -> dict[str, str]:
-        """Unit of each column."""
+        """Physical unit of each column (``deg``, ``deg/s``, ``N m/rad``...),
+        from the configuration's ``rig.position_unit`` (``sensaug.units``);
+        ``model_units`` has the schema's symbols (``pos``, ``trq``)."""
+        from sensaug.units import physical, position_unit
+
+        unit = position_unit(self.meta.get("config"))
+        return {name: physical(symbol, unit) for name, symbol in self.model_units.items()}
+
+    @property
+    def model_units(self) -> dict[str, str]:
+        """Each column's unit as the log schema writes it (``pos``, ``trq``, ...)."""
         return {c["name"]: c["unit"] for c in self.meta.get("columns", [])} or dict(UNITS)
 
     @property
@@ -135,7 +155,7 @@ class Log:
             raise ValueError(f"phase: must be one of {names}, got {name!r}")
         return names.index(name)
 
-    def to_pandas(self):
+    def to_pandas(self) -> pandas.DataFrame:
         """A ``pandas.DataFrame`` of the columns (metadata in ``df.attrs``)."""
         try:
             import pandas as pd
@@ -149,7 +169,11 @@ class Log:
         """Writes this log (metadata, rows, end status) with the Rust writer,
         with fresh checksums. A log that was not verified when read keeps
         saying so: its metadata gets ``"unverified_source": true`` and
-        ``load_log`` reads it back unverified, with a warning."""
+        ``load_log`` reads it back unverified, with a warning. A path ending
+        in ``.parquet`` writes the compact Parquet file instead (same
+        columns, types and metadata)."""
+        if Path(path).suffix == PARQUET_SUFFIX:
+            return _save_parquet(self, Path(path))
         meta = {k: v for k, v in self.meta.items() if k != "end"}
         if not self.verified:
             meta["unverified_source"] = True
@@ -358,8 +382,62 @@ def _json_line_unchecked(n: int, line: str) -> dict:
     return _json_object(n, line[2:at] + "}" if at >= 0 else line[1:])
 
 
+#: The file suffix of the compact (Parquet) log.
+PARQUET_SUFFIX = ".parquet"
+#: The Parquet schema-metadata key holding the log's metadata (JSON).
+_PARQUET_META_KEY = b"sensaug.meta"
+_PARQUET_MAGIC = b"PAR1"
+
+
+def _pyarrow():
+    try:
+        import pyarrow
+        import pyarrow.parquet
+    except ImportError:
+        raise ImportError(
+            "Parquet logs need pyarrow: pip install pyarrow (or \"sensaug[parquet]\"); or save as .csv"
+        ) from None
+    return pyarrow
+
+
+def _save_parquet(log: Log, path: Path) -> Path:
+    pa = _pyarrow()
+    meta = dict(log.meta, **({} if log.verified else {"unverified_source": True}))
+    table = pa.table({name: log.data[name] for name in log.columns})
+    table = table.replace_schema_metadata({_PARQUET_META_KEY: to_json(meta).encode()})
+    # Byte-stream split lays each float's bytes out by significance, which
+    # zstd compresses far better than the values themselves (60 s Hi5 trial:
+    # 5.7 MB against 9.3 MB with dictionaries; the CSV is 30 MB).
+    floats = [name for name in log.columns if log.data.dtype[name] == np.float64]
+    pa.parquet.write_table(
+        table, path, compression="zstd", use_dictionary=False, use_byte_stream_split=floats, write_page_checksum=True
+    )
+    return path
+
+
+def _load_parquet(path: Path) -> Log:
+    pa = _pyarrow()
+    try:
+        table = pa.parquet.read_table(path, page_checksum_verification=True)
+    except (OSError, pa.ArrowException) as e:
+        raise ValueError(f"{path}: not a readable Parquet file ({e})") from None
+    raw = (table.schema.metadata or {}).get(_PARQUET_META_KEY)
+    if raw is None:
+        raise ValueError(f"{path}: a Parquet file without sensaug's metadata; not a sensaug log")
+    meta = json.loads(raw)
+    columns = [(c["name"], c["kind"]) for c in meta["columns"]]
+    if table.column_names != [c[0] for c in columns]:
+        raise ValueError(f"{path}: its columns do not match the metadata's")
+    data = np.empty(table.num_rows, dtype=_dtype(columns, _NUMPY))
+    for name, _ in columns:
+        data[name] = table.column(name).to_numpy()
+    return Log(data=data, meta=meta, verified=not meta.get("unverified_source"))
+
+
 def load_log(path: str | Path, *, verify: bool = True, edited_metadata_ok: bool = False) -> Log:
-    """Reads a log file (simulated trial or rig run).
+    """Reads a log file (simulated trial or rig run): the CSV, or the
+    compact Parquet (``Log.save("x.parquet")``), told apart by their first
+    bytes.
 
     Every complete line is read; a partial last line (a killed writer) is
     ignored. Each line's checksum is verified (format 2, ``docs/logs.md``),
@@ -383,11 +461,17 @@ def load_log(path: str | Path, *, verify: bool = True, edited_metadata_ok: bool 
         OSError: the file cannot be read.
     """
     path = Path(path)
-    raw = path.read_bytes()
-    try:
-        log = _read(raw, verify, edited_metadata_ok)
-    except _Corrupt as e:
-        raise ValueError(f"{path}: line {e.line}: {e}") from None
+    with path.open("rb") as f:
+        parquet = f.read(4) == _PARQUET_MAGIC
+    raw = b""
+    if parquet:
+        log = _load_parquet(path)
+    else:
+        raw = path.read_bytes()
+        try:
+            log = _read(raw, verify, edited_metadata_ok)
+        except _Corrupt as e:
+            raise ValueError(f"{path}: line {e.line}: {e}") from None
     if not log.verified:
         if raw.startswith(FORMAT_LINE_V1.encode() + b"\n"):
             why = f"a format-1 log ({FORMAT_LINE_V1!r}), written before checksums; a changed or lost row cannot be detected"

@@ -65,6 +65,8 @@ class RigRun:
     capture: Optional[CaptureStats] = None
     #: File name in the output folder -> one line of what it is (``README.txt``).
     files: dict[str, str] = field(default_factory=dict)
+    #: Whether the user interrupted the run (Ctrl-C); the log holds what ran.
+    interrupted: bool = False
 
     def write_readme(self, out: str | Path, extra: dict[str, str] | None = None) -> Path:
         """``out/README.txt``: this run's files (and ``extra`` ones, e.g. plots)."""
@@ -83,10 +85,30 @@ class RigRun:
             return m & (t > t1 - last_s)
         return m & (t >= t0 + skip_s)
 
+    def gain_window_s(self, last_s: float | None = None) -> float:
+        """The window :meth:`gain_estimate` averages over: ``last_s`` (default
+        the robot's own, ``robot.gain_window_s``), or the whole gain phase
+        when it ran shorter."""
+        t = self.log["t"][self.log["phase"] == self.log.phase_code("gains")]
+        ran = float(t[-1] - t[0]) + self.config.plant.dt_s if len(t) else 0.0
+        return min(last_s or self.config.robot.gain_window_s, ran)
+
     def gain_estimate(self, last_s: float | None = None) -> np.ndarray:
-        """Mean estimated gains over the last ``last_s`` of the gain phase
-        (default: the robot's own window, ``robot.gain_window_s``)."""
-        return metrics.gain_estimate(self.log, self.phase_mask("gains", last_s=last_s or self.config.robot.gain_window_s))
+        """Mean estimated gains over the last :meth:`gain_window_s` of the gain phase."""
+        return metrics.gain_estimate(self.log, self.phase_mask("gains", last_s=self.gain_window_s(last_s)))
+
+    def completed_phases(self) -> list[str]:
+        """The phase kinds the run went through to their end: every tick the
+        configuration gives them is in the log (one tick short allowed: the
+        last tick of a stopped run may be its first stop tick), in order."""
+        dt = self.config.plant.dt_s
+        done = []
+        for kind in ("gains", "trajectory", "integration"):
+            planned = round(sum(p.duration_s for p in self.config.phases if p.kind == kind) / dt)
+            ran = int((self.log["phase"] == self.log.phase_code(kind)).sum())
+            if planned and ran >= planned - 1:
+                done.append(kind)
+        return done
 
     def partner_target_rmse(self, skip_s: float = 2.0) -> float:
         return metrics.partner_target_rmse(self.log, self.phase_mask("trajectory", skip_s=skip_s))
@@ -258,17 +280,31 @@ def run_virtual_rig(
     recorder = BusCapture(port, out / capture).start() if capture else None
     captured: Optional[CaptureStats] = None
     drive: Optional[subprocess.Popen] = None
+    interrupted = False
     try:
         drive = start_drive(port, duration_s=budget + 5.0, drive=cfg.rig.drive,
                             fifo_priority=cfg.rig.realtime.fifo_priority)
         time.sleep(0.5)
         with _ElapsedBar(cfg.duration_s, progress):
-            proc = subprocess.run(
+            proc = subprocess.Popen(
                 [str(binary), str(toml_path), "--can", f"udp:{port}", "--log", str(log_path), "--stats", str(stats_path)],
-                capture_output=True,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
                 text=True,
-                timeout=budget,
             )
+            try:
+                rt_stdout, rt_stderr = proc.communicate(timeout=budget)
+            except KeyboardInterrupt:
+                # Ctrl-C: the terminal sent SIGINT to the whole group; make sure
+                # sensaug-rt has it too, then let it finish its controlled stop
+                # and write its statistics and the log's end line.
+                interrupted = True
+                proc.send_signal(signal.SIGINT)
+                rt_stdout, rt_stderr = proc.communicate(timeout=30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.communicate()
+                raise
     finally:
         if drive is not None:
             stop_process(drive)
@@ -279,10 +315,10 @@ def run_virtual_rig(
     # that reached its loop, saved or not: an older rig_stats.json is never
     # taken for this run's.
     try:
-        stats = json.loads(proc.stdout)
+        stats = json.loads(rt_stdout)
     except json.JSONDecodeError:
-        raise RuntimeError(f"sensaug-rt failed (exit {proc.returncode}): {proc.stderr.strip()}") from None
-    stats_lost = next((ln for ln in proc.stderr.splitlines() if ln.startswith("warning: rig.stats:")), None)
+        raise RuntimeError(f"sensaug-rt failed (exit {proc.returncode}): {rt_stderr.strip()}") from None
+    stats_lost = next((ln for ln in rt_stderr.splitlines() if ln.startswith("warning: rig.stats:")), None)
     files = {
         toml_path.name: "the configuration the run used, resolved (TOML; sensaug.ScenarioConfig.from_toml)",
         log_path.name: "the controller's log, one row per tick (CSV; sensaug.load_log, docs/logs.md)",
@@ -302,8 +338,9 @@ def run_virtual_rig(
         stats=stats,
         returncode=proc.returncode,
         drive_returncode=drive.returncode,
-        stderr=proc.stderr,
+        stderr=rt_stderr,
         port=port,
+        interrupted=interrupted,
         capture=captured,
         files=files,
     )
@@ -318,11 +355,10 @@ class _ElapsedBar:
     def __init__(self, total_s: float, progress: bool | None) -> None:
         import threading
 
-        from tqdm.auto import tqdm
+        from sensaug._jupyter import bar
 
-        self._bar = tqdm(total=round(total_s, 1), desc="rig", unit="s", leave=False,
-                         disable=None if progress is None else not progress,
-                         bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total:.1f} s")
+        self._bar = bar(total=round(total_s, 1), desc="rig", unit="s", progress=progress, leave=False,
+                        bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total:.1f} s")
         self._done = threading.Event()
         self._thread = threading.Thread(target=self._tick, daemon=True)
 

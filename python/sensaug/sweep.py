@@ -38,9 +38,12 @@ import os
 import re
 from collections.abc import Iterable, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, ThreadPoolExecutor, wait
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import pandas
 
 from sensaug import _core, experiment
 from sensaug.config import ConfigError, ScenarioConfig
@@ -99,7 +102,7 @@ def _assign(obj: Any, segs: list[str | int], value: Any, path: str, done: str) -
             obj[head] = value
         return
     if not hasattr(obj, "__dataclass_fields__") or head not in obj.__dataclass_fields__:
-        raise ConfigError(f"{path}: {where} is not a field of the configuration; see `python -m sensaug schema`")
+        raise ConfigError(f"{path}: {where} is not a field of the configuration; see `sensaug schema`")
     if rest:
         child = getattr(obj, head)
         if child is None:
@@ -240,7 +243,7 @@ def sweep(
     progress: bool | None = None,
     workers: int | None = None,
     memory_budget: int | None = None,
-) -> "pandas.DataFrame":  # noqa: F821
+) -> pandas.DataFrame:
     """Runs ``base_config`` at every grid point for every seed.
 
     Arguments:
@@ -254,7 +257,8 @@ def sweep(
         executor: any ``concurrent.futures.Executor`` (e.g. a Dask
             ``distributed.Client(...).get_executor()``); default: a thread pool
             with ``workers`` threads.
-        progress: show a tqdm progress bar (default: when on a terminal).
+        progress: show a progress bar (default: on a terminal, and in
+            Jupyter, as a widget if ipywidgets is installed, else as text).
         workers: threads of the default pool (default: one per core).
         memory_budget: the most bytes the logs of the trials running at once
             may take (default: half of the memory available on this
@@ -274,7 +278,8 @@ def sweep(
             (a ``ConfigError``), before any trial runs.
     """
     import pandas as pd
-    from tqdm.auto import tqdm
+
+    from sensaug._jupyter import bar as progress_bar
 
     points = _points(grid or {})
     seed_list = [int(s) for s in seeds]
@@ -303,7 +308,7 @@ def sweep(
     own = executor is None
     pool = ThreadPoolExecutor(max_workers=min(in_flight, workers or os.cpu_count() or 1)) if own else executor
     try:
-        bar = tqdm(total=len(jobs), desc="sweep", unit="trial", disable=None if progress is None else not progress)
+        bar = progress_bar(total=len(jobs), desc="sweep", unit="trial", progress=progress)
         results = _run_all(pool, tomls, in_flight, memory_budget, bar)
         bar.close()
     finally:

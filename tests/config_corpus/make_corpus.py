@@ -117,12 +117,12 @@ case("valid_json", json.dumps({"phases": [{"kind": "gains", "duration_s": 1.0,
 # --- syntax -------------------------------------------------------------------
 case("syntax_unquoted_url", setting("rig", "can", "udp:47100"), "rig.can")
 case("syntax_double_equals", full({"plant": "mass = = 0.0035\n"}), "plant.mass")
-case("syntax_unclosed_table", full().replace("[plant]", "[plant"), "(config)")
+case("syntax_unclosed_table", full().replace("[plant]", "[plant"), "(file)")
 case("syntax_duplicate_key", full({"plant": "mass = 1.0\nmass = 2.0\n"}), "plant.mass")
 case("syntax_empty_file", "", "phases")
-case("syntax_binary_garbage", "\x00\x01\x02 = ]]", "(config)")
-case("syntax_json_trailing_comma", '{"phases": [],}', "(config)", "json")
-case("syntax_json_not_object", "[1, 2, 3]", "(config)", "json")
+case("syntax_binary_garbage", "\x00\x01\x02 = ]]", "(file)")
+case("syntax_json_trailing_comma", '{"phases": [],}', "(file)", "json")
+case("syntax_json_not_object", "[1, 2, 3]", "(file)", "json")
 
 # --- unknown and missing fields -----------------------------------------------
 case("unknown_root", "foo = 1\n" + full(), "foo")

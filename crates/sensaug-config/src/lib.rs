@@ -62,7 +62,7 @@ pub fn json_schema() -> &'static serde_json::Value {
 
 /// Reads, parses and validates a configuration file. Files over
 /// [`MAX_FILE_BYTES`] are refused before parsing. Errors about the file
-/// itself name it as given.
+/// itself or its syntax name it as given.
 pub fn load_file(path: &Path) -> Result<ScenarioSpec, ConfigError> {
     let name = path.display().to_string();
     let file = std::fs::File::open(path).map_err(|e| {
@@ -92,7 +92,12 @@ pub fn load_file(path: &Path) -> Result<ScenarioSpec, ConfigError> {
             ),
         ));
     }
-    load_str(&text, Format::of_path(path))
+    // An error about the whole text (its syntax, its size) names the file,
+    // not "(config)": the person reading it has a file open.
+    load_str(&text, Format::of_path(path)).map_err(|e| match e.field.as_str() {
+        "(config)" => ConfigError::new(&name, e.message),
+        _ => e,
+    })
 }
 
 /// What both checkers (`sensaug check`, `sensaug-rt --check`) run: the file

@@ -83,8 +83,8 @@ pub fn to_toml(spec: &ScenarioSpec) -> String {
     let mut doc: DocumentMut = plain.parse().expect("toml writes valid TOML");
     let schema = crate::json_schema();
     doc.decor_mut().set_prefix(
-        "# sensaug trial configuration (check it: `python -m sensaug check FILE`;\n\
-         # every field, its unit and bounds: `python -m sensaug schema`).\n",
+        "# sensaug trial configuration (check it: `sensaug check FILE`;\n\
+         # every field, its unit and bounds: `sensaug schema`).\n",
     );
     annotate(schema, schema, doc.as_table_mut());
     doc.to_string()

@@ -29,7 +29,7 @@ use std::sync::Arc;
 #[command(version, about)]
 struct Args {
     /// The trial configuration (TOML, or JSON by extension): the Python API's
-    /// file plus an optional [rig] table. `python -m sensaug schema` prints
+    /// file plus an optional [rig] table. `sensaug schema` prints
     /// every field.
     config: PathBuf,
     /// Validate the configuration and its output paths, print "valid" and
