@@ -18,6 +18,8 @@
   paper (PNG and PDF, named after its label) and REPORT.md.
 * ``check FILE`` validates a configuration exactly as ``sensaug-rt --check``.
 * ``schema`` prints the configuration's JSON Schema.
+* ``export LOG --to mcap`` writes a log as MCAP for Foxglove and PlotJuggler
+  (docs/live.md).
 
 ``demo`` and ``rig`` print the loopback bus port (``--port N`` to choose it)
 and record the bus into the output folder (``bus.log``, candump's log
@@ -397,6 +399,10 @@ def main(argv: list[str] | None = None) -> int:
     c = sub.add_parser("check", help="validate a configuration file exactly as sensaug-rt --check does")
     c.add_argument("config", help="TOML (or .json) configuration file")
     sub.add_parser("schema", help="print the configuration's JSON Schema (fields, units, defaults, bounds)")
+    ex = sub.add_parser("export", help="a log as MCAP for Foxglove and PlotJuggler (docs/live.md)")
+    ex.add_argument("log", type=Path, help="a log file (.csv): simulated trial, rig run or session trial")
+    ex.add_argument("--to", choices=["mcap"], required=True, help="the format (mcap: Foxglove's own format)")
+    ex.add_argument("--out", type=Path, default=None, help="output file (default: the log's path with .mcap)")
     args = parser.parse_args(argv)
     if args.command == "check":
         return check(args.config)
@@ -417,6 +423,12 @@ def main(argv: list[str] | None = None) -> int:
             return sweep_command(
                 args.config, args.grid, args.seeds, args.workers, args.out, _progress(args), args.max_memory
             )
+        if args.command == "export":
+            from sensaug.export import to_mcap
+
+            written = to_mcap(args.log, args.out or args.log.with_suffix(".mcap"))
+            print(f"{args.log} -> {written} (open it in Foxglove or PlotJuggler: docs/live.md)")
+            return 0
         if args.command == "figures":
             import matplotlib
 
