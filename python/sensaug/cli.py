@@ -266,6 +266,28 @@ def _grid_values(text: str) -> list[object]:
     return out
 
 
+def write_results(df, out: Path, sweep_meta: dict) -> tuple[Path, Path]:
+    """A sweep's table as ``results.csv`` and, beside it, ``results.parquet``
+    (pyarrow: typed columns, opens fast in pandas and DuckDB; the grid and
+    seeds in its schema metadata under ``sensaug``). A swept column mixing
+    kinds (numbers and text) is written as text in the Parquet file."""
+    import json
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    csv, parquet = out / "results.csv", out / "results.parquet"
+    df.to_csv(csv, index=False)
+    typed = df.copy()
+    for name in typed.columns[typed.dtypes == object]:
+        if len({type(v) for v in typed[name]}) > 1:
+            typed[name] = typed[name].astype(str)
+    table = pa.Table.from_pandas(typed, preserve_index=False)
+    meta = {**(table.schema.metadata or {}), b"sensaug": json.dumps({**sweep_meta, "version": package_version()}).encode()}
+    pq.write_table(table.replace_schema_metadata(meta), parquet)
+    return csv, parquet
+
+
 def sweep_command(
     config: Path,
     grid_args: list[str],
@@ -293,12 +315,13 @@ def sweep_command(
     df = sweep(base, grid, seeds=range(seeds), progress=progress, workers=workers, memory_budget=_budget(max_memory_gb))
     elapsed = time.perf_counter() - t0
     out.mkdir(parents=True, exist_ok=True)
-    df.to_csv(out / "results.csv", index=False)
+    write_results(df, out, {"grid": grid, "seeds": list(range(seeds))})
     base.to_toml(out / "config.toml")
     (out / "grid.json").write_text(json.dumps({"grid": grid, "seeds": list(range(seeds))}, indent=1) + "\n")
     (out / "README.md").write_text(
         "# sensaug sweep\n\n"
         f"`results.csv`: {len(df)} trials, one row each (swept values, seed, headline metrics);\n"
+        "`results.parquet`: the same table as Parquet (typed columns; pandas.read_parquet, DuckDB);\n"
         "`config.toml`: the base configuration; `grid.json`: the grid and the seeds\n"
         "(each seed sets the seed fields the grid does not: world.seed = seed,\n"
         "robot.seed = seed + 1000003, partner.integration.seed = seed + 2000003).\n"
