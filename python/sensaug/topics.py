@@ -11,15 +11,13 @@ log has as NaN ("not known on this side") is JSON ``null``.
 
 from __future__ import annotations
 
-import json
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from sensaug import logs
 
-__all__ = ["TOPICS", "Topic", "json_schema", "message", "messages", "topic_of"]
+__all__ = ["TOPICS", "Topic", "json_schema", "messages"]
 
 
 @dataclass(frozen=True)
@@ -62,14 +60,6 @@ _KINDS = {"int": "integer", "float": ["number", "null"], "bool": "boolean"}
 _COLUMN_INFO = {c[0]: c for c in logs._SCHEMA["columns"]}
 
 
-def topic_of(column: str) -> Topic:
-    """The topic a column is in."""
-    for topic in TOPICS:
-        if column in topic.columns:
-            return topic
-    raise KeyError(f"column {column!r} is in no topic")
-
-
 def _field(name: str) -> dict:
     _, unit, kind, description = _COLUMN_INFO[name]
     return {"type": _KINDS[kind], "description": f"{description} [{unit}]", "unit": unit}
@@ -83,24 +73,23 @@ def json_schema(topic: Topic, extra: dict[str, dict] | None = None) -> dict:
     return {"title": topic.schema_name, "description": topic.title, "type": "object", "properties": props}
 
 
-def _value(v) -> object:
-    v = v.item()
-    return None if isinstance(v, float) and math.isnan(v) else v
-
-
-def message(row: np.void, topic: Topic) -> dict:
-    """One row's message on a topic (NaN as ``None``)."""
-    return {name: _value(row[name]) for name in ("tick", "t", *topic.columns)}
+def _json_texts(column: np.ndarray) -> list[str]:
+    """Each value of a column as JSON text: floats in their shortest
+    round-trip form (``repr``, as ``json.dumps``), NaN and infinities as
+    ``null``."""
+    kind = column.dtype.kind
+    if kind == "b":
+        return ["true" if v else "false" for v in column.tolist()]
+    if kind in "iu":
+        return list(map(str, column.tolist()))
+    texts = list(map(repr, column.tolist()))
+    return [t if t[-1].isdigit() else "null" for t in texts]  # 'nan', 'inf', '-inf' end in a letter
 
 
 def messages(data: np.ndarray, topic: Topic) -> list[bytes]:
-    """Every row's message on a topic, JSON-encoded (fast path of :func:`message`)."""
+    """Every row's message on a topic, JSON-encoded: the same values as
+    :func:`message`, built column-wise (a 40 000-tick log has 400 000
+    messages)."""
     names = ("tick", "t", *topic.columns)
-    cols = []
-    for name in names:
-        col = data[name].tolist()
-        if data.dtype[name].kind == "f":
-            col = [None if v != v else v for v in col]
-        cols.append(col)
-    dumps = json.JSONEncoder(allow_nan=False, separators=(",", ":")).encode
-    return [dumps(dict(zip(names, values))).encode() for values in zip(*cols)]
+    template = "{" + ",".join(f'"{name}":%s' for name in names) + "}"
+    return [(template % values).encode() for values in zip(*(_json_texts(data[name]) for name in names))]
