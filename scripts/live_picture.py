@@ -53,7 +53,7 @@ def main() -> None:
     out = Path(sys.argv[1]) if len(sys.argv) > 1 else Path("docs/live_view.png")
     phase_s = float(sys.argv[2]) if len(sys.argv) > 2 else 10.0
     cfg = presets.hi5_rig(phase_s=phase_s)
-    cfg.rig.feedback_timeout_ms, cfg.rig.watchdog_ms, cfg.rig.max_stale_feedback_ticks = 300.0, 200, 1000  # a loaded VM
+    cfg.rig.feedback_timeout_ms, cfg.rig.watchdog_ms = 300.0, 200  # the widest: a loaded VM
     with LiveView(feed_port=0, port=0) as view, tempfile.TemporaryDirectory() as tmp:
         view.serve_in_thread()
         client = Client(view.url)
