@@ -6,8 +6,10 @@
 Three kinds of round, each a virtual-rig run of the Hi5 protocol
 (`presets.hi5_rig` with `round_s / 3` s phases: sensaug-rt at 1 kHz, the
 virtual drive; the feedback timeout, watchdog and stale-feedback limit at
-300 ms, 200 ms, 1000 ticks so a stall of the shared machine does not end a
-round early), interleaved A B C C B A ... so a drift in
+300 ms, 200 ms, 1000 ticks so a stall of the shared machine ends fewer
+rounds early — a gap of more than ~100 ticks still makes the estimators
+diverge, docs/safety.md, and the round then stops on estimator errors: the
+table's last column lists every round's stop), interleaved A B C C B A ... so a drift in
 the shared machine's load hits all alike:
 
 - *no viewer*: no `--feed`, no live view;
