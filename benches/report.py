@@ -22,7 +22,9 @@ run on one machine it
 7. compares the loop's wake-up latency with cyclictest in interleaved rounds
    under SCHED_OTHER and SCHED_FIFO, the loop sleeping until each deadline
    and sleeping then spinning 100 us (``benches/loop_jitter.py``),
-8. records the machine (``lscpu``), the date, the load average and the commit.
+8. runs the rig loop with and without the live view (a connected and a
+   stalled Foxglove client) in interleaved rounds (``benches/live_view.py``),
+9. records the machine (``lscpu``), the date, the load average and the commit.
 """
 from __future__ import annotations
 
@@ -40,6 +42,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benches"))
 
 import compare_oracles  # noqa: E402
+import live_view  # noqa: E402
 import loop_jitter  # noqa: E402
 
 HARNESS = ROOT / "target" / "release" / "examples" / "perf_harness"
@@ -299,6 +302,24 @@ def jitter_lines(jitter: dict) -> list[str]:
     return lines + [""]
 
 
+def live_lines(live: dict) -> list[str]:
+    return [
+        "",
+        "## The rig loop with and without the live view",
+        "",
+        f"`benches/live_view.py` (its docstring says what each kind is): {live['rounds']} virtual-rig runs of "
+        f"{live['round_s']:g} s per kind (the Hi5 protocol, 1 kHz, the virtual drive on the loopback bus), "
+        "interleaved A B C C B A; per kind the ticks of its runs pooled. *viewer*: `sensaug-rt --feed` to "
+        "`sensaug live` (its own process, 100 Hz per topic) with a Foxglove WebSocket client reading every "
+        "channel; *stalled viewer*: the client subscribed and never reading. Compute: wake-up to command "
+        "sent (`compute_us`); the loop's tick is the same code in all three (the feed is sent by the log "
+        "writer thread), so any difference is the machine's noise or contention for its 2 CPUs.",
+        "",
+        *live_view.table(live),
+        "",
+    ]
+
+
 def us(ns: float) -> str:
     return f"{ns / 1e3:.2f}"
 
@@ -336,6 +357,7 @@ def main() -> None:
     rig = rig_tick()
     floor = bus_floor()
     jitter = loop_jitter.compare(JITTER_ROUND_S, JITTER_ROUNDS)
+    live = live_view.compare(live_view.ROUND_S, live_view.ROUNDS)
     load_after = load_average()
     m = machine()
 
@@ -439,7 +461,7 @@ def main() -> None:
         f"{trial_peer['median_ns'] / trial['median_ns']:.0f} |",
         "",
     ]
-    lines += rig_lines(rig, floor) + jitter_lines(jitter)
+    lines += rig_lines(rig, floor) + jitter_lines(jitter) + live_lines(live)
     Path(args.out).write_text("\n".join(lines))
     print(f"wrote {args.out}")
 

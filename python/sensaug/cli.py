@@ -10,6 +10,7 @@ the results of the phases it completed.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -151,6 +152,8 @@ def rig_demo(
     port: int | None = None,
     capture: str | None = "bus.log",
     progress: bool | None = None,
+    feed: list[str] | None = None,
+    live: int | None = None,
 ) -> int:
     from sensaug import rig
 
@@ -168,7 +171,20 @@ def rig_demo(
         from sensaug.plots import RIG_PLOTS
 
         also = {f"plot {name}": out / name for name in RIG_PLOTS}
-    run = rig.run_virtual_rig(config, out=out, port=port, capture=capture, progress=progress, also_written=also)
+    feed = list(feed or [])
+    viewer = None
+    if live is not None:
+        from sensaug.live import LiveProcess
+
+        viewer = LiveProcess(port=live)
+        feed.append(viewer.feed_address)
+        print(f"live view: open {viewer.url} in Foxglove (Foxglove WebSocket; layout docs/live_layout.json)", flush=True)
+    try:
+        run = rig.run_virtual_rig(config, out=out, port=port, capture=capture, progress=progress,
+                                  also_written=also, feed=feed)
+    finally:
+        if viewer is not None:
+            viewer.stop()
     s = run.stats
     ran_s = float(run.log["t"][-1]) + config.plant.dt_s if len(run.log) else 0.0
     if run.interrupted:
@@ -293,6 +309,27 @@ def _grid_values(text: str) -> list[object]:
     return out
 
 
+def write_results(df, out: Path, sweep_meta: dict) -> tuple[Path, Path]:
+    """A sweep's table as ``results.csv`` and, beside it, ``results.parquet``
+    (pyarrow: typed columns, opens fast in pandas and DuckDB; the grid and
+    seeds in its schema metadata under ``sensaug``). A swept column mixing
+    kinds (numbers and text) is written as text in the Parquet file."""
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    csv, parquet = out / "results.csv", out / "results.parquet"
+    df.to_csv(csv, index=False)
+    typed = df.copy()
+    for name in typed.columns[typed.dtypes == object]:
+        if len({type(v) for v in typed[name]}) > 1:
+            typed[name] = typed[name].astype(str)
+    table = pa.Table.from_pandas(typed, preserve_index=False)
+    meta = {**(table.schema.metadata or {}), b"sensaug": json.dumps({**sweep_meta, "version": package_version()}).encode()}
+    pq.write_table(table.replace_schema_metadata(meta), parquet)
+    return csv, parquet
+
+
 def sweep_command(
     config: Path,
     grid_args: list[str],
@@ -303,7 +340,6 @@ def sweep_command(
     max_memory_gb: float | None = None,
 ) -> int:
     """``sensaug sweep``: results.csv, the base configuration and the grid in ``out``."""
-    import json
 
     from sensaug.sweep import sweep
 
@@ -320,12 +356,13 @@ def sweep_command(
     df = sweep(base, grid, seeds=range(seeds), progress=progress, workers=workers, memory_budget=_budget(max_memory_gb))
     elapsed = time.perf_counter() - t0
     out.mkdir(parents=True, exist_ok=True)
-    df.to_csv(out / "results.csv", index=False)
+    write_results(df, out, {"grid": grid, "seeds": list(range(seeds))})
     base.to_toml(out / "config.toml")
     (out / "grid.json").write_text(json.dumps({"grid": grid, "seeds": list(range(seeds))}, indent=1) + "\n")
     (out / "README.md").write_text(
         "# sensaug sweep\n\n"
         f"`results.csv`: {len(df)} trials, one row each (swept values, seed, headline metrics);\n"
+        "`results.parquet`: the same table as Parquet (typed columns; pandas.read_parquet, DuckDB);\n"
         "`config.toml`: the base configuration; `grid.json`: the grid and the seeds\n"
         "(each seed sets the seed fields the grid does not: world.seed = seed,\n"
         "robot.seed = seed + 1000003, partner.integration.seed = seed + 2000003).\n"
@@ -389,6 +426,10 @@ def _rig_options(p: argparse.ArgumentParser) -> None:
                    help="bus capture file in --out; the suffix picks the format: .log candump -l (default bus.log), .blf")
     p.add_argument("--no-capture", action="store_true", help="do not record the bus")
     p.add_argument("--quiet", action="store_true", help="no progress bar (it shows only on a terminal anyway)")
+    p.add_argument("--feed", action="append", default=[], metavar="127.0.0.1:PORT",
+                   help="send the run's rows live to this loopback UDP address (repeatable; docs/live.md)")
+    p.add_argument("--live", nargs="?", const=8765, type=int, default=None, metavar="PORT",
+                   help="live view of the run in Foxglove: ws://127.0.0.1:PORT (default 8765; docs/live.md)")
 
 
 def _progress(args: argparse.Namespace) -> bool | None:
@@ -404,7 +445,8 @@ def _with_drive(cfg: ScenarioConfig, args: argparse.Namespace) -> ScenarioConfig
 
 
 def _rig_kwargs(args: argparse.Namespace) -> dict:
-    return {"port": args.port, "capture": None if args.no_capture else args.capture, "progress": _progress(args)}
+    return {"port": args.port, "capture": None if args.no_capture else args.capture, "progress": _progress(args),
+            "feed": args.feed, "live": args.live}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -460,6 +502,19 @@ def build_parser() -> argparse.ArgumentParser:
     c = sub.add_parser("check", help="validate a configuration file exactly as sensaug-rt --check does")
     c.add_argument("config", help="TOML (or .json) configuration file")
     sub.add_parser("schema", help="print the configuration's JSON Schema (fields, units, defaults, bounds)")
+    lv = sub.add_parser("live", help="live view of rig runs in Foxglove, fed by sensaug-rt --feed (docs/live.md)")
+    lv.add_argument("--feed-port", type=int, default=9870, help="loopback UDP port the feed is read on (default 9870)")
+    lv.add_argument("--port", type=int, default=8765, help="Foxglove WebSocket port (default 8765; 0: a free one)")
+    lv.add_argument("--rate", type=float, default=100.0, metavar="HZ",
+                    help="messages per topic per second; each keeps its bin's min and max (default 100)")
+    lv.add_argument("--lan", action="store_true",
+                    help="listen on every interface (the lab network), not only 127.0.0.1")
+    lv.add_argument("--write-layout", type=Path, default=None, metavar="FILE",
+                    help="write the live view's Foxglove layout (JSON) and exit")
+    ex = sub.add_parser("export", help="a log as MCAP for Foxglove and PlotJuggler (docs/live.md)")
+    ex.add_argument("log", type=Path, help="a log file (.csv): simulated trial, rig run or session trial")
+    ex.add_argument("--to", choices=["mcap"], required=True, help="the format (mcap: Foxglove's own format)")
+    ex.add_argument("--out", type=Path, default=None, help="output file (default: the log's path with .mcap)")
     dc = sub.add_parser("docs", help="list the documentation pages, or print one (docs/NAME.md)")
     dc.add_argument("page", nargs="?", default=None, help="a page's name, e.g. logs or docs/logs.md")
     return parser
@@ -489,6 +544,20 @@ def main(argv: list[str] | None = None) -> int:
             return sweep_command(
                 args.config, args.grid, args.seeds, args.workers, args.out, _progress(args), args.max_memory
             )
+        if args.command == "live":
+            from sensaug import live
+
+            if args.write_layout is not None:
+                args.write_layout.write_text(json.dumps(json.loads(live.layout().to_json()), indent=1) + "\n")
+                print(f"layout -> {args.write_layout} (Foxglove: Layout -> Import from file)")
+                return 0
+            return live.serve(args.feed_port, "0.0.0.0" if args.lan else "127.0.0.1", args.port, args.rate)
+        if args.command == "export":
+            from sensaug.export import to_mcap
+
+            written = to_mcap(args.log, args.out or args.log.with_suffix(".mcap"))
+            print(f"{args.log} -> {written} (open it in Foxglove or PlotJuggler: docs/live.md)")
+            return 0
         if args.command == "figures":
             import matplotlib
 

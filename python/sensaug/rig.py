@@ -28,7 +28,7 @@ import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Optional
+from typing import Optional, Sequence
 
 import numpy as np
 
@@ -239,6 +239,7 @@ def run_virtual_rig(
     capture: str | None = "bus.log",
     progress: bool | None = False,
     also_written: dict[str, Path] | None = None,
+    feed: Sequence[str] = (),
 ) -> RigRun:
     """Runs one trial on the virtual rig and returns its log and statistics.
 
@@ -250,7 +251,9 @@ def run_virtual_rig(
     writer: ``.log`` candump's log format, ``.blf``...); None records none.
     ``out/README.txt`` lists what the run wrote. ``progress``: a tqdm bar of
     the protocol's seconds on stderr (None: only on a terminal), drawn by
-    this launcher while it waits, never by the real-time process.
+    this launcher while it waits, never by the real-time process. ``feed``:
+    loopback addresses (``127.0.0.1:PORT``) that get the run's rows live
+    (``sensaug-rt --feed``, ``sensaug.feed``; the live view, a display).
     ``also_written``: files the caller writes into ``out`` afterwards (by
     name, e.g. plots), checked with the run's own before it starts.
 
@@ -287,7 +290,8 @@ def run_virtual_rig(
         time.sleep(0.5)
         with _ElapsedBar(cfg.duration_s, progress):
             proc = subprocess.Popen(
-                [str(binary), str(toml_path), "--can", f"udp:{port}", "--log", str(log_path), "--stats", str(stats_path)],
+                [str(binary), str(toml_path), "--can", f"udp:{port}", "--log", str(log_path), "--stats", str(stats_path),
+                 *(arg for addr in feed for arg in ("--feed", addr))],
                 stdout=subprocess.PIPE,
                 stderr=subprocess.PIPE,
                 text=True,

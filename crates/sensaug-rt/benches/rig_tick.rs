@@ -77,7 +77,7 @@ fn main() {
         Rig::start(settings, drive_link(&settings).unwrap(), transport, robot).expect("drive");
     let dir = std::env::temp_dir().join(format!("sensaug-rig-tick-{port}"));
     let meta = serde_json::json!({"source": "rig"});
-    let (mut sink, writer) = log::start(&dir.join("log.csv"), 1 << 14, &meta).expect("log");
+    let (mut sink, writer) = log::start(&dir.join("log.csv"), 1 << 14, &meta, None).expect("log");
     let pinned = others_free && sensaug_rt::os::pin_to_cpu(loop_cpu).is_ok();
     let reason = rig.run(&mut sink, &AtomicUsize::new(0));
     drop(sink);

@@ -5,6 +5,7 @@
 
 pub mod config;
 pub mod control;
+pub mod feed;
 pub mod log;
 pub mod os;
 pub mod safety;

@@ -26,6 +26,7 @@
 //! but a regular file is ever opened or replaced ([`create_partial`],
 //! [`replace`]; `docs/safety.md`, "Output paths").
 
+use crate::feed::Feed;
 use rtrb::{Consumer, Producer, RingBuffer};
 use sensaug_config::outputs::{create_partial, partial_path, replace};
 use sensaug_core::agent::Guard;
@@ -190,6 +191,7 @@ struct Written {
     stats: WriterStats,
     place: Place,
     sum: Checksum,
+    feed: Option<Feed>,
 }
 
 impl LogWriter {
@@ -197,7 +199,8 @@ impl LogWriter {
     /// written, then appends the end-status line (`end` plus the writer's
     /// counts; skipped after a failed write, which may have left a partial
     /// line) and syncs the file; the file is renamed to its path if no
-    /// record did it.
+    /// record did it. A live feed gets the end status last (its counts are
+    /// in the end line: `feed_datagrams_sent`, `feed_datagrams_dropped`).
     pub fn finish(self, mut end: serde_json::Map<String, serde_json::Value>) -> WriterStats {
         self.done.store(true, Ordering::Release);
         let Written {
@@ -205,6 +208,7 @@ impl LogWriter {
             mut stats,
             mut place,
             mut sum,
+            feed,
         } = match self.handle.join() {
             Ok(r) => r,
             Err(_) => {
@@ -221,6 +225,11 @@ impl LogWriter {
                 .error
                 .get_or_insert(format!("rename to {}: {e}", place.path.display()));
         }
+        if let Some(f) = &feed {
+            let s = f.stats();
+            end.insert("feed_datagrams_sent".into(), s.datagrams_sent.into());
+            end.insert("feed_datagrams_dropped".into(), s.datagrams_dropped.into());
+        }
         if stats.error.is_none() {
             end.insert("records_written".into(), stats.records_written.into());
             end.insert(
@@ -229,11 +238,14 @@ impl LogWriter {
             );
             let mut line = Vec::new();
             // Writing to a Vec cannot fail.
-            let _ = write_footer(&mut line, &serde_json::Value::Object(end), &mut sum);
+            let _ = write_footer(&mut line, &serde_json::Value::Object(end.clone()), &mut sum);
             if let Err(e) = file.write_all(&line).and_then(|()| file.sync_all()) {
                 stats.write_errors += 1;
                 stats.error = Some(format!("end-status line: {e}"));
             }
+        }
+        if let Some(f) = feed {
+            f.finish(&serde_json::Value::Object(end));
         }
         stats
     }
@@ -252,11 +264,12 @@ impl LogWriter {
 
 /// Set-up: creates `<path>.partial` with the metadata and header lines
 /// (`sensaug_log::metadata`), the ring of `capacity` records and the writer
-/// thread.
+/// thread, which also sends every row to `feed` if given (`feed.rs`).
 pub fn start(
     path: &Path,
     capacity: usize,
     meta: &serde_json::Value,
+    feed: Option<Feed>,
 ) -> io::Result<(LogSink, LogWriter)> {
     let mut file = create_partial(path)?;
     let mut head = Vec::new();
@@ -276,7 +289,7 @@ pub fn start(
     };
     let handle = std::thread::Builder::new()
         .name("sensaug-log".into())
-        .spawn(move || write_loop(file, consumer, &flag, &failed_flag, place, sum))?;
+        .spawn(move || write_loop(file, consumer, &flag, &failed_flag, place, sum, feed))?;
     Ok((
         LogSink {
             producer,
@@ -318,7 +331,8 @@ fn touch_every_slot(producer: &mut Producer<LogRecord>, consumer: &mut Consumer<
 /// The writer thread: every [`WRITE_PERIOD`], drain the ring into complete
 /// lines (each with its running checksum, `sum`) and write them to the file
 /// in one call (publishing the file at its path before the first); the
-/// first failure raises `failed`.
+/// first failure raises `failed`. The same rows go to the live feed, one
+/// datagram per pass.
 fn write_loop(
     mut file: File,
     mut consumer: Consumer<LogRecord>,
@@ -326,6 +340,7 @@ fn write_loop(
     failed: &AtomicBool,
     mut place: Place,
     mut sum: Checksum,
+    mut feed: Option<Feed>,
 ) -> Written {
     let mut stats = WriterStats::default();
     let mut lines = Vec::with_capacity(1 << 20);
@@ -335,8 +350,16 @@ fn write_loop(
         let finished = done.load(Ordering::Acquire);
         let mut n = 0u64;
         while let Ok(r) = consumer.pop() {
-            format_row(&r.to_row(), &mut sum, &mut lines);
+            let row = r.to_row();
+            format_row(&row, &mut sum, &mut lines);
+            if let Some(f) = feed.as_mut() {
+                f.push(&row);
+            }
             n += 1;
+        }
+        // The feed first: a display waits for it, the file does not.
+        if let Some(f) = feed.as_mut() {
+            f.flush();
         }
         if n > 0 {
             if stats.error.is_some() {
@@ -361,6 +384,7 @@ fn write_loop(
         stats,
         place,
         sum,
+        feed,
     }
 }
 
@@ -422,7 +446,7 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("sensaug-log-unit-{}", std::process::id()));
         let path = dir.join("log.csv");
         let meta = serde_json::json!({"source": "rig"});
-        let (mut sink, writer) = start(&path, 16, &meta).unwrap();
+        let (mut sink, writer) = start(&path, 16, &meta, None).unwrap();
         for k in 0..40 {
             sink.push(record(k)); // the ring holds 16: some may overflow
         }
@@ -454,7 +478,7 @@ mod tests {
         // replaced; a FIFO there is refused at once (not opened: no block).
         let stale = dir.join("stale.csv");
         std::fs::write(partial_path(&stale), b"stale").unwrap();
-        let (_sink, writer) = start(&stale, 16, &meta).unwrap();
+        let (_sink, writer) = start(&stale, 16, &meta, None).unwrap();
         writer.abandon();
         assert!(!partial_path(&stale).exists());
         let fifo = dir.join("fifo.csv");
@@ -463,14 +487,14 @@ mod tests {
             .status()
             .unwrap();
         assert!(made.success());
-        let e = start(&fifo, 16, &meta).err().unwrap().to_string();
+        let e = start(&fifo, 16, &meta, None).err().unwrap().to_string();
         assert!(e.contains("is a FIFO"), "{e}");
         // A link at `.partial` is not followed.
         let target = dir.join("target");
         std::fs::write(&target, b"keep").unwrap();
         let linked = dir.join("linked.csv");
         std::os::unix::fs::symlink(&target, partial_path(&linked)).unwrap();
-        assert!(start(&linked, 16, &meta).is_err());
+        assert!(start(&linked, 16, &meta, None).is_err());
         assert_eq!(std::fs::read(&target).unwrap(), b"keep");
         // Something not a regular file at the path itself is not replaced.
         let dev = dir.join("dev.csv");
@@ -495,12 +519,12 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         std::fs::write(&path, b"old log\n").unwrap();
         let meta = serde_json::json!({"source": "rig"});
-        let (_sink, writer) = start(&path, 16, &meta).unwrap();
+        let (_sink, writer) = start(&path, 16, &meta, None).unwrap();
         assert!(partial_path(&path).exists());
         writer.abandon();
         assert_eq!(std::fs::read(&path).unwrap(), b"old log\n");
         assert!(!partial_path(&path).exists());
-        let (mut sink, writer) = start(&path, 16, &meta).unwrap();
+        let (mut sink, writer) = start(&path, 16, &meta, None).unwrap();
         sink.push(record(0));
         // The writer publishes the file with the first record.
         let t0 = std::time::Instant::now();
@@ -535,7 +559,7 @@ mod tests {
             path: path.clone(),
             published: false,
         };
-        let written = write_loop(file, consumer, &done, &failed, place, Checksum::new());
+        let written = write_loop(file, consumer, &done, &failed, place, Checksum::new(), None);
         let stats = written.stats;
         let _ = std::fs::remove_dir_all(&dir);
         assert!(failed.load(std::sync::atomic::Ordering::Relaxed));

@@ -15,8 +15,9 @@ use sensaug_config::{load_file, validate, ConfigError, ScenarioSpec};
 use sensaug_core::controller::Robot;
 use sensaug_rt::config::{drive_link, loop_settings};
 use sensaug_rt::control::{LoopSettings, Rig, StartError, StopReason};
-use sensaug_rt::{log, os};
+use sensaug_rt::{feed, log, os};
 use std::io::Write;
+use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::AtomicUsize;
@@ -48,6 +49,11 @@ struct Args {
     /// Override rig.stats (the JSON loop statistics).
     #[arg(long, value_name = "PATH")]
     stats: Option<String>,
+    /// Send every row of the log, live, to this loopback UDP address
+    /// (repeatable: one per subscriber, e.g. the live view and the
+    /// participant's display). Wire format: docs/live.md.
+    #[arg(long, value_name = "127.0.0.1:PORT")]
+    feed: Vec<SocketAddr>,
 }
 
 fn main() -> ExitCode {
@@ -59,6 +65,14 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
+    if let Some(e) = args
+        .feed
+        .iter()
+        .find_map(|a| feed::check_subscriber(*a).err())
+    {
+        eprintln!("{e}");
+        return ExitCode::from(2);
+    }
     if args.check {
         println!("valid");
         return ExitCode::SUCCESS;
@@ -67,7 +81,7 @@ fn main() -> ExitCode {
         println!("{}", sensaug_config::to_json(&spec));
         return ExitCode::SUCCESS;
     }
-    match run(&spec) {
+    match run(&spec, &args.feed) {
         Ok(StopReason::Completed) => ExitCode::SUCCESS,
         Ok(reason) => {
             say(&mut std::io::stderr(), &format!("stopped: {reason}"));
@@ -156,7 +170,7 @@ fn load(args: &Args) -> Result<ScenarioSpec, ConfigError> {
     Ok(spec)
 }
 
-fn run(spec: &ScenarioSpec) -> Result<StopReason, RunError> {
+fn run(spec: &ScenarioSpec, feed_to: &[SocketAddr]) -> Result<StopReason, RunError> {
     let resolved = sensaug_config::resolve(spec).map_err(|e| e.to_string())?;
     let settings = loop_settings(&resolved).map_err(|e| e.to_string())?;
     let robot = Robot::new(resolved.robot, resolved.protocol()).map_err(|_| {
@@ -186,9 +200,16 @@ fn run(spec: &ScenarioSpec) -> Result<StopReason, RunError> {
     // The log writer thread inherits this thread's affinity: keep it off
     // the loop's CPU (the loop pins itself to it below).
     let writer_off_cpu = rig.realtime.cpu.map(|cpu| os::avoid_cpu(cpu as usize));
+    let feed = match feed_to {
+        [] => None,
+        to => {
+            let start = meta["start_unix_s"].as_f64().unwrap_or(0.0);
+            Some(feed::Feed::open(to, start).map_err(|e| e.to_string())?)
+        }
+    };
     // Both outputs exist (as `.partial`) before the drive is enabled.
-    let (mut sink, writer) =
-        log::start(&log_path, rig.ring_capacity as usize, &meta).map_err(|e| {
+    let (mut sink, writer) = log::start(&log_path, rig.ring_capacity as usize, &meta, feed)
+        .map_err(|e| {
             format!(
                 "rig.log: cannot write {}: {e}; choose a writable path (--log)",
                 partial_path(&log_path).display()

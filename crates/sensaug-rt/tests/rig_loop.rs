@@ -77,7 +77,7 @@ fn run_loop(answer_for: u64, stop_after: Option<Duration>, spin_us: u32) -> Outc
     let mut rig = Rig::start(settings, drive_link(&settings).unwrap(), transport, robot).unwrap();
     let dir = std::env::temp_dir().join(format!("sensaug-rt-test-{port}"));
     let meta = serde_json::json!({"source": "rig"});
-    let (mut sink, writer) = log::start(&dir.join("log.csv"), 1 << 14, &meta).unwrap();
+    let (mut sink, writer) = log::start(&dir.join("log.csv"), 1 << 14, &meta, None).unwrap();
     let stop = Arc::new(AtomicUsize::new(0));
     if let Some(after) = stop_after {
         let s = Arc::clone(&stop);
