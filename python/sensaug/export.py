@@ -100,7 +100,7 @@ def to_mcap(log: Log | str | Path, out: str | Path) -> Path:
     try:
         channels = {}
         for topic in (*topics.TOPICS, None):
-            name, schema = (RUN_TOPIC, RUN_SCHEMA) if topic is None else (topic.name, topics.json_schema(topic))
+            name, schema = (RUN_TOPIC, RUN_SCHEMA) if topic is None else (topic.name, topics.json_schema(topic, units=log.units))
             units = {k: p["unit"] for k, p in schema["properties"].items() if "unit" in p}
             channels[name] = foxglove.Channel(name, schema=schema, context=ctx, metadata={"units": json.dumps(units)})
         for topic in topics.TOPICS:

@@ -60,15 +60,18 @@ _KINDS = {"int": "integer", "float": ["number", "null"], "bool": "boolean"}
 _COLUMN_INFO = {c[0]: c for c in logs._SCHEMA["columns"]}
 
 
-def _field(name: str) -> dict:
+def _field(name: str, units: dict[str, str] | None = None) -> dict:
     _, unit, kind, description = _COLUMN_INFO[name]
+    unit = (units or {}).get(name, unit)
     return {"type": _KINDS[kind], "description": f"{description} [{unit}]", "unit": unit}
 
 
-def json_schema(topic: Topic, extra: dict[str, dict] | None = None) -> dict:
+def json_schema(topic: Topic, extra: dict[str, dict] | None = None, units: dict[str, str] | None = None) -> dict:
     """The JSON Schema of a topic's messages (``tick``, ``t`` and its columns,
-    each with its unit), plus ``extra`` properties."""
-    props = {name: _field(name) for name in ("tick", "t", *topic.columns)}
+    each with its unit: from ``units`` when given, e.g. a log's physical
+    :attr:`~sensaug.Log.units`, else the log schema's symbols), plus
+    ``extra`` properties."""
+    props = {name: _field(name, units) for name in ("tick", "t", *topic.columns)}
     props.update(extra or {})
     return {"title": topic.schema_name, "description": topic.title, "type": "object", "properties": props}
 
