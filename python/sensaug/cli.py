@@ -168,7 +168,17 @@ def rig_demo(
         from sensaug.plots import RIG_PLOTS
 
         also = {f"plot {name}": out / name for name in RIG_PLOTS}
-    run = rig.run_virtual_rig(config, out=out, port=port, capture=capture, progress=progress, also_written=also)
+    screen = None
+    if config.display.enabled:
+        from sensaug.display import DisplayProcess
+
+        screen = DisplayProcess(config, workdir=out)
+    try:
+        run = rig.run_virtual_rig(config, out=out, port=port, capture=capture, progress=progress, also_written=also,
+                                  display=screen)
+    finally:
+        if screen is not None:
+            screen.close()
     s = run.stats
     ran_s = float(run.log["t"][-1]) + config.plant.dt_s if len(run.log) else 0.0
     if run.interrupted:
@@ -225,6 +235,12 @@ def rig_demo(
         c = run.capture
         print(f"bus capture: {c.frames} frames, {c.dropped_kernel} dropped by the kernel, "
               f"{c.cpu_s:.2f} s CPU in the launcher's capture thread" + (f", ERROR {c.error}" if c.error else ""))
+    if run.display is not None:
+        dsp = run.display
+        lat = (f"tick-to-swap latency p50 {dsp['latency_p50_ms']:.1f} ms, p99 {dsp['latency_p99_ms']:.1f} ms"
+               if "latency_p50_ms" in dsp else "tick-to-swap latency unknown")
+        print(f"display: {dsp['frames']} frames, {dsp['dropped']} dropped, {lat}"
+              + (f"; {dsp['event']}" + (", the loop was stopped" if dsp["stopped_loop"] else "") if dsp["event"] else ""))
     print(f"\nlog: {out / 'rig_log.csv'} (sensaug.load_log), stats: {out / 'rig_stats.json'}")
     if plots and len(done) < 3:
         print(f"plots: skipped, the run did not complete every phase ({why})")
@@ -347,8 +363,11 @@ def sweep_command(
 def check(path: str) -> int:
     """``valid`` and 0 for a good file; the first bad field on stderr and 2
     otherwise (the file itself is named when its syntax is bad)."""
+    from sensaug.session import check_plan
+
     try:
         _core.config_check_file(path)
+        check_plan(path)
     except _core.ConfigError as e:
         print(e, file=sys.stderr)
         return 2
@@ -460,6 +479,13 @@ def build_parser() -> argparse.ArgumentParser:
     c = sub.add_parser("check", help="validate a configuration file exactly as sensaug-rt --check does")
     c.add_argument("config", help="TOML (or .json) configuration file")
     sub.add_parser("schema", help="print the configuration's JSON Schema (fields, units, defaults, bounds)")
+    se = sub.add_parser("session", help="run a participant's blocks of trials from a plan (docs/person.md)")
+    se.add_argument("plan", type=Path, help="the plan: a trial configuration with a [session] table (TOML)")
+    se.add_argument("--participant", required=True, help="participant id with a number (P01): the folder and the block order")
+    se.add_argument("--resume", action="store_true", help="continue the participant's session at its first unfinished trial")
+    se.add_argument("--out", type=Path, default=Path("sessions"), help="folder of participant folders (default ./sessions)")
+    se.add_argument("--no-display", action="store_true", help="no display (only with the virtual human)")
+    sub.add_parser("display", add_help=False, help="the participant's display alone (sensaug display --help)")
     dc = sub.add_parser("docs", help="list the documentation pages, or print one (docs/NAME.md)")
     dc.add_argument("page", nargs="?", default=None, help="a page's name, e.g. logs or docs/logs.md")
     return parser
@@ -467,6 +493,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
+    if argv is None:
+        argv = sys.argv[1:]
+    if argv[:1] == ["display"]:
+        from sensaug import display
+
+        return display.main(argv[1:])
     args = parser.parse_args(argv)
     if args.command == "check":
         return check(args.config)
@@ -502,6 +534,14 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "rig":
             cfg = _with_drive(ScenarioConfig.from_toml(args.config), args)
             return rig_demo(cfg, args.out, True, command="rig", **_rig_kwargs(args))
+        if args.command == "session":
+            from sensaug.session import load_session, run_session
+
+            folder = run_session(args.plan, args.participant, out=args.out, resume=args.resume,
+                                 display=False if args.no_display else None)
+            written = load_session(folder).plot_blocks(folder / "figures")
+            print(f"session: {folder} (manifest.csv; sensaug.load_session); figures: {', '.join(str(p) for p in written)}")
+            return 0
         cfg = {"hi5": presets.hi5_experiment, "hi5-rig": presets.hi5_rig, "simulation": presets.simulation_section}[args.name]()
         sys.stdout.write(cfg.to_toml())
         return 0
