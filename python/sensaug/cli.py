@@ -485,6 +485,8 @@ def build_parser() -> argparse.ArgumentParser:
     se.add_argument("--resume", action="store_true", help="continue the participant's session at its first unfinished trial")
     se.add_argument("--out", type=Path, default=Path("sessions"), help="folder of participant folders (default ./sessions)")
     se.add_argument("--no-display", action="store_true", help="no display (only with the virtual human)")
+    se.add_argument("--simulate", action="store_true",
+                    help="simulate every trial (the virtual human; a rehearsal of the plan, minutes not hours)")
     sub.add_parser("display", add_help=False, help="the participant's display alone (sensaug display --help)")
     dc = sub.add_parser("docs", help="list the documentation pages, or print one (docs/NAME.md)")
     dc.add_argument("page", nargs="?", default=None, help="a page's name, e.g. logs or docs/logs.md")
@@ -538,8 +540,10 @@ def main(argv: list[str] | None = None) -> int:
             from sensaug.session import load_session, run_session
 
             folder = run_session(args.plan, args.participant, out=args.out, resume=args.resume,
-                                 display=False if args.no_display else None)
-            written = load_session(folder).plot_blocks(folder / "figures")
+                                 display=False if args.no_display or args.simulate else None, simulate=args.simulate)
+            loaded = load_session(folder)
+            written = loaded.plot_blocks(folder / "figures")
+            print(loaded.summary().to_string(float_format=lambda v: f"{v:.4f}"))
             print(f"session: {folder} (manifest.csv; sensaug.load_session); figures: {', '.join(str(p) for p in written)}")
             return 0
         cfg = {"hi5": presets.hi5_experiment, "hi5-rig": presets.hi5_rig, "simulation": presets.simulation_section}[args.name]()

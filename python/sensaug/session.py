@@ -49,7 +49,7 @@ __all__ = ["Session", "SessionTrial", "block_order", "expand", "latin_square", "
 MANIFEST_FIELDS = (
     "trial", "block", "index", "practice", "round", "attempt", "condition", "seed", "start_utc", "folder",
     "stop_reason", "finished", "Lhx_hat", "Lhv_hat", "Lhh_hat", "Lhh_var", "tau_h_rmse", "rmse_measured",
-    "rmse_own", "rmse_integrated", "truth_Lhh", "display_frames", "display_dropped", "display_latency_p50_ms",
+    "rmse_own", "rmse_integrated", "estimator_errors", "truth_Lhh", "display_frames", "display_dropped", "display_latency_p50_ms",
     "display_latency_p99_ms", "display_event",
 )
 #: Stop reasons of a finished trial.
@@ -204,7 +204,8 @@ def _metrics_rig(run) -> dict:
         if kind == "gains":
             g = run.gain_estimate()
             m = run.phase_mask("gains", last_s=run.config.robot.gain_window_s)
-            out.update(Lhx_hat=g[0], Lhv_hat=g[1], Lhh_hat=g[2], Lhh_var=float(np.nanmean(log["Lhh_var"][m])))
+            var = log["Lhh_var"][m]
+            out.update(Lhx_hat=g[0], Lhv_hat=g[1], Lhh_hat=g[2], Lhh_var=float(var.mean()) if len(var) else math.nan)
         elif kind == "trajectory":
             out["tau_h_rmse"] = run.partner_target_rmse(skip_s=min(2.0, _phase_s(run.config, kind) / 2))
         else:
@@ -227,6 +228,7 @@ class Session:
         self.folder = Path(out) / participant
         self.trials = expand(self.plan, participant)
         self.manifest = self.folder / "manifest.csv"
+        self.simulated = False
 
     def create(self, resume: bool) -> None:
         if self.manifest.exists() or (self.folder / "session.json").exists():
@@ -247,6 +249,7 @@ class Session:
             "participant": self.participant, "participant_number": participant_number(self.participant),
             "blocks": [self.plan.session.blocks[i].name for i in order], "order": how,
             "plan_sha": _sha(self.plan_path), "created_utc": _now(),
+            "trials_run": "simulated" if not self.plan.session.rig else "virtual rig (sensaug-rt)",
             "trials": [{"trial": t.trial, "block": t.block, "index": t.index, "practice": t.practice,
                         "seed": t.seed, "condition": t.condition} for t in self.trials],
         }
@@ -301,6 +304,7 @@ def run_session(
     out: str | Path = "sessions",
     resume: bool = False,
     display: Optional[bool] = None,
+    simulate: bool = False,
     progress: Callable[[str], None] = print,
 ) -> Path:
     """Runs (or resumes) a participant's session; the participant's folder.
@@ -310,12 +314,24 @@ def run_session(
     practice repeats on R, the questionnaire takes digit keys. With the
     virtual human the session runs unattended (no rests, no questionnaire,
     an aborted trial re-run up to :data:`MAX_ATTEMPTS` times).
+    ``simulate``: every trial simulated, whatever ``session.rig`` says
+    (recorded in session.json).
     """
     s = Session(plan_path, participant, out)
+    if simulate:
+        if not s.plan.rig.virtual_human:
+            raise ValueError("--simulate: the plan has a person at the handle (rig.virtual_human = false); "
+                             "a simulation needs the virtual human")
+        s.plan.session.rig = False
+        s.simulated = True
     s.create(resume)
     lost = s.recover() if resume else []
     for name in lost:
         progress(f"resume: {name} was interrupted; its trial runs again as a new attempt")
+    ran = json.loads((s.folder / "session.json").read_text())["trials_run"]
+    if s.simulated != (ran == "simulated"):
+        raise ValueError(f"--simulate: this session's trials ran {ran}; resume it "
+                         + ("without --simulate" if s.simulated else "with --simulate"))
     person = not s.plan.rig.virtual_human
     use_display = s.plan.display.enabled if display is None else display
     if person and not use_display:
@@ -423,7 +439,7 @@ def _run_trial(s: Session, t: SessionTrial, rnd: int, attempt: int, screen, prog
         "trial": t.trial, "block": t.block, "index": t.index, "practice": int(t.practice), "round": rnd,
         "attempt": attempt, "condition": json.dumps(t.condition), "seed": t.seed, "start_utc": start, "folder": rel,
     }
-    if s.plan.session.rig:
+    if s.plan.session.rig and not s.simulated:
         from sensaug.rig import run_virtual_rig
 
         run = run_virtual_rig(t.config, out=folder, display=screen)
@@ -468,6 +484,20 @@ class LoadedSession:
     def finished(self):
         return self.manifest[self.manifest["finished"] == 1]
 
+    def summary(self):
+        """Per block (in run order): finished trials, the mean and std of the
+        headline metrics; the virtual human's Lhh where there is one (never
+        with a person at the handle)."""
+        df = self.finished()
+        cols = [c for c in ("Lhh_hat", "tau_h_rmse", "rmse_own", "rmse_integrated", "truth_Lhh",
+                            "display_latency_p99_ms") if c in df and df[c].notna().any()]
+        g = df.groupby("block", sort=False)
+        out = g[cols].mean()
+        if "Lhh_hat" in cols:
+            out.insert(1, "Lhh_hat_std", g["Lhh_hat"].std())
+        out.insert(0, "trials", g.size())
+        return out
+
     def log(self, trial: int):
         from sensaug.logs import load_log
 
@@ -488,6 +518,7 @@ class LoadedSession:
     def plot_blocks(self, out: str | Path) -> list[Path]:
         """One PNG per block: each finished trial's headline metrics."""
         import matplotlib.pyplot as plt
+        from matplotlib.ticker import MaxNLocator
 
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
@@ -500,11 +531,12 @@ class LoadedSession:
             fig, axes = plt.subplots(1, len(cols), figsize=(4 * len(cols), 3.2), squeeze=False)
             for ax, c in zip(axes[0], cols):
                 ax.plot(g["index"] + 1, g[c], "o-")
+                ax.xaxis.set_major_locator(MaxNLocator(integer=True))
                 if c == "Lhh_hat" and g["truth_Lhh"].notna().any():
                     ax.axhline(g["truth_Lhh"].iloc[0], color="k", ls="--", lw=1, label="virtual human's Lhh")
                     ax.legend(fontsize=8)
                 ax.set_xlabel("trial in block")
-                ax.set_ylabel({"Lhh_hat": "Lhh^ (N m/deg model units)", "tau_h_rmse": "partner-target RMSE (deg)",
+                ax.set_ylabel({"Lhh_hat": "Lhh^ (trq/deg, docs/model.md)", "tau_h_rmse": "partner-target RMSE (deg)",
                                "rmse_own": "(x - tau)^ RMSE own (deg)", "rmse_integrated": "(x - tau)^ RMSE integrated (deg)"}[c])
             fig.suptitle(f"{self.info['participant']}: block {block}")
             fig.tight_layout()
