@@ -11,10 +11,11 @@ cargo test --workspace --release
 # tests/test_capture.py; a fresh machine has it only after test-socketcan.sh
 # below installed it, so install it first (CI runs as root).
 # Xvfb (an X server without a screen; Mesa's llvmpipe renders OpenGL) runs
-# the participant's display in tests/test_person.py.
-if { ! command -v log2asc > /dev/null || ! command -v xvfb-run > /dev/null; } && [ "$(id -u)" = 0 ]; then
+# the participant's display in tests/test_display.py; xdotool presses its keys.
+if { ! command -v log2asc > /dev/null || ! command -v xvfb-run > /dev/null || ! command -v xdotool > /dev/null; } \
+    && [ "$(id -u)" = 0 ]; then
     apt-get update -q > /dev/null
-    DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends can-utils xvfb xauth \
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends can-utils xvfb xauth xdotool \
         libgl1-mesa-dri libglu1-mesa > /dev/null
 fi
 .venv/bin/python -m pytest -q -rs tests

@@ -18,6 +18,8 @@ from PIL import Image
 
 from sensaug import presets
 from sensaug.display import CURSOR_RGB, TARGET_RGB, load_display_log, visual_dots
+from sensaug.logs import load_log
+from sensaug.session import load_session
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -216,3 +218,94 @@ def test_a_frozen_display_costs_the_loop_nothing(tmp_path):
     assert res["ticks"] == 6000
     assert res["display"]["event"] == "display frozen"
     assert res["display"]["stopped_loop"] is False
+
+
+def test_a_session_with_a_person_waits_for_keys_and_esc_stops_a_trial(tmp_path):
+    """The template plan reduced (practice + one block, 2 s phases) with a
+    person at the handle (rig.virtual_human = false), keys pressed in the
+    Xvfb window with xdotool: SPACE starts, R repeats the practice, Esc mid-
+    trial stops it with the loop's controlled stop, SPACE re-runs it, a digit
+    answers the questionnaire. The manifest has every attempt and no truth."""
+    if shutil.which("xdotool") is None:
+        pytest.fail("xdotool is missing: install Debian's xdotool (scripts/test.sh does, as root)")
+    text = (ROOT / "configs" / "session_template.toml").read_text()
+    for a, b in [("duration_s = 10.0", "duration_s = 2.0"), ("gain_window_s = 4.0", "gain_window_s = 1.0"),
+                 ("rest_s = 60.0", "rest_s = 1.0"), ("fullscreen = true", "fullscreen = false"),
+                 ("width_px = 1280", "width_px = 640"), ("height_px = 720", "height_px = 360"),
+                 ('order = "latin_square"', 'order = "fixed"'), ("freeze_timeout_ms = 250.0", "freeze_timeout_ms = 1000.0")]:
+        assert a in text, a
+        text = text.replace(a, b)
+    text = text.replace("trials = 5", "trials = 1").replace("trials = 2\npractice", "trials = 1\npractice")
+    text = text[: text.index('[[session.blocks]]\nname = "sv0_5_noise2_0"')]
+    text = text[: text.index("questionnaire = [")] + 'questionnaire = ["Help? (1-7)"]\n\n' + text[text.index("[[session.blocks]]"):]
+    (tmp_path / "plan.toml").write_text(text)
+    res = xvfb(f"""
+        import json, subprocess, threading, time
+        from pathlib import Path
+        from sensaug.session import run_session
+
+        folder = Path("sessions/P01")
+        def rows():
+            m = folder / "manifest.csv"
+            return len(m.read_text().splitlines()) - 1 if m.exists() else 0
+        def until(cond, what, timeout=60):
+            t0 = time.monotonic()
+            while not cond():
+                assert time.monotonic() - t0 < timeout, what
+                time.sleep(0.05)
+            time.sleep(0.5)  # the session shows its next prompt
+        def key(name):
+            win = subprocess.run(["xdotool", "search", "--name", "sensaug"], capture_output=True, text=True).stdout.split()
+            subprocess.run(["xdotool", "mousemove", "--window", win[0], "20", "20"], check=True)
+            subprocess.run(["xdotool", "key", name], check=True)
+        events = {{}}
+        def person():
+            # Answers each prompt the session shows (sessions/P01/prompts.csv) as a participant would.
+            seen, practice_done, escaped = 0, 0, False
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 200:
+                path = folder / "prompts.csv"
+                lines = path.read_text().splitlines() if path.exists() else []
+                for line in lines[seen:]:
+                    text = line.split(",", 2)[2].strip('"')
+                    time.sleep(0.3)
+                    if "Press SPACE to start" in text or text.startswith("Trial stopped"):
+                        key("space")
+                    elif text.startswith("Practice done"):
+                        practice_done += 1
+                        key("r" if practice_done == 1 else "space")
+                    elif "(press 1-7)" in text:
+                        key("5")
+                    elif text.startswith("(trial trials/001_") and not escaped:
+                        time.sleep(1.0)
+                        events["esc_ns"] = time.monotonic_ns()
+                        key("Escape")
+                        escaped = True
+                    elif text.startswith("Thank you"):
+                        return
+                seen = len(lines)
+                time.sleep(0.05)
+        threading.Thread(target=person, daemon=True).start()
+        run_session("plan.toml", "P01", out="sessions", progress=lambda _: None)
+        print(json.dumps(events))
+    """, tmp_path, timeout=240)
+    s = load_session(tmp_path / "sessions" / "P01")
+    df = s.manifest
+    # (A loaded machine may add attempts the loop stopped itself: each re-run on SPACE.)
+    done = s.finished()
+    assert list(done["block"]) == ["practice", "practice", "sv0_5_noise0_5"], df
+    assert list(done["round"]) == [0, 1, 0]
+    esc = df[df["stop_reason"] == "escape"]
+    assert len(esc) == 1 and esc["block"].iloc[0] == "sv0_5_noise0_5" and esc["finished"].iloc[0] == 0, df
+    assert df["truth_Lhh"].isna().all(), "no truth with a person at the handle"
+    stopped = json.loads((tmp_path / "sessions" / "P01" / esc["folder"].iloc[0] / "rig_stats.json").read_text())
+    assert "SIGTERM" in stopped["stop_reason"] and "drive disabled" in stopped["stop_reason"]
+    q = (tmp_path / "sessions" / "P01" / "questionnaire.csv").read_text().splitlines()
+    assert q[1].split(",")[:3] == ["sv0_5_noise0_5", "Help? (1-7)", "5"]
+    log = s.log(int(done["trial"].iloc[-1]))
+    last_tick_ns = stopped["start"]["tick0_monotonic_ns"] + int(
+        load_log(tmp_path / "sessions" / "P01" / esc["folder"].iloc[0] / "rig_log.csv")["tick"][-1]) * 1_000_000
+    esc_to_safe_ms = (last_tick_ns - res["esc_ns"]) / 1e6
+    print(f"Esc pressed -> the loop's last tick: {esc_to_safe_ms:.0f} ms")
+    assert 0 < esc_to_safe_ms < 500, esc_to_safe_ms
+    assert log.complete

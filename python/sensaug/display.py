@@ -426,7 +426,7 @@ def run_display(cfg: ScenarioConfig, *, control_port: int = 0, reply_port: int =
     cmd = Command(prompt=prompt, sigma_v=d.sigma_v, seed=d.seed,
                   noisy_phases=noisy_phases(cfg))
     log: Optional[DisplayLog] = None
-    if source is not None and display_log is not None:
+    if display_log is not None:
         log = _open_log(display_log, cfg, geom, cmd, win)
     frame, dropped_total = 0, 0
     shots_rel = screenshots if control_port and screenshots is not None else None

@@ -352,17 +352,27 @@ def run_session(
     return s.folder
 
 
-def _show(screen, text: str) -> None:
-    if screen is not None:
-        from sensaug.display import Command
+def _show(screen, text: str, folder: Optional[Path] = None) -> None:
+    """Shows a prompt and records it (``prompts.csv``: UTC, CLOCK_MONOTONIC ns, text)."""
+    if screen is None:
+        return
+    from sensaug.display import Command
 
-        screen.show(Command(prompt=text))
+    screen.show(Command(prompt=text))
+    if folder is not None:
+        _record_prompt(folder, text)
+
+
+def _record_prompt(folder: Path, text: str) -> None:
+    with open(folder / "prompts.csv", "a", newline="") as f:
+        csv.writer(f).writerow([_now(), time.monotonic_ns(), text])
 
 
 def _run_trials(s: Session, screen, person: bool, progress: Callable[[str], None]) -> None:
     rows = s.rows()
     finished = {int(r["trial"]) for r in rows if r["finished"] == "1"}
     attempts: dict[int, int] = {}
+    tries: dict[int, int] = {}  # attempts in this invocation (MAX_ATTEMPTS)
     rounds: dict[str, int] = {}
     for r in rows:
         attempts[int(r["trial"])] = max(attempts.get(int(r["trial"]), 0), int(r["attempt"]))
@@ -378,38 +388,41 @@ def _run_trials(s: Session, screen, person: bool, progress: Callable[[str], None
         while True:
             todo = [t for t in trials if t.trial not in finished] if rnd == rounds.get(name, 0) else list(trials)
             for t in todo:
+                start_key = person
                 while True:
                     attempts[t.trial] = attempts.get(t.trial, 0) + 1
-                    if person:
-                        _show(screen, f"{name}: trial {t.index + 1} of {len(trials)}. Press SPACE to start.")
+                    tries[t.trial] = tries.get(t.trial, 0) + 1
+                    if start_key:
+                        _show(screen, f"{name}: trial {t.index + 1} of {len(trials)}. Press SPACE to start.", s.folder)
                         if screen.wait_key({"space"}) is None:
-                            raise RuntimeError("display: the window closed before the trial started; resume with --resume")
+                            raise RuntimeError("display: the window closed before the trial started; --resume continues")
                     row = _run_trial(s, t, rnd, attempts[t.trial], screen, progress)
                     if row["finished"]:
                         finished.add(t.trial)
                         break
-                    if not person and attempts[t.trial] >= MAX_ATTEMPTS:
-                        raise RuntimeError(f"trial {t.trial} ({name} {t.index}): {attempts[t.trial]} attempts stopped "
-                                           f"({row['stop_reason']}); see {s.folder / row['folder']}")
+                    if not person and tries[t.trial] >= MAX_ATTEMPTS:
+                        raise RuntimeError(f"trial {t.trial} ({name} {t.index}): {tries[t.trial]} attempts in a row stopped "
+                                           f"({row['stop_reason']}); see {s.folder / row['folder']}; --resume tries again")
                     if person:
-                        _show(screen, f"Trial stopped ({row['stop_reason']}). SPACE: run it again, Q: end the session.")
+                        _show(screen, f"Trial stopped ({row['stop_reason']}). SPACE: run it again, Q: end the session.", s.folder)
                         if screen.wait_key({"space", "q"}) != "space":
                             raise RuntimeError("session ended by the experimenter; --resume continues it")
+                        start_key = False  # that SPACE starts the new attempt
             if not (practice and person):
                 break
-            _show(screen, "Practice done. R: practise again, SPACE: continue.")
+            _show(screen, "Practice done. R: practise again, SPACE: continue.", s.folder)
             if screen.wait_key({"r", "space"}) != "r":
                 break
             rnd += 1
-        if person:
+        if person and not practice:
             _questionnaire(s, screen, name)
             rest = s.plan.session.rest_s
             if rest > 0 and bi + 1 < len(blocks):
                 t_end = time.monotonic() + rest
                 while (left := t_end - time.monotonic()) > 0:
-                    _show(screen, f"Rest: {math.ceil(left)} s")
+                    _show(screen, f"Rest: {math.ceil(left)} s", s.folder)
                     time.sleep(min(1.0, left))
-    _show(screen, "Thank you! The session is over.")
+    _show(screen, "Thank you! The session is over.", s.folder)
 
 
 def _questionnaire(s: Session, screen, block: str) -> None:
@@ -418,7 +431,7 @@ def _questionnaire(s: Session, screen, block: str) -> None:
         return
     path = s.folder / "questionnaire.csv"
     for q in questions:
-        _show(screen, f"{q}  (press 1-7)")
+        _show(screen, f"{q}  (press 1-7)", s.folder)
         answer = screen.wait_key({str(i) for i in range(1, 8)})
         new = not path.exists()
         with open(path, "a", newline="") as f:
@@ -442,6 +455,8 @@ def _run_trial(s: Session, t: SessionTrial, rnd: int, attempt: int, screen, prog
     if s.plan.session.rig and not s.simulated:
         from sensaug.rig import run_virtual_rig
 
+        if screen is not None:
+            _record_prompt(s.folder, f"(trial {rel})")
         run = run_virtual_rig(t.config, out=folder, display=screen)
         stopped_by_display = bool((run.display or {}).get("stopped_loop"))
         reason = run.display["event"] if stopped_by_display else run.stats["stop_reason"]
