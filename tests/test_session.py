@@ -4,6 +4,7 @@ killed mid-trial and resumed."""
 
 from __future__ import annotations
 
+import csv
 import hashlib
 import itertools
 import os
@@ -91,7 +92,7 @@ def test_the_paper_plan_runs_end_to_end_reduced_on_the_virtual_rig(tmp_path):
     attempt with the estimates and the virtual human's gain beside them
     (the numbers: the simulated run below and docs/person.md)."""
     plan = reduced_paper(tmp_path, 4.0, 1, 2.0)
-    folder = run_session(plan, "P00", out=tmp_path / "sessions", progress=lambda _: None)
+    folder = run_unattended(plan, "P00", tmp_path / "sessions")
     s = load_session(folder)
     done = s.finished()
     assert list(done["trial"]) == list(range(7)), s.manifest[["trial", "block", "stop_reason"]]
@@ -117,6 +118,19 @@ def test_the_paper_plan_reduced_reproduces_the_gain_table_simulated(tmp_path):
     assert (abs(gains - gains.index) < 0.05).all(), gains
 
 
+def run_unattended(plan: Path, participant: str, out: Path) -> Path:
+    """run_session, resumed (at most twice) when the loop stopped one trial
+    3 times in a row: the virtual drive, a Python process, is starved on a
+    loaded 2-core machine; resuming is what a lab does then."""
+    for attempt in range(3):
+        try:
+            return run_session(plan, participant, out=out, resume=attempt > 0, progress=lambda _: None)
+        except RuntimeError as e:
+            if "attempts in a row stopped" not in str(e) or attempt == 2:
+                raise
+    raise AssertionError("unreachable")
+
+
 def _digest(folder: Path) -> dict[str, str]:
     return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
             for p in sorted(folder.rglob("*")) if p.is_file()}
@@ -134,35 +148,54 @@ def test_a_session_killed_mid_trial_resumes_without_losing_finished_trials(tmp_p
     plan.write_text(text[:cut])  # two blocks of two gain trials
     out = tmp_path / "sessions"
     cmd = [sys.executable, "-m", "sensaug", "session", str(plan), "--participant", "P01", "--out", str(out)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
     manifest = out / "P01" / "manifest.csv"
+
+    def rows() -> list[dict]:
+        return list(csv.DictReader(manifest.open())) if manifest.exists() else []
+
+    def third_trial_running() -> bool:
+        done = {r["trial"] for r in rows() if r["finished"] == "1"}
+        return done == {"0", "1"} and any((out / "P01" / "trials").glob("002_*/rig_log.csv"))
+
     t0 = time.monotonic()
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
     try:
-        while True:
-            assert proc.poll() is None, proc.communicate()
-            assert time.monotonic() - t0 < 120, "the session did not reach its third trial"
-            third = list((out / "P01" / "trials").glob("002_*/rig_log.csv"))
-            if third and manifest.exists() and len(manifest.read_text().splitlines()) == 3:
-                time.sleep(0.5)  # mid-trial: the 2 s trial's log is being written
-                break
+        while not third_trial_running():
+            assert time.monotonic() - t0 < 240, "the session did not reach its third trial"
+            if proc.poll() is not None:
+                # The loop stopped a trial 3 times in a row (a loaded machine): resume, as a lab would.
+                err = proc.communicate()[1].decode()
+                assert "attempts in a row stopped" in err, err
+                proc = subprocess.Popen(cmd + ["--resume"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                        start_new_session=True)
             time.sleep(0.05)
+        time.sleep(0.5)  # mid-trial: the 2 s trial's log is being written
     finally:
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait()
-    finished_before = {d.name: _digest(d) for d in (out / "P01" / "trials").iterdir() if d.name[:3] in ("000", "001")}
-    assert len(finished_before) == 2
+    finished_before = {d.name: _digest(d) for d in (out / "P01" / "trials").iterdir()}
+    killed = {d.name for d in (out / "P01" / "trials").glob("002_*")} - {
+        r["folder"].removeprefix("trials/") for r in rows()}
+    assert len(killed) == 1, killed
+    for name in killed:
+        del finished_before[name]
     # The virtual drive and the loop were in the killed group: nothing holds the bus.
     res = subprocess.run(cmd + ["--resume"], capture_output=True, text=True, timeout=180)
-    assert res.returncode == 0, res.stderr
     assert "was interrupted" in res.stdout
+    for _ in range(2):  # the loop stopped a trial 3 times in a row (a loaded machine): resume again
+        if res.returncode == 0 or "attempts in a row stopped" not in res.stderr:
+            break
+        res = subprocess.run(cmd + ["--resume"], capture_output=True, text=True, timeout=180)
+    assert res.returncode == 0, res.stderr
     for name, digest in finished_before.items():
         assert _digest(out / "P01" / "trials" / name) == digest, name
     df = load_session(out / "P01").manifest
     # The killed trial's attempt is in the manifest as interrupted; a new
     # attempt of that trial follows (more attempts only if the loop itself
     # stopped one: MAX_ATTEMPTS, which a loaded machine can cause).
-    assert list(df.loc[:1, "stop_reason"]) == ["completed", "completed"]
-    assert df.loc[2, "trial"] == 2 and df.loc[2, "stop_reason"] == "interrupted" and df.loc[2, "attempt"] == 1
+    interrupted = df[df["stop_reason"] == "interrupted"]
+    assert len(interrupted) == 1 and interrupted["trial"].iloc[0] == 2, df[["trial", "attempt", "stop_reason"]]
+    assert interrupted["folder"].iloc[0] == f"trials/{killed.pop()}"
     assert sorted(set(df["trial"])) == [0, 1, 2, 3]
     for trial, g in df.groupby("trial"):
         assert list(g["attempt"]) == list(range(1, len(g) + 1)), g

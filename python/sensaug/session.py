@@ -230,6 +230,11 @@ class Session:
         self.manifest = self.folder / "manifest.csv"
         self.simulated = False
 
+    @property
+    def trials_run(self) -> str:
+        """How this session's trials run: "simulated" or on the rig."""
+        return "simulated" if self.simulated or not self.plan.session.rig else "virtual rig (sensaug-rt)"
+
     def create(self, resume: bool) -> None:
         if self.manifest.exists() or (self.folder / "session.json").exists():
             if not resume:
@@ -249,7 +254,7 @@ class Session:
             "participant": self.participant, "participant_number": participant_number(self.participant),
             "blocks": [self.plan.session.blocks[i].name for i in order], "order": how,
             "plan_sha": _sha(self.plan_path), "created_utc": _now(),
-            "trials_run": "simulated" if not self.plan.session.rig else "virtual rig (sensaug-rt)",
+            "trials_run": self.trials_run,
             "trials": [{"trial": t.trial, "block": t.block, "index": t.index, "practice": t.practice,
                         "seed": t.seed, "condition": t.condition} for t in self.trials],
         }
@@ -329,9 +334,8 @@ def run_session(
     for name in lost:
         progress(f"resume: {name} was interrupted; its trial runs again as a new attempt")
     ran = json.loads((s.folder / "session.json").read_text())["trials_run"]
-    if s.simulated != (ran == "simulated"):
-        raise ValueError(f"--simulate: this session's trials ran {ran}; resume it "
-                         + ("without --simulate" if s.simulated else "with --simulate"))
+    if ran != s.trials_run:
+        raise ValueError(f"--simulate: this session's trials ran {ran}; resume it the same way")
     person = not s.plan.rig.virtual_human
     use_display = s.plan.display.enabled if display is None else display
     if person and not use_display:
