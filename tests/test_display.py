@@ -296,7 +296,9 @@ def test_a_session_with_a_person_waits_for_keys_and_esc_stops_a_trial(tmp_path):
                     elif "(press 1-7)" in text:
                         key("5")
                     elif text.startswith("(trial trials/001_") and not escaped:
-                        time.sleep(1.0)
+                        log = folder / text[len("(trial "):-1] / "rig_log.csv"
+                        until(log.exists, "the block trial's first tick")  # the loop is past its set-up
+                        time.sleep(0.5)
                         events["esc_ns"] = time.monotonic_ns()
                         key("Escape")
                         escaped = True

@@ -551,6 +551,7 @@ class LoadedSession:
             for ax, c in zip(axes[0], cols):
                 ax.plot(g["index"] + 1, g[c], "o-")
                 ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+                ax.ticklabel_format(axis="y", useOffset=False)
                 if c == "Lhh_hat" and g["truth_Lhh"].notna().any():
                     ax.axhline(g["truth_Lhh"].iloc[0], color="k", ls="--", lw=1, label="virtual human's Lhh")
                     ax.legend(fontsize=8)
