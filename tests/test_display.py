@@ -6,7 +6,9 @@ frames (PNG of the back buffer) and the display log."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import signal
 import subprocess
 import sys
 import textwrap
@@ -48,12 +50,18 @@ def xvfb(script: str, tmp: Path, timeout: float = 120) -> dict:
         pytest.fail("xvfb-run is missing: install Debian's xvfb (scripts/test.sh does, as root)")
     path = tmp / "scenario.py"
     path.write_text(textwrap.dedent(script))
-    proc = subprocess.run(
+    proc = subprocess.Popen(
         ["xvfb-run", "-a", "-s", "-screen 0 1280x720x24", sys.executable, str(path)],
-        capture_output=True, text=True, timeout=timeout, cwd=tmp,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp, start_new_session=True,
     )
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)  # xvfb-run, its Xvfb, the scenario and what it started
+        proc.communicate()
+        raise
+    assert proc.returncode == 0, err[-3000:]
+    return json.loads(out.strip().splitlines()[-1])
 
 
 def short_rig(tmp: Path, phase_s: float = 2.0, **display) -> Path:
