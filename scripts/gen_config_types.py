@@ -36,6 +36,9 @@ CLASS = {
     "RealtimeSpec": "RealtimeConfig",
     "Cia402Spec": "RigCia402Config",
     "RigSpec": "RigConfig",
+    "DisplaySpec": "DisplayConfig",
+    "SessionSpec": "SessionConfig",
+    "BlockSpec": "BlockConfig",
 }
 
 
@@ -94,6 +97,7 @@ class Gen:
             "integer": "int",
             "boolean": "bool",
             "string": "str",
+            "object": "dict[str, Any]",
         }.get(t)
         if t == "array":
             item = s.get("items", {})

@@ -19,6 +19,7 @@ from sensaug.lqr import (
     robot_gain_vector,
 )
 from sensaug.replay import replay
+from sensaug.session import load_session
 from sensaug.sweep import sweep
 
 #: The installed version (package metadata; the Cargo workspace version).
@@ -42,6 +43,7 @@ __all__ = [
     "care",
     "dare",
     "load_log",
+    "load_session",
     "lqr",
     "partner_gain_vector",
     "replay",

@@ -179,10 +179,17 @@ def rig_demo(
         viewer = LiveProcess(port=live)
         feed.append(viewer.feed_address)
         print(f"live view: open {viewer.url} in Foxglove (Foxglove WebSocket; layout docs/live_layout.json)", flush=True)
+    screen = None
+    if config.display.enabled:
+        from sensaug.display import DisplayProcess
+
+        screen = DisplayProcess(config, workdir=out)
     try:
         run = rig.run_virtual_rig(config, out=out, port=port, capture=capture, progress=progress,
-                                  also_written=also, feed=feed)
+                                  also_written=also, feed=feed, display=screen)
     finally:
+        if screen is not None:
+            screen.close()
         if viewer is not None:
             viewer.stop()
     s = run.stats
@@ -241,6 +248,12 @@ def rig_demo(
         c = run.capture
         print(f"bus capture: {c.frames} frames, {c.dropped_kernel} dropped by the kernel, "
               f"{c.cpu_s:.2f} s CPU in the launcher's capture thread" + (f", ERROR {c.error}" if c.error else ""))
+    if run.display is not None:
+        dsp = run.display
+        lat = (f"tick-to-swap latency p50 {dsp['latency_p50_ms']:.1f} ms, p99 {dsp['latency_p99_ms']:.1f} ms"
+               if "latency_p50_ms" in dsp else "tick-to-swap latency unknown")
+        print(f"display: {dsp['frames']} frames, {dsp['dropped']} dropped, {lat}"
+              + (f"; {dsp['event']}" + (", the loop was stopped" if dsp["stopped_loop"] else "") if dsp["event"] else ""))
     print(f"\nlog: {out / 'rig_log.csv'} (sensaug.load_log), stats: {out / 'rig_stats.json'}")
     if plots and len(done) < 3:
         print(f"plots: skipped, the run did not complete every phase ({why})")
@@ -384,8 +397,11 @@ def sweep_command(
 def check(path: str) -> int:
     """``valid`` and 0 for a good file; the first bad field on stderr and 2
     otherwise (the file itself is named when its syntax is bad)."""
+    from sensaug.session import check_plan
+
     try:
         _core.config_check_file(path)
+        check_plan(path)
     except _core.ConfigError as e:
         print(e, file=sys.stderr)
         return 2
@@ -515,6 +531,15 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("log", type=Path, help="a log file (.csv): simulated trial, rig run or session trial")
     ex.add_argument("--to", choices=["mcap"], required=True, help="the format (mcap: Foxglove's own format)")
     ex.add_argument("--out", type=Path, default=None, help="output file (default: the log's path with .mcap)")
+    se = sub.add_parser("session", help="run a participant's blocks of trials from a plan (docs/person.md)")
+    se.add_argument("plan", type=Path, help="the plan: a trial configuration with a [session] table (TOML)")
+    se.add_argument("--participant", required=True, help="participant id with a number (P01): the folder and the block order")
+    se.add_argument("--resume", action="store_true", help="continue the participant's session at its first unfinished trial")
+    se.add_argument("--out", type=Path, default=Path("sessions"), help="folder of participant folders (default ./sessions)")
+    se.add_argument("--no-display", action="store_true", help="no display (only with the virtual human)")
+    se.add_argument("--simulate", action="store_true",
+                    help="simulate every trial (the virtual human; a rehearsal of the plan, minutes not hours)")
+    sub.add_parser("display", add_help=False, help="the participant's display alone (sensaug display --help)")
     dc = sub.add_parser("docs", help="list the documentation pages, or print one (docs/NAME.md)")
     dc.add_argument("page", nargs="?", default=None, help="a page's name, e.g. logs or docs/logs.md")
     return parser
@@ -522,6 +547,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
+    if argv is None:
+        argv = sys.argv[1:]
+    if argv[:1] == ["display"]:
+        from sensaug import display
+
+        return display.main(argv[1:])
     args = parser.parse_args(argv)
     if args.command == "check":
         return check(args.config)
@@ -571,6 +602,16 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "rig":
             cfg = _with_drive(ScenarioConfig.from_toml(args.config), args)
             return rig_demo(cfg, args.out, True, command="rig", **_rig_kwargs(args))
+        if args.command == "session":
+            from sensaug.session import load_session, run_session
+
+            folder = run_session(args.plan, args.participant, out=args.out, resume=args.resume,
+                                 display=False if args.no_display or args.simulate else None, simulate=args.simulate)
+            loaded = load_session(folder)
+            written = loaded.plot_blocks(folder / "figures")
+            print(loaded.summary().to_string(float_format=lambda v: f"{v:.4f}"))
+            print(f"session: {folder} (manifest.csv; sensaug.load_session); figures: {', '.join(str(p) for p in written)}")
+            return 0
         cfg = {"hi5": presets.hi5_experiment, "hi5-rig": presets.hi5_rig, "simulation": presets.simulation_section}[args.name]()
         sys.stdout.write(cfg.to_toml())
         return 0

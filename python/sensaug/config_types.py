@@ -150,6 +150,54 @@ def _list_of(conv: Callable[[dict[str, Any]], Any]) -> Callable[[list[Any]], lis
 
 
 @dataclass
+class DisplayConfig:
+    """`[display]`: the participant's monitor (docs/person.md). Positions are in the controller's
+    position unit (`rig.position_unit`).
+    """
+
+    direction: Literal["right", "left", "up", "down"] = 'right'
+    """Which way a positive position moves the cursor: "right", "left", "up" or "down"."""
+    dots: int = 20
+    """Visual noise: number of dots drawn around the target in integration phases when sigma_v >
+    0.
+    """
+    enabled: bool = False
+    """Open the display with `sensaug rig`, `demo` and `session`."""
+    freeze_timeout_ms: float = 250.0
+    """The display counts as frozen when it has drawn no frame for this long (ms); the session
+    then acts as on_freeze says.
+    """
+    fullscreen: bool = True
+    """Full screen on the rig's monitor; false: a window of width_px x height_px."""
+    height_px: int = 720
+    """Window height (px) when not full screen."""
+    on_freeze: Literal["stop", "continue"] = 'stop'
+    """On a frozen display: "stop" (the controlled stop) or "continue" (only with
+    rig.virtual_human = true).
+    """
+    px_per_unit: float = 25.0
+    """Scale: pixels per position unit (px per deg in the Hi5 presets)."""
+    refresh_ms: float = 100.0
+    """Visual noise: the dots are re-drawn every refresh_ms (ms)."""
+    seed: int = 0
+    """Seed of the dots: the n-th refresh's dots are a function of (seed, n), so a trial can be
+    re-rendered exactly offline.
+    """
+    sigma_v: float = 0.0
+    """Visual noise: std of the dots around the true target (position unit); 0 draws one target.
+    Applies in integration phases.
+    """
+    width_px: int = 1280
+    """Window width (px) when not full screen."""
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> DisplayConfig:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        return cls(**kw)
+
+
+@dataclass
 class PartnerIntegrationConfig:
     """`[partner.integration]`: the partner runs the robot's controller on the mirrored protocol
     (the robot's filter settings; needs estimates_robot): in integration phases it sees its
@@ -566,6 +614,65 @@ class RobotConfig:
 
 
 @dataclass
+class BlockConfig:
+    """`[[session.blocks]]`: one condition, run `trials` times."""
+
+    name: str
+    """Name (in the manifest and the file names)."""
+    trials: int
+    """Trials in the block."""
+    phases: list[int] = field(default_factory=lambda: [])
+    """Only this block's phases run (by index into phases); empty: all."""
+    practice: bool = False
+    """A practice block: run first, in listed order, and repeated while the experimenter asks for
+    it (unattended: once); its trials are in the manifest, marked practice.
+    """
+    set: dict[str, Any] = field(default_factory=lambda: {})
+    """The condition: fields of the trial configuration set for this block, by dotted path (as in
+    `sensaug sweep`), e.g. `{ "partner.gains.lhh" = 1.5, "display.sigma_v" = 2.0 }`.
+    """
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> BlockConfig:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        return cls(**kw)
+
+
+@dataclass
+class SessionConfig:
+    """`[session]`: a plan of blocks of trials for `sensaug session` (docs/person.md). The rest
+    of the file is the base trial.
+    """
+
+    blocks: list[BlockConfig]
+    """The blocks; practice blocks first, then the others in `order`."""
+    order: Literal["fixed", "latin_square", "shuffle"] = 'fixed'
+    """Order of the non-practice blocks per participant: "fixed", "latin_square" or "shuffle"."""
+    questionnaire: list[str] = field(default_factory=lambda: [])
+    """Questions asked after each block (answers in the manifest's questionnaire file); empty:
+    none.
+    """
+    rest_s: float = 0.0
+    """Rest after each block (s), with a prompt on the display; 0: none."""
+    rig: bool = True
+    """Run on the virtual rig (sensaug-rt, true) or simulated (false)."""
+    seed: int = 0
+    """Seed of the shuffle and of the trials: trial j of a block runs with seed + j (world.seed =
+    it, robot.seed and partner.integration.seed offset as in `sensaug sweep`) unless the block
+    sets a seed.
+    """
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> SessionConfig:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        if 'blocks' in kw:
+            kw['blocks'] = _list_of(BlockConfig.from_dict)(kw['blocks'])
+        return cls(**kw)
+
+
+@dataclass
 class WorldConfig:
     """`[world]`: simulation only (the rig is the world and ignores it)."""
 
@@ -597,6 +704,8 @@ class ScenarioConfig:
 
     phases: list[PhaseConfig]
     """The protocol: 1 to 4 phases run in order."""
+    display: DisplayConfig = field(default_factory=lambda: DisplayConfig.from_dict({'direction': 'right', 'dots': 20, 'enabled': False, 'freeze_timeout_ms': 250.0, 'fullscreen': True, 'height_px': 720, 'on_freeze': 'stop', 'px_per_unit': 25.0, 'refresh_ms': 100.0, 'seed': 0, 'sigma_v': 0.0, 'width_px': 1280}))
+    """The participant's display (Python `sensaug.display`; the loop ignores it)."""
     partner: PartnerConfig = field(default_factory=lambda: PartnerConfig.from_dict({'acts_on': 'measured', 'estimates_robot': False, 'gains': [0.0, 0.0, 2.0], 'torque_limit': 1000.0}))
     """The partner: the virtual human (simulation, and inside the rig loop)."""
     plant: PlantConfig = field(default_factory=lambda: PlantConfig.from_dict({'coulomb': 0.0, 'damping': 0.0, 'dt_s': 0.001, 'mass': 0.0035}))
@@ -605,6 +714,10 @@ class ScenarioConfig:
     """The real-time loop and its CAN link (`sensaug-rt`; the simulation ignores it)."""
     robot: RobotConfig = field(default_factory=lambda: RobotConfig.from_dict({'gain_window_s': 8.0, 'integrate': True, 'q_pos': 1.0, 'q_vel': 0.0, 'seed': 1, 'sigma': {'alpha': 1.0, 'beta': 2.0, 'kappa': 0.0}, 'stage1': {'P0': [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0], 'Q': [0.01, 0.01, 0.01, 0.01, 0.01, 0.01], 'R': [1e-07, 1e-07, 1e-07], 'gains0': [0.0, 0.0, 0.0]}, 'stage2': {'P0': [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0], 'Q': [0.01, 0.01, 0.01, 0.01, 0.01, 0.01], 'R': [1e-07, 1e-07, 1e-07, 1e-07, 1e-07], 'gains0': [0.0, 0.0, 0.0]}, 'stage3': {'P0': [0.01, 0.01], 'Q': [0.01, 0.01], 'R_sensor': [1e-07, 1e-07], 'channel': {'gate': 4.0, 'hold_max_s': 0.25, 'window_n0': 80.0}}, 'torque_limit': 1000.0}))
     """The robot's controller and estimators."""
+    session: SessionConfig | None = None
+    """A session plan: blocks of trials of this base trial (`sensaug session`; a single trial
+    ignores it).
+    """
     world: WorldConfig = field(default_factory=lambda: WorldConfig.from_dict({'motor_noise_std': 0.001, 'position_noise_std': 0.00031622776601683794, 'seed': 0, 'v0': 0.0, 'velocity_noise_std': 0.00031622776601683794, 'x0': 0.0}))
     """Simulation only: noise, seed and initial state of the simulated world."""
 
@@ -614,6 +727,8 @@ class ScenarioConfig:
         kw = dict(d)
         if 'phases' in kw:
             kw['phases'] = _list_of(PhaseConfig.from_dict)(kw['phases'])
+        if 'display' in kw:
+            kw['display'] = DisplayConfig.from_dict(kw['display'])
         if 'partner' in kw:
             kw['partner'] = PartnerConfig.from_dict(kw['partner'])
         if 'plant' in kw:
@@ -622,6 +737,8 @@ class ScenarioConfig:
             kw['rig'] = RigConfig.from_dict(kw['rig'])
         if 'robot' in kw:
             kw['robot'] = RobotConfig.from_dict(kw['robot'])
+        if kw.get('session') is not None:
+            kw['session'] = SessionConfig.from_dict(kw['session'])
         if 'world' in kw:
             kw['world'] = WorldConfig.from_dict(kw['world'])
         return cls(**kw)

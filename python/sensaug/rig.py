@@ -67,6 +67,10 @@ class RigRun:
     files: dict[str, str] = field(default_factory=dict)
     #: Whether the user interrupted the run (Ctrl-C); the log holds what ran.
     interrupted: bool = False
+    #: With the participant's display: frames, dropped frames, tick-to-swap
+    #: latency (ms) and the display's event ("escape", "display frozen",
+    #: "display exited"; None) (``sensaug.display``).
+    display: Optional[dict] = None
 
     def write_readme(self, out: str | Path, extra: dict[str, str] | None = None) -> Path:
         """``out/README.txt``: this run's files (and ``extra`` ones, e.g. plots)."""
@@ -240,6 +244,7 @@ def run_virtual_rig(
     progress: bool | None = False,
     also_written: dict[str, Path] | None = None,
     feed: Sequence[str] = (),
+    display=None,
 ) -> RigRun:
     """Runs one trial on the virtual rig and returns its log and statistics.
 
@@ -262,6 +267,10 @@ def run_virtual_rig(
     read from ``sensaug-rt``'s stdout; if it could not save
     ``rig_stats.json`` the run stands and the README says the file is missing.
 
+    ``display``: a running :class:`sensaug.display.DisplayProcess` shows the
+    trial (it follows the log; ``out/display_log.csv``) and is watched
+    (:class:`sensaug.display.DisplayWatch`: Esc, a frozen or dead display).
+
     Raises:
         ConfigError: an output path is refused (named).
         RuntimeError: ``sensaug-rt`` ended before reporting (set-up error).
@@ -273,6 +282,7 @@ def run_virtual_rig(
     check_outputs({
         "configuration copy": toml_path, "rig.log": log_path, "rig.stats": stats_path,
         **({"capture": out / capture} if capture else {}), "README": out / "README.txt", **(also_written or {}),
+        **({"display log": out / "display_log.csv"} if display is not None else {}),
     })  # fmt: skip
     port = bus_port(port)
     cfg.to_toml(toml_path)
@@ -284,6 +294,7 @@ def run_virtual_rig(
     captured: Optional[CaptureStats] = None
     drive: Optional[subprocess.Popen] = None
     interrupted = False
+    watch = None
     try:
         drive = start_drive(port, duration_s=budget + 5.0, drive=cfg.rig.drive,
                             fifo_priority=cfg.rig.realtime.fifo_priority)
@@ -296,6 +307,7 @@ def run_virtual_rig(
                 stderr=subprocess.PIPE,
                 text=True,
             )
+            watch = _watch_display(display, cfg, log_path, out, proc)
             try:
                 rt_stdout, rt_stderr = proc.communicate(timeout=budget)
             except KeyboardInterrupt:
@@ -309,6 +321,9 @@ def run_virtual_rig(
                 proc.kill()
                 proc.communicate()
                 raise
+            finally:
+                if watch is not None:
+                    watch.stop()
     finally:
         if drive is not None:
             stop_process(drive)
@@ -348,8 +363,25 @@ def run_virtual_rig(
         capture=captured,
         files=files,
     )
+    if watch is not None:
+        from sensaug.display import watch_summary
+
+        run.display = watch_summary(watch, run)
+        files["display_log.csv"] = "the participant's display: one row per frame (sensaug.display.load_display_log)"
     run.write_readme(out)
     return run
+
+
+def _watch_display(display, cfg: ScenarioConfig, log_path: Path, out: Path, proc: subprocess.Popen):
+    """Shows the trial on ``display`` and starts its watch (None: no display)."""
+    if display is None:
+        return None
+    from sensaug.display import Command, DisplayWatch, noisy_phases
+
+    display_log = out / "display_log.csv"
+    display.show(Command(log=str(log_path), display_log=str(display_log), sigma_v=cfg.display.sigma_v,
+                         seed=cfg.display.seed, noisy_phases=noisy_phases(cfg)))
+    return DisplayWatch(display, display_log, proc).start()
 
 
 class _ElapsedBar:

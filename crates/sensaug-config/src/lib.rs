@@ -17,6 +17,7 @@ pub mod check;
 pub mod cov;
 pub mod error;
 pub mod outputs;
+pub mod person;
 pub mod resolve;
 pub mod schema;
 mod shape;

@@ -433,6 +433,7 @@ pub fn resolve(spec: &ScenarioSpec) -> Result<Resolved<'_>, ConfigError> {
         };
     partner_integration(spec)?;
     rig_timing(&spec.rig, dt_s)?;
+    crate::person::check(spec)?;
 
     let w = &spec.world;
     let world = WorldConfig {

@@ -11,6 +11,9 @@
 #![allow(non_snake_case)]
 
 use crate::cov::Cov;
+pub use crate::person::{
+    BlockOrder, BlockSpec, DisplaySpec, OnFreeze, ScreenDirection, SessionSpec,
+};
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
@@ -63,6 +66,13 @@ pub struct ScenarioSpec {
     /// The real-time loop and its CAN link (`sensaug-rt`; the simulation ignores it).
     #[serde(default)]
     pub rig: RigSpec,
+    /// The participant's display (Python `sensaug.display`; the loop ignores it).
+    #[serde(default)]
+    pub display: DisplaySpec,
+    /// A session plan: blocks of trials of this base trial (`sensaug
+    /// session`; a single trial ignores it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub session: Option<SessionSpec>,
 }
 
 /// What the robot does during a phase.

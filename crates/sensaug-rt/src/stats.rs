@@ -286,6 +286,10 @@ pub struct StartGap {
     pub enable_to_first_command_us: f64,
     /// First command to tick 0's command.
     pub first_command_to_tick0_us: f64,
+    /// When tick 0's command was sent (ns, `CLOCK_MONOTONIC`; 0: never):
+    /// tick k's time on that clock is about this + k * dt, so a display's
+    /// swap times (docs/person.md) can be set against the ticks they show.
+    pub tick0_monotonic_ns: u64,
 }
 
 impl StartGap {
@@ -301,6 +305,7 @@ impl StartGap {
         StartGap {
             enable_to_first_command_us: gap(enable_ns, first_command_ns),
             first_command_to_tick0_us: gap(first_command_ns, tick0_ns),
+            tick0_monotonic_ns: tick0_ns,
         }
     }
 }
