@@ -12,7 +12,7 @@ SITE=$(realpath -m "${1:-target/site}")
 SRC=target/docs-src
 rm -rf "$SRC"
 mkdir -p "$SRC"
-cp docs/*.md "$SRC"/
+cp docs/*.md docs/*.png docs/*.json "$SRC"/  # pages, their pictures and files they link
 # The README links docs/X.md from the repository root; on the site the pages
 # sit beside it.
 sed -e 's#(docs/\([A-Za-z0-9_]*\.md\)#(\1#g' README.md > "$SRC/index.md"
