@@ -17,6 +17,7 @@ refused unless ``allow_edited_config=True`` says the lab knows.
 
 from __future__ import annotations
 
+import copy
 import warnings
 from pathlib import Path
 
@@ -103,19 +104,24 @@ def _recorded_config(log: Log, allow_edited: bool) -> tuple[ScenarioConfig, bool
 #: Settings a format-1 log may hold that later versions retired, and why a
 #: replay may drop them (it never reads the rig's stop).
 RETIRED_FIELDS = {
-    ("rig", "ramp_down_s"): "the open-loop ramp, replaced by the controlled stop (rig.stop_*; issue 17)",
+    "rig.ramp_down_s": "the open-loop ramp, replaced by the controlled stop (rig.stop_*; issue 17); the replay never reads it",
+    "robot.stage3.partner_window_s": "the online channel variance's window, replaced by the adaptive channel "
+    "(robot.stage3.channel; issue 22); the replay runs today's stage 3 with its defaults",
 }
 
 
 def _without_retired_fields(config: dict) -> dict:
     """``config`` without :data:`RETIRED_FIELDS` (a warning names each dropped)."""
-    out = {k: dict(v) if isinstance(v, dict) else v for k, v in config.items()}
-    for (table, name), why in RETIRED_FIELDS.items():
-        if isinstance(out.get(table), dict) and name in out[table]:
-            del out[table][name]
+    out = copy.deepcopy(config)
+    for path, why in RETIRED_FIELDS.items():
+        *tables, name = path.split(".")
+        table = out
+        for key in tables:
+            table = table.get(key) if isinstance(table, dict) else None
+        if isinstance(table, dict) and name in table:
+            del table[name]
             warnings.warn(
-                f"log.meta.config: {table}.{name} dropped: a setting of an older version ({why}); "
-                "the replay does not use it",
+                f"log.meta.config: {path} dropped: a setting of an older version ({why})",
                 UnverifiedLogWarning,
                 stacklevel=4,
             )
