@@ -48,7 +48,6 @@ import canopen
 from canopen.sdo import SdoAbortedError
 
 from sensaug_bridge.virtual_hi5 import (
-    BACKLOG_MAX,
     DriveConfig,
     DriveLog,
     add_drive_args,
@@ -56,6 +55,7 @@ from sensaug_bridge.virtual_hi5 import (
     drive_config_fields,
     encoder_counts,
     new_plant,
+    read_backlog,
     serve,
 )
 
@@ -367,15 +367,7 @@ class VirtualCia402:
                 due = min(due, self._last_master_hb + self._consumer_s)
             msg = self.bus.recv(max(due - now, 0.0))
             if msg is not None:
-                self._handle_backlog(self._backlog(msg))
-
-    def _backlog(self, first: can.Message) -> list[can.Message]:
-        """``first`` and the frames already queued behind it (at most
-        :data:`BACKLOG_MAX`, so that a flood cannot starve the heartbeat)."""
-        frames = [first]
-        while len(frames) < BACKLOG_MAX and (msg := self.bus.recv(0.0)) is not None:
-            frames.append(msg)
-        return frames
+                self._handle_backlog(read_backlog(self.bus, msg))
 
     def _handle_backlog(self, frames: list[can.Message]) -> None:
         """Handles ``frames`` in order, answering only the last SYNC among them."""

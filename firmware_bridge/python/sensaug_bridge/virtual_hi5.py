@@ -101,6 +101,16 @@ class DriveConfig:
         p.frame_id("TorqueCommand", self.node)  # checks the Hi5 node range 0..15
 
 
+def read_backlog(bus: can.BusABC, first: can.Message) -> list[can.Message]:
+    """``first`` and the frames already queued behind it on ``bus`` (at most
+    :data:`BACKLOG_MAX`, so that a flood cannot starve the heartbeat and the
+    watchdog). Shared by every virtual drive profile."""
+    frames = [first]
+    while len(frames) < BACKLOG_MAX and (msg := bus.recv(0.0)) is not None:
+        frames.append(msg)
+    return frames
+
+
 def new_plant(config: DriveConfig) -> Any:
     """The drive's 1-DoF load: ``sensaug.Plant`` with the config's M, C, F_c, dt, x0 (v0 = 0).
 
@@ -337,15 +347,7 @@ class VirtualHi5:
             if msg is None:
                 read_until = self._clock()
             else:
-                read_until = self._handle_backlog(self._backlog(msg))
-
-    def _backlog(self, first: can.Message) -> list[can.Message]:
-        """``first`` and the frames already queued behind it (at most
-        :data:`BACKLOG_MAX`)."""
-        frames = [first]
-        while len(frames) < BACKLOG_MAX and (msg := self.bus.recv(0.0)) is not None:
-            frames.append(msg)
-        return frames
+                read_until = self._handle_backlog(read_backlog(self.bus, msg))
 
     def _handle_backlog(self, frames: list[can.Message]) -> float:
         """Handles ``frames`` in order, answering only the last TorqueCommand
