@@ -113,7 +113,7 @@ def test_bad_logs_get_named_errors(tmp_path):
     with pytest.raises(ValueError, match="no 'config' recorded"):
         sensaug.replay(no_config)
     with pytest.raises(ValueError, match="fresh: 3 values, but x_meas has 4"):
-        sensaug._core.replay_robot(sim_config()._toml(), np.zeros(4), np.zeros(4), np.ones(3, dtype=bool))
+        sensaug._core.replay_robot(sim_config().resolved(), np.zeros(4), np.zeros(4), np.ones(3, dtype=bool))
 
 
 def test_a_virtual_rig_run_replays_tick_by_tick(tmp_path):

@@ -45,7 +45,7 @@ def test_the_log_size_is_the_core_s_and_the_run_s():
     """Derived once, in Rust, from the configuration: the ticks and bytes it
     gives are those of the log a run returns."""
     cfg = small()
-    ticks, nbytes = _core.trial_memory(cfg._toml())
+    ticks, nbytes = cfg.resolved().trial_memory(memory_budget=None)
     trial = experiment.run(cfg)
     assert ticks == len(trial) == 6000
     assert nbytes == trial_memory(cfg) == trial.data.nbytes == ticks * logs.DTYPE.itemsize
@@ -66,7 +66,7 @@ def test_the_finding_is_accepted_by_both_checkers_and_refused_by_its_size(tmp_pa
     path = tmp_path / "long.toml"
     cfg.to_toml(path)
     assert subprocess.run([sys.executable, "-m", "sensaug", "check", str(path)], capture_output=True).returncode == 0
-    assert _core.trial_memory(cfg._toml()) == (108_000_000, 108_000_000 * logs.DTYPE.itemsize)
+    assert cfg.resolved().trial_memory(memory_budget=None) == (108_000_000, 108_000_000 * logs.DTYPE.itemsize)
     with pytest.raises(TrialTooLargeError, match=MESSAGE + r"more than the 1\.00 GB this trial may take"):
         experiment.run(cfg, memory_budget=10**9)
 

@@ -272,61 +272,93 @@ class GoalIntegrator:
 # --- scenario ---
 
 class ConfigError(ValueError):
-    """A configuration error: ``str(e)`` is ``<dotted field path>: <what is wrong and how to fix it>``."""
+    """A configuration error: ``.field`` is the dotted field path, ``.message``
+    what is wrong and how to fix it; ``str(e)`` is ``<field>: <message>``."""
+
+    field: str
+    message: str
 
 class TrialTooLargeError(ConfigError):
     """A simulated trial whose log would not fit the memory it may take; raised before it runs."""
 
+@final
+class Config:
+    """A configuration resolved once: the file's values (every default filled
+    in) and everything derived from them (gains, period, unit, the rig loop's
+    settings). Immutable; ``run_scenario``, ``replay_robot`` and the rig
+    launcher take it.
+
+    Raises:
+        ConfigError: naming the first bad field and how to fix it.
+    """
+
+    def __new__(cls, tables: dict[str, Any]) -> Config: ...
+    @staticmethod
+    def from_file(path: str, /, *, check_outputs: bool) -> Config:
+        """Reads and resolves a file (TOML, or JSON by extension); with
+        ``check_outputs`` also its rig output paths, as ``sensaug-rt --check``."""
+    @staticmethod
+    def from_text(text: str, /, *, format: str) -> Config:
+        """Parses and resolves text in ``format`` (``"toml"`` or ``"json"``)."""
+    def to_dict(self) -> dict[str, Any]:
+        """The file's values, every default filled in, as plain dicts and lists."""
+    def to_json(self) -> str:
+        """The file's values as compact JSON."""
+    def to_toml(self) -> str:
+        """The file's values as TOML with each field's description and unit."""
+    def metadata(self) -> dict[str, Any]:
+        """``{"config", "resolved", "loop"}`` as a log's metadata records them."""
+    def trial_memory(self, *, memory_budget: int | None) -> tuple[int, int]:
+        """``(ticks, log_bytes)`` of its trial.
+
+        Raises:
+            TrialTooLargeError: ``memory_budget`` is given and the log needs more.
+        """
+    def __copy__(self) -> Config: ...
+    def __deepcopy__(self, memo: Any, /) -> Config: ...
+    def __reduce__(self) -> tuple[Any, ...]: ...
+
 def run_scenario(
-    text: str, /, *, format: str = "toml", memory_budget: int | None = None
-) -> tuple[NDArray[np.uint8], dict[str, int]]:
-    """One whole simulated trial from configuration text (``format``:
-    ``"toml"`` or ``"json"``; the one schema, ``sensaug.config``).
+    config: Config, /, *, memory_budget: int | None, git_commit: str | None
+) -> tuple[NDArray[np.uint8], dict[str, int], str]:
+    """One whole simulated trial of a resolved configuration.
 
-    Returns ``(records, summary)``: the log's rows as the bytes of packed
-    records in the log schema's column order (``log_schema()``; int64 and
-    float64 native-endian, bool one byte), ``records.view(sensaug.logs.DTYPE)``.
+    Returns ``(records, summary, meta)``: the log's rows as the bytes of
+    packed records in the log schema's column order (``log_schema()``; int64
+    and float64 native-endian, bool one byte),
+    ``records.view(sensaug.logs.DTYPE)``; the run's counters; the log's
+    metadata line (JSON), built in Rust.
 
     Raises:
-        ConfigError: a setting out of range (the message names its path).
         TrialTooLargeError: the log needs more than ``memory_budget`` bytes
-            (default ``available_memory()``), before anything runs.
+            (``None``: ``available_memory()``), before anything runs.
     """
 
-def trial_memory(text: str, /, *, format: str = "toml", memory_budget: int | None = None) -> tuple[int, int]:
-    """``(ticks, log_bytes)`` of the trial the configuration describes.
+def resolve_count() -> int:
+    """Configurations resolved so far on the calling thread (for tests)."""
 
-    Raises:
-        ConfigError: the configuration is invalid.
-        TrialTooLargeError: ``memory_budget`` is given and the log needs more.
-    """
+def config_schema() -> str:
+    """The JSON Schema of a configuration file."""
 
 def available_memory() -> int | None:
-    """Bytes a simulated trial's log may take here: half of the memory
-    available (``MemAvailable``, or a cgroup's remaining limit); ``None`` where
-    it cannot be read."""
-
-# --- replay (sensaug.replay, docs/logs.md "Replay") ---
+    """Half the memory available to this process (bytes), or ``None`` where unknown."""
 
 def replay_robot(
-    text: str,
+    config: Config,
     x_meas: NDArray[np.float64],
     xdot_meas: NDArray[np.float64],
     fresh: NDArray[np.bool_],
     /,
-    *,
-    format: str = "toml",
 ) -> tuple[dict[str, NDArray[Any]], dict[str, int]]:
-    """Re-runs the robot's controller (configuration text) over recorded
-    measurements: tick ``k`` fuses ``(x_meas[k], xdot_meas[k])`` when
-    ``fresh[k]``, else only predicts, exactly as online.
+    """Re-runs the robot's controller over recorded measurements: tick ``k``
+    fuses ``(x_meas[k], xdot_meas[k])`` when ``fresh[k]``, else only
+    predicts, exactly as online.
 
     Returns ``(columns, counters)``: one array per column of the log schema
     (the controller's columns plus ``tick``, ``t``, ``x_meas``,
     ``xdot_meas``, ``fresh``; the rest unknown) and the robot's counters.
 
     Raises:
-        ConfigError: the configuration is invalid.
         ValueError: the arrays' lengths differ or one is not C-contiguous.
     """
 
@@ -357,13 +389,6 @@ def check_output_paths(outputs: list[tuple[str, str]]) -> None:
 def git_commit(dir: str) -> str | None:
     """``git rev-parse HEAD`` of the checkout containing ``dir`` (``-dirty`` if
     modified), or ``None``."""
-
-def simulation_meta(*, config_json: str, resolved_json: str, git_commit: str | None = None) -> str:
-    """The metadata line (JSON) of a simulated trial started now.
-
-    Raises:
-        ValueError: ``config_json`` or ``resolved_json`` is not valid JSON.
-    """
 
 def write_log(path: str, data: Any, /, *, meta_json: str, end_json: str | None = None) -> None:
     """Writes a log file: metadata line, one line per row of ``data`` (every

@@ -400,7 +400,7 @@ def check(path: str) -> int:
     from sensaug.session import check_plan
 
     try:
-        _core.config_check_file(path)
+        _core.Config.from_file(path, check_outputs=True)
         check_plan(path)
     except _core.ConfigError as e:
         print(e, file=sys.stderr)

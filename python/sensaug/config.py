@@ -21,7 +21,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import tomli_w
 
 from sensaug import _core
 from sensaug.config_types import (
@@ -80,9 +79,18 @@ __all__ = [
     "schema",
 ]
 
-#: Raised for every configuration problem; ``str(e)`` is
-#: ``"<dotted.field>: <what is wrong and how to fix it>"`` (a ``ValueError``).
+#: Raised for every configuration problem; ``e.field`` is the dotted field
+#: path, ``e.message`` what is wrong and how to fix it, ``str(e)`` is
+#: ``"<field>: <message>"`` (a ``ValueError``).
 ConfigError = _core.ConfigError
+
+
+def config_error(field: str, message: str) -> ConfigError:
+    """A :data:`ConfigError` raised on the Python side, with ``.field`` and
+    ``.message`` as the core's carry them."""
+    e = ConfigError(f"{field}: {message}")
+    e.field, e.message = field, message
+    return e
 
 
 def _plain(obj: Any, path: str) -> Any:
@@ -107,47 +115,63 @@ def _plain(obj: Any, path: str) -> Any:
         return obj.item()
     if isinstance(obj, (bool, int, float, str)):
         return obj
-    raise ConfigError(
-        f"{path}: a {type(obj).__name__} cannot be written to a configuration; "
-        "use a number, a string, true/false, a list or a table"
+    raise config_error(
+        path or "(config)",
+        f"a {type(obj).__name__} cannot be written to a configuration; "
+        "use a number, a string, true/false, a list or a table",
     )
 
 
 class ScenarioConfig(_ScenarioTables):
     """A whole trial: phases, plant, world, robot, partner and rig.
 
-    Validated on construction and by :meth:`validate` (after editing fields).
+    Resolved by the one schema, once, when first needed (:meth:`resolved`:
+    by ``run``, ``replay``, ``sweep``, ``to_toml`` and the rig launcher),
+    or now by :meth:`validate`; again only after a field was edited.
     """
 
-    def __post_init__(self) -> None:
-        self.validate()
+    def _keep(self, resolved: _core.Config, tables: dict[str, Any]) -> None:
+        # Not dataclass fields: equality, ``to_dict`` and ``replace`` skip them.
+        object.__setattr__(self, "_resolved", resolved)
+        object.__setattr__(self, "_resolved_tables", tables)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain nested dict (TOML/JSON-ready); absent optional fields left out."""
         return _plain(self, "")
 
-    def _toml(self) -> str:
-        try:
-            return tomli_w.dumps(self.to_dict())
-        except TypeError as e:  # a value tomli_w cannot write, e.g. a nested None
-            raise ConfigError(f"(config): cannot be written as TOML ({e}); check the field types") from None
-
     def validate(self) -> None:
-        """Checks every field with the one validator (the same as ``sensaug-rt --check``).
+        """Checks every field with the one validator (the same as
+        ``sensaug-rt --check``) and keeps the configuration it resolves to.
 
         Raises:
             ConfigError: naming the first bad field and how to fix it.
         """
-        _core.config_load(self._toml())
+        tables = self.to_dict()
+        self._keep(_core.Config(tables), tables)
+
+    def resolved(self) -> _core.Config:
+        """The configuration resolved by the one schema (``_core.Config``:
+        every default filled in, gains solved, the rig loop's settings),
+        built once per configuration and passed to ``run``, ``replay``,
+        ``sweep`` and the rig launcher; resolved again only after a field
+        was edited.
+
+        Raises:
+            ConfigError: an edit made the configuration invalid.
+        """
+        tables = self.to_dict()
+        if tables != getattr(self, "_resolved_tables", None):
+            self._keep(_core.Config(tables), tables)
+        return self._resolved  # type: ignore[no-any-return]
 
     def resolved_json(self) -> str:
         """The configuration as the Rust side sees it: JSON, every default filled in."""
-        return _core.config_load(self._toml())
+        return self.resolved().to_json()
 
     def to_toml(self, path: str | Path | None = None) -> str:
         """The configuration as TOML with each field's description and unit as a
         comment; also written to ``path`` if given."""
-        text = _core.config_to_toml(self._toml())
+        text = self.resolved().to_toml()
         if path is not None:
             Path(path).write_text(text)
         return text
@@ -155,22 +179,21 @@ class ScenarioConfig(_ScenarioTables):
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> ScenarioConfig:
         """From a plain dict (as in a TOML file); validated."""
-        try:
-            text = tomli_w.dumps(_plain(d, ""))
-        except TypeError as e:
-            raise ConfigError(f"(config): cannot be written as TOML ({e}); check the field types") from None
-        return cls._from_json(_core.config_load(text))
+        return cls._from_resolved(_core.Config(_plain(d, "")))
 
     @classmethod
-    def _from_json(cls, text: str) -> ScenarioConfig:
-        return super().from_dict(json.loads(text))  # type: ignore[return-value]
+    def _from_resolved(cls, resolved: _core.Config) -> ScenarioConfig:
+        """The tables of a resolved configuration, keeping it (not resolved again)."""
+        config: ScenarioConfig = super().from_dict(resolved.to_dict())  # type: ignore[assignment]
+        config._keep(resolved, config.to_dict())
+        return config
 
     @classmethod
     def from_toml(cls, source: str | Path) -> ScenarioConfig:
         """Reads a TOML (or ``.json``) file, or TOML text containing a newline."""
         if isinstance(source, str) and "\n" in source:
-            return cls._from_json(_core.config_load(source))
-        return cls._from_json(_core.config_load_file(str(source)))
+            return cls._from_resolved(_core.Config.from_text(source, format="toml"))
+        return cls._from_resolved(_core.Config.from_file(str(source), check_outputs=False))
 
     @property
     def duration_s(self) -> float:
@@ -212,7 +235,7 @@ def check_file(path: str | Path) -> ScenarioConfig:
     Raises:
         ConfigError: naming the first bad field (or the file) and how to fix it.
     """
-    return ScenarioConfig._from_json(_core.config_check_file(str(path)))
+    return ScenarioConfig._from_resolved(_core.Config.from_file(str(path), check_outputs=True))
 
 
 def schema() -> dict[str, Any]:

@@ -1,8 +1,9 @@
 """Run whole trials and read their logs as numpy arrays.
 
-``run(config)`` hands a :class:`~sensaug.config.ScenarioConfig` to Rust, where
-the one configuration schema resolves it (LQR weights to gains, covariances to
-matrices) and the core runs the whole trial in one call; it returns a
+``run(config)`` hands the configuration :class:`~sensaug.config.ScenarioConfig`
+resolved (``config.resolved()``: LQR weights to gains, covariances to
+matrices, once per configuration) to Rust, where the core runs the whole
+trial in one call and the log's metadata is built; it returns a
 :class:`Trial`: a log of the one schema
 (``sensaug.logs``, ``docs/logs.md``) plus the configuration that produced it.
 """
@@ -193,7 +194,7 @@ def trial_memory(config: ScenarioConfig) -> int:
     """Bytes the log of ``config``'s trial takes in memory (one record per
     tick, as :func:`run` keeps it), computed by the core from the
     configuration, as ``run`` checks it."""
-    return _core.trial_memory(config._toml())[1]
+    return config.resolved().trial_memory(memory_budget=None)[1]
 
 
 @functools.lru_cache(maxsize=1)
@@ -218,25 +219,17 @@ def run(config: ScenarioConfig, *, memory_budget: int | None = None) -> Trial:
             ``phases[*].duration_s`` and ``plant.dt_s`` and the fix), before
             anything runs.
     """
-    toml = config._toml()
-    records, summary = _core.run_scenario(toml, memory_budget=memory_budget)
-    summary = dict(summary)
-    robot_gains = np.asarray(summary.pop("robot_gains"), dtype=float)
-    partner_gains = np.asarray(summary.pop("partner_gains"), dtype=float)
-    resolved = {"robot": {"gains": robot_gains.tolist()}, "partner": {"gains": partner_gains.tolist()}}
-    meta = json.loads(
-        _core.simulation_meta(
-            config_json=_core.config_load(toml),
-            resolved_json=logs.to_json(resolved),
-            git_commit=_git_commit(),
-        )
+    records, summary, meta_json = _core.run_scenario(
+        config.resolved(), memory_budget=memory_budget, git_commit=_git_commit()
     )
+    meta = json.loads(meta_json)
+    summary = dict(summary)
     meta["end"] = summary
     return Trial(
         data=logs.from_records(records),
         meta=meta,
         config=config,
         summary=summary,
-        robot_gains=robot_gains,
-        partner_gains=partner_gains,
+        robot_gains=np.asarray(meta["resolved"]["robot"]["gains"], dtype=float),
+        partner_gains=np.asarray(meta["resolved"]["partner"]["gains"], dtype=float),
     )

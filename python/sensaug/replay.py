@@ -167,7 +167,7 @@ def replay(log: str | Path | Log, config: ScenarioConfig | None = None, *, allow
         config, matches = _recorded_config(log, allow_edited_config)
     d = log.data[:n]
     columns, counters = _core.replay_robot(
-        config._toml(),
+        config.resolved(),
         np.ascontiguousarray(d["x_meas"], dtype=np.float64),
         np.ascontiguousarray(d["xdot_meas"], dtype=np.float64),
         np.ascontiguousarray(d["fresh"], dtype=np.bool_),

@@ -161,10 +161,11 @@ def trial_metrics(trial: experiment.Trial) -> dict[str, float]:
     return out
 
 
-def _run_one(toml: str, memory_budget: int | None = None) -> dict[str, float]:
-    """One trial from its configuration text (a top-level function, so that
-    process pools and Dask can ship it)."""
-    return trial_metrics(experiment.run(ScenarioConfig.from_toml(toml), memory_budget=memory_budget))
+def _run_one(config: ScenarioConfig, memory_budget: int | None = None) -> dict[str, float]:
+    """One trial of a validated configuration (a top-level function, so that
+    process pools and Dask can ship it; pickled, its resolved configuration
+    is resolved again where it lands)."""
+    return trial_metrics(experiment.run(config, memory_budget=memory_budget))
 
 
 def _canonical(path: str) -> str:
@@ -186,26 +187,26 @@ def _seed(config: ScenarioConfig, fields: Mapping[str, int], seed: int) -> None:
         set_path(config, path, seed + offset)
 
 
-def _in_flight(jobs: list[str], memory_budget: int | None) -> int:
+def _in_flight(jobs: list[ScenarioConfig], memory_budget: int | None) -> int:
     """How many trials may run at once: as many of the largest as fit the
     budget together (default: ``_core.available_memory()``). Raises
     ``TrialTooLargeError`` (the core's message) when not even one fits."""
     budget = _core.available_memory() if memory_budget is None else memory_budget
     if budget is None:
         return len(jobs)
-    largest = max(_core.trial_memory(toml, memory_budget=budget)[1] for toml in jobs)
+    largest = max(cfg.resolved().trial_memory(memory_budget=budget)[1] for cfg in jobs)
     return max(1, min(len(jobs), budget // max(1, largest)))
 
 
-def _run_all(pool: Executor, jobs: list[str], in_flight: int, memory_budget: int | None, bar) -> list[dict[str, float]]:
+def _run_all(pool: Executor, jobs: list[ScenarioConfig], in_flight: int, memory_budget: int | None, bar) -> list[dict[str, float]]:
     """Every job on ``pool``, at most ``in_flight`` at once; results in job order."""
     results: list[Any] = [None] * len(jobs)
     pending: dict[Future, int] = {}
     queue = iter(enumerate(jobs))
 
     def submit_next() -> None:
-        for i, toml in itertools.islice(queue, 1):
-            pending[pool.submit(_run_one, toml, memory_budget)] = i
+        for i, cfg in itertools.islice(queue, 1):
+            pending[pool.submit(_run_one, cfg, memory_budget)] = i
 
     for _ in range(in_flight):
         submit_next()
@@ -301,15 +302,15 @@ def sweep(
                 )
             _seed(cfg, seeded, seed)
             cfg.validate()
-            jobs.append((point, seed, cfg._toml()))
+            jobs.append((point, seed, cfg))
 
-    tomls = [toml for _, _, toml in jobs]
-    in_flight = _in_flight(tomls, memory_budget)
+    configs = [cfg for _, _, cfg in jobs]
+    in_flight = _in_flight(configs, memory_budget)
     own = executor is None
     pool = ThreadPoolExecutor(max_workers=min(in_flight, workers or os.cpu_count() or 1)) if own else executor
     try:
         bar = progress_bar(total=len(jobs), desc="sweep", unit="trial", progress=progress)
-        results = _run_all(pool, tomls, in_flight, memory_budget, bar)
+        results = _run_all(pool, configs, in_flight, memory_budget, bar)
         bar.close()
     finally:
         if own:

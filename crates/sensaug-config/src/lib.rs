@@ -3,9 +3,12 @@
 //!
 //! * [`schema`]: the types. They parse TOML and JSON (serde), carry every
 //!   default and every bound, and generate the JSON Schema ([`json_schema`]).
-//! * [`load_file`] / [`load_str`]: read, parse and validate; the error names
-//!   the first bad field by its dotted path and says how to fix it.
-//! * [`resolve()`]: cross-field rules, then the core's structs.
+//! * [`load_file`] / [`load_str`]: read, parse and resolve ([`Resolved`]: the
+//!   one owned value every consumer takes); the error names the first bad
+//!   field by its dotted path and says how to fix it. [`parse_file`] /
+//!   [`parse_str`] only parse, for a caller that edits before resolving.
+//! * [`Resolved::new`]: every field's bound, the cross-field rules, then the
+//!   core's structs and the loop's settings ([`rig::RigSettings`]).
 //! * [`to_toml`]: a configuration as TOML with each field's description and
 //!   unit as a comment.
 //! * [`outputs`]: the rig's output paths, checked against the file system
@@ -19,13 +22,14 @@ pub mod error;
 pub mod outputs;
 pub mod person;
 pub mod resolve;
+pub mod rig;
 pub mod schema;
 mod shape;
 mod write;
 
 pub use cov::Cov;
 pub use error::ConfigError;
-pub use resolve::{resolve, Resolved};
+pub use resolve::{resolve_count, Resolved};
 pub use schema::*;
 pub use write::to_toml;
 
@@ -61,10 +65,16 @@ pub fn json_schema() -> &'static serde_json::Value {
     })
 }
 
-/// Reads, parses and validates a configuration file. Files over
-/// [`MAX_FILE_BYTES`] are refused before parsing. Errors about the file
-/// itself or its syntax name it as given.
-pub fn load_file(path: &Path) -> Result<ScenarioSpec, ConfigError> {
+/// Reads, parses and resolves a configuration file ([`parse_file`], then
+/// [`Resolved::new`]).
+pub fn load_file(path: &Path) -> Result<Resolved, ConfigError> {
+    Resolved::new(parse_file(path)?)
+}
+
+/// Reads and parses a configuration file, not yet checked against the
+/// bounds or resolved. Files over [`MAX_FILE_BYTES`] are refused before
+/// parsing. Errors about the file itself or its syntax name it as given.
+pub fn parse_file(path: &Path) -> Result<ScenarioSpec, ConfigError> {
     let name = path.display().to_string();
     let file = std::fs::File::open(path).map_err(|e| {
         ConfigError::new(
@@ -95,7 +105,7 @@ pub fn load_file(path: &Path) -> Result<ScenarioSpec, ConfigError> {
     }
     // An error about the whole text (its syntax, its size) names the file,
     // not "(config)": the person reading it has a file open.
-    load_str(&text, Format::of_path(path)).map_err(|e| match e.field.as_str() {
+    parse_str(&text, Format::of_path(path)).map_err(|e| match e.field.as_str() {
         "(config)" => ConfigError::new(&name, e.message),
         _ => e,
     })
@@ -104,10 +114,10 @@ pub fn load_file(path: &Path) -> Result<ScenarioSpec, ConfigError> {
 /// What both checkers (`sensaug check`, `sensaug-rt --check`) run: the file
 /// loaded and validated ([`load_file`]), then the rig's output paths
 /// ([`outputs::check_outputs`]; relative paths from the current folder).
-pub fn check_file(path: &Path) -> Result<ScenarioSpec, ConfigError> {
-    let spec = load_file(path)?;
-    check_rig_outputs(&spec)?;
-    Ok(spec)
+pub fn check_file(path: &Path) -> Result<Resolved, ConfigError> {
+    let resolved = load_file(path)?;
+    check_rig_outputs(&resolved.spec)?;
+    Ok(resolved)
 }
 
 /// The rig's output paths (`rig.log`, `rig.stats`) checked against the file
@@ -127,29 +137,24 @@ fn io_reason(e: &std::io::Error) -> String {
     }
 }
 
-/// Parses and validates configuration text.
-pub fn load_str(text: &str, format: Format) -> Result<ScenarioSpec, ConfigError> {
+/// Parses and resolves configuration text ([`parse_str`], then
+/// [`Resolved::new`]).
+pub fn load_str(text: &str, format: Format) -> Result<Resolved, ConfigError> {
+    Resolved::new(parse_str(text, format)?)
+}
+
+/// Parses configuration text, not yet checked against the bounds or resolved.
+pub fn parse_str(text: &str, format: Format) -> Result<ScenarioSpec, ConfigError> {
     if text.len() as u64 > MAX_FILE_BYTES {
         return Err(ConfigError::new(
             "(config)",
             "larger than 1 MiB; a configuration is a few kB",
         ));
     }
-    let spec = match format {
-        Format::Toml => parse_toml(text)?,
-        Format::Json => parse_json(text)?,
-    };
-    validate(&spec)?;
-    Ok(spec)
-}
-
-/// Checks a parsed configuration: every field's bounds, then the cross-field
-/// rules and the core's set-up.
-pub fn validate(spec: &ScenarioSpec) -> Result<(), ConfigError> {
-    let value = serde_json::to_value(spec)
-        .map_err(|e| ConfigError::new("(config)", format!("cannot be represented: {e}")))?;
-    check::bounds(json_schema(), &value)?;
-    resolve(spec).map(|_| ())
+    match format {
+        Format::Toml => parse_toml(text),
+        Format::Json => parse_json(text),
+    }
 }
 
 /// The configuration, every default filled in, as compact JSON (what the
@@ -173,6 +178,29 @@ fn parse_toml(text: &str) -> Result<ScenarioSpec, ConfigError> {
     serde_path_to_error::deserialize(de).map_err(|e| {
         let path = path_string(e.path());
         error::from_serde(&path, e.inner().message())
+    })
+}
+
+/// Parses a configuration from any serde data format's deserializer (the
+/// binding reads Python's dicts and lists with one). The values are read
+/// into TOML's data model first, so that they are checked, and their errors
+/// worded, exactly as a file's; the error names the field by its dotted path.
+pub fn parse_from<'de, D: serde::Deserializer<'de>>(de: D) -> Result<ScenarioSpec, ConfigError>
+where
+    D::Error: std::fmt::Display,
+{
+    let value = <toml::Value as serde::Deserialize>::deserialize(de).map_err(|e| {
+        ConfigError::new(
+            "(config)",
+            format!("cannot be read as tables of numbers, strings, true/false and lists ({e})"),
+        )
+    })?;
+    serde_path_to_error::deserialize(value).map_err(|e| {
+        let path = path_string(e.path());
+        // A TOML value's error ends with the key it was at ("\nin ..."):
+        // the path says that already.
+        let msg = e.into_inner().to_string();
+        error::from_serde(&path, msg.split("\nin ").next().unwrap_or(&msg))
     })
 }
 

@@ -8,6 +8,7 @@
 
 use crate::cov::Cov;
 use crate::error::{num, ConfigError};
+use crate::rig::{period_ns, RigSettings};
 use crate::schema::{
     ActsOnSpec, DriveProfile, PhaseKindSpec, PositionUnit, RigSpec, RobotSpec, ScenarioSpec,
     ShapeSpec, MAX_PARTS,
@@ -23,16 +24,19 @@ use sensaug_core::target::{Shape, Target};
 use sensaug_core::ukf::MerweParams;
 use sensaug_core::world::{PartnerConfig, PartnerIntegration, StateSource, WorldConfig};
 use sensaug_core::ScenarioError;
+use serde::ser::{Serialize, SerializeMap, Serializer};
+use std::cell::Cell;
 
-/// Everything the simulation and the real-time loop need, validated and
-/// built. Borrows the sampled targets of the configuration it came from.
+/// A configuration resolved: the file's values (every default filled in)
+/// and everything derived from them, built once ([`Resolved::new`]) and
+/// then passed around as one owned value: the simulation, the replay and
+/// the real-time loop take their settings from it, and a log's metadata is
+/// its serialisation ([`Resolved::derived`]).
 #[derive(Clone, Debug)]
-pub struct Resolved<'a> {
+pub struct Resolved {
     /// The configuration, every default filled in.
-    pub spec: &'a ScenarioSpec,
-    /// The protocol's phases.
-    pub phases: Vec<Phase<'a>>,
-    /// The robot's controller.
+    pub spec: ScenarioSpec,
+    /// The robot's controller (its LQR gains solved).
     pub robot: RobotConfig,
     /// The partner (virtual human): gains over xi, torque limit.
     pub partner: PartnerConfig,
@@ -42,12 +46,72 @@ pub struct Resolved<'a> {
     pub dt_s: f64,
     /// rad per controller position unit on the rig (torque scales alike).
     pub rad_per_unit: f64,
+    /// The real-time loop's settings.
+    pub rig: RigSettings,
 }
 
-impl Resolved<'_> {
-    /// The core's protocol for these phases (validated at resolution).
-    pub fn protocol(&self) -> Protocol<'_> {
-        Protocol::new(&self.phases, self.dt_s).expect("checked when resolved")
+std::thread_local! {
+    /// Configurations resolved on this thread ([`resolve_count`]).
+    static RESOLVES: Cell<u64> = const { Cell::new(0) };
+}
+
+/// How many configurations the calling thread has resolved
+/// ([`Resolved::new`]): the tests' proof that a trial resolves its
+/// configuration once (per thread, so that tests running side by side do
+/// not count each other's).
+pub fn resolve_count() -> u64 {
+    RESOLVES.with(Cell::get)
+}
+
+impl Resolved {
+    /// Checks every field's bounds and the cross-field rules, solves the
+    /// agents' gains and runs the core's own set-up checks: a configuration
+    /// that resolves also builds.
+    pub fn new(spec: ScenarioSpec) -> Result<Resolved, ConfigError> {
+        RESOLVES.with(|n| n.set(n.get() + 1));
+        let value = serde_json::to_value(&spec)
+            .map_err(|e| ConfigError::new("(config)", format!("cannot be represented: {e}")))?;
+        crate::check::bounds(crate::json_schema(), &value)?;
+        resolve(spec)
+    }
+
+    /// The core's phases, borrowing the sampled targets of [`Self::spec`].
+    pub fn phases(&self) -> Vec<Phase<'_>> {
+        self.spec
+            .phases
+            .iter()
+            .map(|ph| Phase {
+                kind: kind(ph.kind),
+                duration_s: ph.duration_s,
+                robot_target: target(&ph.robot_target),
+                partner_target: target(&ph.partner_target),
+                target_noise_std: ph.target_noise_std,
+            })
+            .collect()
+    }
+
+    /// The values derived from the configuration that a log records
+    /// (`meta["resolved"]`): the agents' gains, the period and the unit.
+    pub fn derived(&self) -> serde_json::Value {
+        serde_json::json!({
+            "robot": {"gains": self.robot.gains},
+            "partner": {"gains": self.partner.gains},
+            "dt_s": self.dt_s,
+            "rad_per_unit": self.rad_per_unit,
+        })
+    }
+}
+
+/// A resolved configuration serialises as `{"config": .., "resolved": ..,
+/// "loop": ..}`: the file's values, [`Resolved::derived`] and the loop's
+/// settings, the keys of a log's metadata.
+impl Serialize for Resolved {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        let mut m = s.serialize_map(Some(3))?;
+        m.serialize_entry("config", &self.spec)?;
+        m.serialize_entry("resolved", &self.derived())?;
+        m.serialize_entry("loop", &self.rig)?;
+        m.end()
     }
 }
 
@@ -283,7 +347,7 @@ fn rig_timing(rig: &RigSpec, dt_s: f64) -> Result<(), ConfigError> {
     }
     // The period in whole ns, as the loop derives it. A spin of half the
     // period or more would leave the tick less time to run than it spins.
-    let period_ns = (dt_s * 1e9).round() as u64;
+    let period_ns = period_ns(dt_s);
     let spin_us = u64::from(rig.realtime.spin_us);
     if spin_us > 0 && 2 * spin_us * 1000 >= period_ns {
         return Err(ConfigError::new(
@@ -356,8 +420,9 @@ fn core_error(e: ScenarioError) -> ConfigError {
     }
 }
 
-/// Validates the cross-field rules and builds the core's structs.
-pub fn resolve(spec: &ScenarioSpec) -> Result<Resolved<'_>, ConfigError> {
+/// Validates the cross-field rules and builds the core's structs (the
+/// fields' bounds are [`Resolved::new`]'s).
+fn resolve(spec: ScenarioSpec) -> Result<Resolved, ConfigError> {
     let p = &spec.plant;
     let dt_s = p.dt_s;
     let model = HandleModel {
@@ -366,7 +431,6 @@ pub fn resolve(spec: &ScenarioSpec) -> Result<Resolved<'_>, ConfigError> {
         dt_s,
     };
     let mut gains_known = spec.robot.prior_partner_gains.is_some();
-    let mut phases = Vec::with_capacity(spec.phases.len());
     for (i, ph) in spec.phases.iter().enumerate() {
         if ph.duration_s < dt_s {
             return Err(ConfigError::new(
@@ -389,16 +453,8 @@ pub fn resolve(spec: &ScenarioSpec) -> Result<Resolved<'_>, ConfigError> {
             }
             _ => {}
         }
-        phases.push(Phase {
-            kind: kind(ph.kind),
-            duration_s: ph.duration_s,
-            robot_target: target(&ph.robot_target),
-            partner_target: target(&ph.partner_target),
-            target_noise_std: ph.target_noise_std,
-        });
     }
     let robot = robot(&spec.robot, model)?;
-
     let pa = &spec.partner;
     let partner_gains =
         match (pa.gains.as_deref(), pa.q_pos, pa.q_vel) {
@@ -431,9 +487,9 @@ pub fn resolve(spec: &ScenarioSpec) -> Result<Resolved<'_>, ConfigError> {
                 "give either gains = [Lhx, Lhv, Lhh] or the LQR weights q_pos and q_vel, not both",
             )),
         };
-    partner_integration(spec)?;
+    partner_integration(&spec)?;
     rig_timing(&spec.rig, dt_s)?;
-    crate::person::check(spec)?;
+    crate::person::check(&spec)?;
 
     let w = &spec.world;
     let world = WorldConfig {
@@ -449,33 +505,38 @@ pub fn resolve(spec: &ScenarioSpec) -> Result<Resolved<'_>, ConfigError> {
         velocity_noise_std: w.velocity_noise_std,
         seed: w.seed,
     };
+    let partner = PartnerConfig {
+        gains: partner_gains,
+        torque_limit: pa.torque_limit,
+        estimates_robot: pa.estimates_robot,
+        acts_on: match pa.acts_on {
+            ActsOnSpec::Measured => StateSource::Measured,
+            ActsOnSpec::True => StateSource::True,
+        },
+        integration: pa.integration.as_ref().map(|i| PartnerIntegration {
+            target_noise_std: i.target_noise_std,
+            integrate: i.integrate,
+            seed: i.seed,
+        }),
+    };
+    let rad_per_unit = match spec.rig.position_unit {
+        PositionUnit::Deg => core::f64::consts::PI / 180.0,
+        PositionUnit::Rad => 1.0,
+    };
+    let rig = RigSettings::new(&spec, rad_per_unit, &partner, world.plant);
     let resolved = Resolved {
         spec,
-        phases,
         robot,
-        partner: PartnerConfig {
-            gains: partner_gains,
-            torque_limit: pa.torque_limit,
-            estimates_robot: pa.estimates_robot,
-            acts_on: match pa.acts_on {
-                ActsOnSpec::Measured => StateSource::Measured,
-                ActsOnSpec::True => StateSource::True,
-            },
-            integration: pa.integration.as_ref().map(|i| PartnerIntegration {
-                target_noise_std: i.target_noise_std,
-                integrate: i.integrate,
-                seed: i.seed,
-            }),
-        },
+        partner,
         world,
         dt_s,
-        rad_per_unit: match spec.rig.position_unit {
-            PositionUnit::Deg => core::f64::consts::PI / 180.0,
-            PositionUnit::Rad => 1.0,
-        },
+        rad_per_unit,
+        rig,
     };
     // The core's own set-up checks, so that a valid file always builds.
-    let protocol = Protocol::new(&resolved.phases, dt_s).map_err(core_error)?;
+    let phases = resolved.phases();
+    let protocol = Protocol::new(&phases, dt_s).map_err(core_error)?;
     Robot::new(resolved.robot, protocol).map_err(core_error)?;
+    drop(phases);
     Ok(resolved)
 }

@@ -2,7 +2,17 @@
 //! back to the same configuration, TOML and JSON agree, and the bounds the
 //! schema publishes are the ones enforced.
 
-use sensaug_config::{json_schema, load_file, load_str, to_json, to_toml, Format, ScenarioSpec};
+use sensaug_config::{json_schema, to_json, to_toml, ConfigError, Format, ScenarioSpec};
+
+/// The file's values of a configuration that resolves.
+fn load_file(path: &Path) -> Result<ScenarioSpec, ConfigError> {
+    sensaug_config::load_file(path).map(|r| r.spec)
+}
+
+/// The values of configuration text that resolves.
+fn load_str(text: &str, format: Format) -> Result<ScenarioSpec, ConfigError> {
+    sensaug_config::load_str(text, format).map(|r| r.spec)
+}
 use std::path::Path;
 
 const MINIMAL: &str = r#"
@@ -219,4 +229,44 @@ fn the_drive_heartbeat_timeout_is_bounded_by_the_watchdog_on_cia402() {
             assert!(e.message.contains("out of range"), "{e}");
         }
     }
+}
+
+/// Loading resolves once; the resolved value is owned, carries the loop's
+/// settings and serialises to the metadata's keys.
+#[test]
+fn a_load_resolves_once_into_one_owned_value() {
+    let before = sensaug_config::resolve_count();
+    let resolved = sensaug_config::load_file(&repo().join("configs/hi5_rig.toml")).unwrap();
+    assert_eq!(sensaug_config::resolve_count() - before, 1);
+    let rig = &resolved.rig;
+    assert_eq!(rig.period_ns, 1_000_000);
+    assert_eq!(rig.dt_s, resolved.dt_s);
+    assert_eq!(
+        rig.feedback_timeout_ticks,
+        (resolved.spec.rig.feedback_timeout_ms * 1e-3 / resolved.dt_s).ceil() as u64
+    );
+    assert_eq!(
+        rig.quiet_period_ms,
+        u64::from(resolved.spec.rig.watchdog_ms) * sensaug_config::rig::QUIET_WATCHDOG_PERIODS
+    );
+    let value = serde_json::to_value(&resolved).unwrap();
+    assert_eq!(
+        value["config"],
+        serde_json::to_value(&resolved.spec).unwrap()
+    );
+    assert_eq!(
+        value["resolved"]["robot"]["gains"],
+        serde_json::json!(resolved.robot.gains)
+    );
+    let settings = value["loop"].as_object().unwrap();
+    for key in [
+        "stop_time_limit_s",
+        "spin_us",
+        "quiet_period_ms",
+        "node_id",
+        "drive",
+    ] {
+        assert!(settings.contains_key(key), "loop settings lack {key}");
+    }
+    assert!(!settings.contains_key("plant"));
 }

@@ -15,7 +15,6 @@ use zerocopy::IntoBytes;
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(log_schema, m)?)?;
     m.add_function(wrap_pyfunction!(git_commit, m)?)?;
-    m.add_function(wrap_pyfunction!(simulation_meta, m)?)?;
     m.add_function(wrap_pyfunction!(write_log, m)?)?;
     m.add_function(wrap_pyfunction!(config_sha256, m)?)?;
     Ok(())
@@ -46,29 +45,6 @@ fn log_schema(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
 #[pyfunction]
 fn git_commit(py: Python<'_>, dir: PathBuf) -> Option<String> {
     py.detach(|| sensaug_log::git_commit(&dir))
-}
-
-/// The metadata line of a simulated trial started now, as JSON text.
-#[pyfunction]
-#[pyo3(signature = (*, config_json, resolved_json, git_commit=None))]
-fn simulation_meta(
-    config_json: &str,
-    resolved_json: &str,
-    git_commit: Option<String>,
-) -> PyResult<String> {
-    let parse = |name: &str, text: &str| {
-        serde_json::from_str::<serde_json::Value>(text)
-            .map_err(|e| PyValueError::new_err(format!("{name}: not valid JSON: {e}")))
-    };
-    let info = sensaug_log::RunInfo {
-        source: sensaug_log::Source::Simulation,
-        config: parse("config_json", config_json)?,
-        resolved: parse("resolved_json", resolved_json)?,
-        git_commit,
-        start_unix_s: sensaug_log::now_unix_s(),
-        loop_settings: serde_json::Value::Null,
-    };
-    Ok(sensaug_log::metadata(&info).to_string())
 }
 
 /// The configuration digest a log records (`meta["config_sha256"]`) of the

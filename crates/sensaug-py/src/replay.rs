@@ -1,10 +1,10 @@
 //! `_core.replay_robot`: the robot's controller re-run offline over a
 //! recorded trial (`sensaug_core::replay::replay_robot`). Conversion only:
-//! the configuration text and the recorded measurement columns in, the
+//! the resolved configuration (`_core.Config`) and the recorded measurement columns in, the
 //! controller's columns of the log schema out.
 
 use crate::convert::slice;
-use crate::scenario::{config_err, load, ConfigError};
+use crate::scenario::{protocol, rejected, Config};
 use numpy::PyReadonlyArray1;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -22,17 +22,15 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
 /// (the controller's columns, `tick`, `t`, `x_meas`, `xdot_meas`, `fresh`
 /// filled; the rest unknown) and the robot's counters.
 #[pyfunction]
-#[pyo3(signature = (text, x_meas, xdot_meas, fresh, /, *, format = "toml"))]
+#[pyo3(signature = (config, x_meas, xdot_meas, fresh, /))]
 fn replay_robot<'py>(
     py: Python<'py>,
-    text: &str,
+    config: &Config,
     x_meas: PyReadonlyArray1<'py, f64>,
     xdot_meas: PyReadonlyArray1<'py, f64>,
     fresh: PyReadonlyArray1<'py, bool>,
-    format: &str,
 ) -> PyResult<(Bound<'py, PyDict>, Bound<'py, PyDict>)> {
-    let spec = load(text, format)?;
-    let resolved = sensaug_config::resolve(&spec).map_err(config_err)?;
+    let resolved = &config.resolved;
     let (x, v) = (slice(&x_meas, "x_meas")?, slice(&xdot_meas, "xdot_meas")?);
     let fresh = fresh.as_slice().map_err(|_| {
         PyValueError::new_err("fresh: must be C-contiguous (use np.ascontiguousarray)")
@@ -45,11 +43,9 @@ fn replay_robot<'py>(
             )));
         }
     }
-    let mut robot = Robot::new(resolved.robot, resolved.protocol()).map_err(|_| {
-        ConfigError::new_err(
-            "(config): the core rejected a validated configuration; please report this",
-        )
-    })?;
+    let phases = resolved.phases();
+    let mut robot =
+        Robot::new(resolved.robot, protocol(resolved, &phases)?).map_err(|_| rejected())?;
     let measurements: Vec<Option<(f64, f64)>> = (0..x.len())
         .map(|k| fresh[k].then_some((x[k], v[k])))
         .collect();

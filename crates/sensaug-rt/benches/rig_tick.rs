@@ -29,7 +29,7 @@
 mod drive;
 
 use sensaug_bridge::transport::UdpBus;
-use sensaug_config::{load_file, resolve};
+use sensaug_config::load_file;
 use sensaug_core::controller::Robot;
 use sensaug_core::protocol::Protocol;
 use sensaug_rt::config::drive_link;
@@ -53,9 +53,8 @@ fn main() {
         drive::DriveWait::Sleeping
     };
     let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/hi5_rig.toml");
-    let spec = load_file(&config).expect("configs/hi5_rig.toml loads");
-    let resolved = resolve(&spec).expect("configs/hi5_rig.toml resolves");
-    let mut phases = resolved.phases.clone();
+    let resolved = load_file(&config).expect("configs/hi5_rig.toml resolves");
+    let mut phases = resolved.phases();
     for p in &mut phases {
         p.duration_s = phase_s;
     }

@@ -16,9 +16,10 @@ use crate::os;
 use crate::stats::{CanCounters, ComputeParts, DriveReport, Histogram, LoopReport, StartGap};
 use crate::wake::{wake_up, Wake};
 use sensaug_bridge::drive_link::{Absorbed, DriveLink, DriveSample};
-use sensaug_bridge::protocol::NodeId;
 use sensaug_bridge::{Frame, Transport};
-use sensaug_config::DriveProfile;
+/// The loop's settings: derived once, with the rest of the configuration,
+/// when it is resolved (`sensaug_config::Resolved::rig`).
+pub use sensaug_config::rig::{RigSettings as LoopSettings, StopSettings, QUIET_WATCHDOG_PERIODS};
 use sensaug_core::agent::{guard_torque, Guard, VirtualHuman};
 use sensaug_core::controller::{Robot, RobotTick};
 use sensaug_core::plant::{Plant, PlantParams, PlantState};
@@ -60,13 +61,12 @@ impl Timing {
     /// (`first_command_ns`), or now if that has passed: the drive's watchdog
     /// sees no longer gap at the start than between two ticks.
     fn new(s: &LoopSettings, first_command_ns: u64) -> Self {
-        let period_ns = (s.dt_s * 1e9).round() as u64;
         Timing {
-            start_ns: (first_command_ns + period_ns).max(os::now_ns()),
-            period_ns,
+            start_ns: (first_command_ns + s.period_ns).max(os::now_ns()),
+            period_ns: s.period_ns,
             spin_ns: u64::from(s.spin_us) * 1000,
-            timeout_ticks: (s.feedback_timeout_ms * 1e-3 / s.dt_s).ceil() as u64,
-            stop_ticks: (s.stop.time_limit_s / s.dt_s).round() as u64,
+            timeout_ticks: s.feedback_timeout_ticks,
+            stop_ticks: s.stop_ticks,
         }
     }
 }
@@ -156,97 +156,25 @@ impl fmt::Display for StartError {
 
 impl std::error::Error for StartError {}
 
-/// Settings of the loop (from `[rig]` and the controller's configuration).
-#[derive(Clone, Copy, Debug)]
-pub struct LoopSettings {
-    /// Drive profile.
-    pub drive: DriveProfile,
-    /// Drive node id.
-    pub node: NodeId,
-    /// Loop period (s).
-    pub dt_s: f64,
-    /// rad per controller position unit (torque scales the same way).
-    pub rad_per_unit: f64,
-    /// Torque limit at the drive (N m).
-    pub torque_limit_nm: f64,
-    /// Drive watchdog (ms).
-    pub watchdog_ms: u16,
-    /// CiA 402: the drive's heartbeat is lost after this long (ms).
-    pub drive_heartbeat_timeout_ms: u32,
-    /// Feedback timeout (ms).
-    pub feedback_timeout_ms: f64,
-    /// The controlled stop.
-    pub stop: StopSettings,
-    /// Virtual human gains over `xi` (zeros: no virtual human).
-    pub partner_gains: [f64; 3],
-    /// Virtual human torque limit (model units).
-    pub partner_torque_limit: f64,
-    /// The handle's model (model units): the virtual human's view of the
-    /// handle on ticks without fresh feedback ([`HandleView`]).
-    pub plant: PlantParams,
-    /// Feedback plausibility: velocity limit (rad/s).
-    pub max_feedback_velocity_rad_s: f64,
-    /// Feedback plausibility: position step margin (rad).
-    pub feedback_step_margin_rad: f64,
-    /// Feedback consistency: the plant's largest acceleration under the
-    /// torque limit, `torque_limit_nm / plant.mass` (rad/s^2).
-    pub max_acceleration_rad_s2: f64,
-    /// Feedback consistency: velocity margin (rad/s).
-    pub feedback_velocity_margin_rad_s: f64,
-    /// Degraded run: largest fraction of ticks without fresh feedback.
-    pub max_missing_feedback_fraction: f64,
-    /// Degraded run: longest run of ticks without fresh feedback.
-    pub max_stale_feedback_ticks: u64,
-    /// Degraded run: most estimator errors plus non-finite outputs.
-    pub max_estimator_errors: u64,
-    /// Sleep-then-spin: the sleep ends this long before each deadline and
-    /// the loop spins on the clock for the rest (us; 0: sleep only).
-    pub spin_us: u32,
-}
-
-impl LoopSettings {
-    /// How long set-up listens for another controller before enabling:
-    /// [`QUIET_WATCHDOG_PERIODS`] drive watchdog periods (a running
-    /// controller sends at least one command per period or its drive trips).
-    pub fn quiet_period(&self) -> Duration {
-        Duration::from_millis(u64::from(self.watchdog_ms) * QUIET_WATCHDOG_PERIODS)
-    }
-
-    fn feedback_limits(&self) -> FeedbackLimits {
-        FeedbackLimits {
-            max_velocity_rad_s: self.max_feedback_velocity_rad_s,
-            step_margin_rad: self.feedback_step_margin_rad,
-            dt_s: self.dt_s,
-            max_acceleration_rad_s2: self.max_acceleration_rad_s2,
-            velocity_margin_rad_s: self.feedback_velocity_margin_rad_s,
-        }
-    }
-
-    fn degraded_limits(&self) -> DegradedLimits {
-        DegradedLimits {
-            missing_fraction: self.max_missing_feedback_fraction,
-            stale_run_ticks: self.max_stale_feedback_ticks,
-            estimator_errors: self.max_estimator_errors,
-            ticks_per_s: (1.0 / self.dt_s).round() as u64,
-        }
+/// The feedback checks' limits from the loop's settings.
+fn feedback_limits(s: &LoopSettings) -> FeedbackLimits {
+    FeedbackLimits {
+        max_velocity_rad_s: s.max_feedback_velocity_rad_s,
+        step_margin_rad: s.feedback_step_margin_rad,
+        dt_s: s.dt_s,
+        max_acceleration_rad_s2: s.max_acceleration_rad_s2,
+        velocity_margin_rad_s: s.feedback_velocity_margin_rad_s,
     }
 }
 
-/// Drive watchdog periods of listening for another controller before enabling.
-pub const QUIET_WATCHDOG_PERIODS: u64 = 3;
-
-/// The controlled stop's settings (`rig.stop_*`, docs/safety.md).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct StopSettings {
-    /// The longest it brakes before disabling (s).
-    pub time_limit_s: f64,
-    /// The brake's damping, `plant.mass / rig.stop_time_constant_s`
-    /// (N m s/rad).
-    pub damping_nm_s_per_rad: f64,
-    /// The brake's largest torque (N m).
-    pub torque_limit_nm: f64,
-    /// At rest below this speed (rad/s).
-    pub rest_velocity_rad_s: f64,
+/// The degraded-run checks' limits from the loop's settings.
+fn degraded_limits(s: &LoopSettings) -> DegradedLimits {
+    DegradedLimits {
+        missing_fraction: s.max_missing_feedback_fraction,
+        stale_run_ticks: s.max_stale_feedback_ticks,
+        estimator_errors: s.max_estimator_errors,
+        ticks_per_s: (1.0 / s.dt_s).round() as u64,
+    }
 }
 
 /// When set-up talked to the drive (ns, `CLOCK_MONOTONIC`), for the start
@@ -367,8 +295,8 @@ impl<'a> Rig<'a> {
         let handle_view = HandleView::new(settings.plant)
             .map_err(|e| StartError::Scenario(ScenarioError::Plant(e)))?;
         let mut rig = Rig {
-            degraded_limits: settings.degraded_limits(),
-            feedback_limits: settings.feedback_limits(),
+            degraded_limits: degraded_limits(&settings),
+            feedback_limits: feedback_limits(&settings),
             settings,
             link,
             transport,

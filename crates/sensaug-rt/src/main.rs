@@ -10,11 +10,11 @@
 
 use clap::Parser;
 use sensaug_config::outputs::{create_partial, partial_path, replace};
-use sensaug_config::Resolved;
-use sensaug_config::{load_file, validate, ConfigError, ScenarioSpec};
+use sensaug_config::{ConfigError, Resolved};
 use sensaug_core::controller::Robot;
-use sensaug_rt::config::{drive_link, loop_settings};
-use sensaug_rt::control::{LoopSettings, Rig, StartError, StopReason};
+use sensaug_core::protocol::Protocol;
+use sensaug_rt::config::{drive_link, load, Overrides};
+use sensaug_rt::control::{Rig, StartError, StopReason};
 use sensaug_rt::{feed, log, os};
 use std::io::Write;
 use std::net::SocketAddr;
@@ -58,8 +58,8 @@ struct Args {
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    let spec = match load(&args) {
-        Ok(spec) => spec,
+    let resolved = match load_args(&args) {
+        Ok(resolved) => resolved,
         Err(e) => {
             eprintln!("{e}");
             return ExitCode::from(2);
@@ -78,10 +78,10 @@ fn main() -> ExitCode {
         return ExitCode::SUCCESS;
     }
     if args.print_resolved {
-        println!("{}", sensaug_config::to_json(&spec));
+        println!("{}", sensaug_config::to_json(&resolved.spec));
         return ExitCode::SUCCESS;
     }
-    match run(&spec, &args.feed) {
+    match run(&resolved, &args.feed) {
         Ok(StopReason::Completed) => ExitCode::SUCCESS,
         Ok(reason) => {
             say(&mut std::io::stderr(), &format!("stopped: {reason}"));
@@ -150,34 +150,28 @@ fn write_stats(mut file: std::fs::File, path: &Path, json: &str) -> std::io::Res
     written
 }
 
-/// The file, with the command line's overrides applied, validated as a
-/// whole; its output paths checked too unless only printing it.
-fn load(args: &Args) -> Result<ScenarioSpec, ConfigError> {
-    let mut spec = load_file(&args.config)?;
-    if let Some(url) = &args.can {
-        spec.rig.can = url.clone();
-    }
-    if let Some(p) = &args.log {
-        spec.rig.log = p.clone();
-    }
-    if let Some(p) = &args.stats {
-        spec.rig.stats = p.clone();
-    }
-    validate(&spec)?;
-    if !args.print_resolved {
-        sensaug_config::check_rig_outputs(&spec)?;
-    }
-    Ok(spec)
+/// The file, with the command line's overrides applied, resolved once
+/// ([`load`]); its output paths checked too unless only printing it.
+fn load_args(args: &Args) -> Result<Resolved, ConfigError> {
+    let overrides = Overrides {
+        can: args.can.clone(),
+        log: args.log.clone(),
+        stats: args.stats.clone(),
+    };
+    load(&args.config, &overrides, !args.print_resolved)
 }
 
-fn run(spec: &ScenarioSpec, feed_to: &[SocketAddr]) -> Result<StopReason, RunError> {
-    let resolved = sensaug_config::resolve(spec).map_err(|e| e.to_string())?;
-    let settings = loop_settings(&resolved).map_err(|e| e.to_string())?;
-    let robot = Robot::new(resolved.robot, resolved.protocol()).map_err(|_| {
+fn run(resolved: &Resolved, feed_to: &[SocketAddr]) -> Result<StopReason, RunError> {
+    let settings = resolved.rig;
+    let phases = resolved.phases();
+    let protocol = Protocol::new(&phases, resolved.dt_s).map_err(|_| {
+        "phases: the core rejected a configuration that resolved; please report this".to_string()
+    })?;
+    let robot = Robot::new(resolved.robot, protocol).map_err(|_| {
         "robot: the controller rejected a configuration that validated; please report this"
             .to_string()
     })?;
-    let rig = &spec.rig;
+    let rig = &resolved.spec.rig;
     let mut transport = sensaug_bridge::open(&rig.can).map_err(|e| format!("rig.can: {e}"))?;
     let link = drive_link(&settings).map_err(|e| e.to_string())?;
     // Only this node's frames wake the loop (a kernel filter on SocketCAN):
@@ -196,7 +190,7 @@ fn run(spec: &ScenarioSpec, feed_to: &[SocketAddr]) -> Result<StopReason, RunErr
     os::register_stop_signals(&stop).map_err(|e| format!("signal handler: {e}"))?;
     let log_path = PathBuf::from(&rig.log);
     let stats_path = PathBuf::from(&rig.stats);
-    let meta = log_metadata(&resolved, &settings);
+    let meta = log_metadata(resolved);
     // The log writer thread inherits this thread's affinity: keep it off
     // the loop's CPU (the loop pins itself to it below).
     let writer_off_cpu = rig.realtime.cpu.map(|cpu| os::avoid_cpu(cpu as usize));
@@ -338,51 +332,27 @@ fn run(spec: &ScenarioSpec, feed_to: &[SocketAddr]) -> Result<StopReason, RunErr
     Ok(reason)
 }
 
-/// The log's metadata line: the configuration (every default filled in),
-/// the values derived from it, the git commit and the loop's settings.
-fn log_metadata(resolved: &Resolved<'_>, s: &LoopSettings) -> serde_json::Value {
-    let spec = resolved.spec;
+/// The log's metadata line: the resolved configuration's serialisation
+/// (the file's values, the values derived from them and the loop's
+/// settings), the bus, the log writer's period and the git commit.
+fn log_metadata(resolved: &Resolved) -> serde_json::Value {
     let exe_dir = std::env::current_exe()
         .ok()
         .and_then(|p| p.parent().map(Path::to_path_buf));
+    let mut loop_settings = serde_json::to_value(resolved.rig).unwrap_or_default();
+    if let Some(m) = loop_settings.as_object_mut() {
+        m.insert("can".into(), resolved.spec.rig.can.clone().into());
+        m.insert(
+            "log_write_period_ms".into(),
+            (log::WRITE_PERIOD.as_secs_f64() * 1e3).into(),
+        );
+    }
     sensaug_log::metadata(&sensaug_log::RunInfo {
         source: sensaug_log::Source::Rig,
-        config: serde_json::to_value(spec).unwrap_or(serde_json::Value::Null),
-        resolved: serde_json::json!({
-            "robot": {"gains": resolved.robot.gains},
-            "partner": {"gains": resolved.partner.gains},
-            "dt_s": resolved.dt_s,
-            "rad_per_unit": resolved.rad_per_unit,
-        }),
+        config: serde_json::to_value(&resolved.spec).unwrap_or(serde_json::Value::Null),
+        resolved: resolved.derived(),
         git_commit: exe_dir.as_deref().and_then(sensaug_log::git_commit),
         start_unix_s: sensaug_log::now_unix_s(),
-        loop_settings: serde_json::json!({
-            "can": spec.rig.can,
-            "drive": spec.rig.drive,
-            "node_id": s.node.get(),
-            "dt_s": s.dt_s,
-            "rad_per_unit": s.rad_per_unit,
-            "torque_limit_nm": s.torque_limit_nm,
-            "watchdog_ms": s.watchdog_ms,
-            "drive_heartbeat_timeout_ms": s.drive_heartbeat_timeout_ms,
-            "feedback_timeout_ms": s.feedback_timeout_ms,
-            "stop_time_limit_s": s.stop.time_limit_s,
-            "stop_damping_nm_s_per_rad": s.stop.damping_nm_s_per_rad,
-            "stop_torque_limit_nm": s.stop.torque_limit_nm,
-            "stop_rest_velocity_rad_s": s.stop.rest_velocity_rad_s,
-            "partner_gains": s.partner_gains,
-            "partner_torque_limit": s.partner_torque_limit,
-            "ring_capacity": spec.rig.ring_capacity,
-            "max_feedback_velocity_rad_s": s.max_feedback_velocity_rad_s,
-            "feedback_step_margin_rad": s.feedback_step_margin_rad,
-            "max_acceleration_rad_s2": s.max_acceleration_rad_s2,
-            "feedback_velocity_margin_rad_s": s.feedback_velocity_margin_rad_s,
-            "max_missing_feedback_fraction": s.max_missing_feedback_fraction,
-            "max_stale_feedback_ticks": s.max_stale_feedback_ticks,
-            "max_estimator_errors": s.max_estimator_errors,
-            "spin_us": s.spin_us,
-            "quiet_period_ms": s.quiet_period().as_secs_f64() * 1e3,
-            "log_write_period_ms": log::WRITE_PERIOD.as_secs_f64() * 1e3,
-        }),
+        loop_settings,
     })
 }

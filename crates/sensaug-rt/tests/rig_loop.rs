@@ -5,7 +5,7 @@
 //! wake-up. No timing is asserted.
 
 use sensaug_bridge::transport::UdpBus;
-use sensaug_config::{load_str, resolve, Format};
+use sensaug_config::{load_str, Format};
 use sensaug_core::controller::Robot;
 use sensaug_core::protocol::Protocol;
 use sensaug_log::Row;
@@ -62,12 +62,12 @@ struct Outcome {
 }
 
 fn run_loop(answer_for: u64, stop_after: Option<Duration>, spin_us: u32) -> Outcome {
-    let spec = load_str(CONFIG, Format::Toml).unwrap();
-    let resolved = resolve(&spec).unwrap();
+    let resolved = load_str(CONFIG, Format::Toml).unwrap();
     let port = free_port();
     let drive_stop = Arc::new(AtomicBool::new(false));
     let handle = drive(port, Arc::clone(&drive_stop), answer_for);
-    let protocol = Protocol::new(&resolved.phases, resolved.dt_s).unwrap();
+    let phases = resolved.phases();
+    let protocol = Protocol::new(&phases, resolved.dt_s).unwrap();
     let robot = Robot::new(resolved.robot, protocol).unwrap();
     let settings = LoopSettings {
         spin_us,

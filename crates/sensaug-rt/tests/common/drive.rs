@@ -125,26 +125,28 @@ pub use bridge_common::free_port;
 
 /// The loop's settings against this drive (node 1, 3 N m, 50 ms watchdog
 /// and feedback timeout, a controlled stop of at most 50 ms) for a
-/// resolved configuration.
-pub fn loop_settings(resolved: &Resolved<'_>) -> LoopSettings {
+/// resolved configuration: its period, unit, plant and virtual human.
+pub fn loop_settings(resolved: &Resolved) -> LoopSettings {
+    let r = &resolved.rig;
+    let dt_s = r.dt_s;
     LoopSettings {
         drive: sensaug_config::DriveProfile::Hi5,
-        node: NodeId::new(1).unwrap(),
-        dt_s: resolved.dt_s,
-        rad_per_unit: resolved.rad_per_unit,
+        node_id: 1,
         torque_limit_nm: 3.0,
         watchdog_ms: 50,
+        quiet_period_ms: 50 * sensaug_rt::control::QUIET_WATCHDOG_PERIODS,
         drive_heartbeat_timeout_ms: 100,
         feedback_timeout_ms: 50.0,
+        feedback_timeout_ticks: (50e-3 / dt_s).ceil() as u64,
         stop: StopSettings {
             time_limit_s: 0.05,
             damping_nm_s_per_rad: PlantParams::HI5.mass / 0.004,
             torque_limit_nm: 3.0,
             rest_velocity_rad_s: 0.01,
         },
+        stop_ticks: (0.05 / dt_s).round() as u64,
         partner_gains: resolved.partner.gains,
         partner_torque_limit: 1e3,
-        plant: resolved.world.plant,
         max_feedback_velocity_rad_s: 8.0,
         feedback_step_margin_rad: 0.01,
         max_acceleration_rad_s2: 3.0 / PlantParams::HI5.mass,
@@ -153,5 +155,6 @@ pub fn loop_settings(resolved: &Resolved<'_>) -> LoopSettings {
         max_stale_feedback_ticks: 100,
         max_estimator_errors: 10,
         spin_us: 0,
+        ..*r
     }
 }
