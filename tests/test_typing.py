@@ -62,3 +62,13 @@ def test_return_types_are_precise(tmp_path: Path) -> None:
         'Type of "trial.metrics()" is "DataFrame"',
         'Type of "trial.meta" is "dict[str, Any]"',
     ], revealed
+
+
+def test_the_stub_of_the_compiled_module_matches_it():
+    """``python/sensaug/_core.pyi`` (hand-written) against ``sensaug._core``
+    as built: every name, signature and default (``mypy.stubtest``)."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "mypy.stubtest", "sensaug._core"],
+        capture_output=True, text=True, cwd=REPO, timeout=300,
+    )
+    assert proc.returncode == 0, proc.stdout + proc.stderr

@@ -1,9 +1,33 @@
 """Type stubs for the compiled module `sensaug._core` (Rust, pyo3)."""
-from typing import Any, final
+from typing import Any, Self, final
 
 import numpy as np
 import numpy.typing as npt
 from numpy.typing import NDArray
+
+__all__ = [
+    "Config",
+    "ConfigError",
+    "GainEstimator",
+    "GoalIntegrator",
+    "Plant",
+    "RiccatiConvergenceError",
+    "TrajectoryEstimator",
+    "TrialTooLargeError",
+    "UkfStepError",
+    "agent_gains",
+    "available_memory",
+    "check_output_paths",
+    "config_schema",
+    "config_sha256",
+    "git_commit",
+    "log_schema",
+    "lqr",
+    "replay_robot",
+    "resolve_count",
+    "run_scenario",
+    "write_log",
+]
 
 # --- riccati ---
 
@@ -58,9 +82,9 @@ class UkfStepError(RuntimeError):
 class Plant:
     """The handle ``M xdd + C xd = torque``, exact zero-order hold over ``dt_s``."""
 
-    def __init__(
-        self, *, mass: float, damping: float = 0.0, coulomb: float = 0.0, dt_s: float = 1e-3, x0: float = 0.0, v0: float = 0.0
-    ) -> None:
+    def __new__(
+        cls, *, mass: float, damping: float = 0.0, coulomb: float = 0.0, dt_s: float = 1e-3, x0: float = 0.0, v0: float = 0.0
+    ) -> Self:
         """Raises:
         TypeError: a parameter that is not a real number (named).
         ValueError: a parameter out of range, or one that makes the step
@@ -97,8 +121,8 @@ class GainEstimator:
     ``ValueError`` for a bad shape or value.
     """
 
-    def __init__(
-        self,
+    def __new__(
+        cls,
         *,
         mass: float,
         Q: npt.ArrayLike,
@@ -110,7 +134,7 @@ class GainEstimator:
         alpha: float = 1.0,
         beta: float = 2.0,
         kappa: float = 0.0,
-    ) -> None: ...
+    ) -> Self: ...
     def update(self, y: NDArray[np.float64]) -> str:
         """Fuse one measurement; returns "nominal" or "resymmetrised:<stage>".
 
@@ -156,8 +180,8 @@ class GainEstimator:
 class TrajectoryEstimator:
     """Stage 2: the partner's target from ``y2 = [x - tau, xdot, Lhx^, Lhv^, Lhh^]`` (same keywords as GainEstimator)."""
 
-    def __init__(
-        self,
+    def __new__(
+        cls,
         *,
         mass: float,
         Q: npt.ArrayLike,
@@ -169,7 +193,7 @@ class TrajectoryEstimator:
         alpha: float = 1.0,
         beta: float = 2.0,
         kappa: float = 0.0,
-    ) -> None: ...
+    ) -> Self: ...
     def update(self, y: NDArray[np.float64]) -> str: ...
     def predict(self, u: float, dtau: float = 0.0, dtau_h: float = 0.0) -> str: ...
     def run(
@@ -205,8 +229,8 @@ class GoalIntegrator:
     ``x_own``, ``var_own``: member 0 (own sensing only); as of the last update.
     """
 
-    def __init__(
-        self,
+    def __new__(
+        cls,
         *,
         mass: float,
         Q: npt.ArrayLike,
@@ -218,7 +242,7 @@ class GoalIntegrator:
         gate: float = 4.0,
         window_n0: float = 80.0,
         hold_max_s: float = 0.25,
-    ) -> None: ...
+    ) -> Self: ...
     def update(self, y: NDArray[np.float64]) -> str:
         """``y`` = ``[x - tau, xdot]`` or ``[x - tau, xdot, x - tau_h^]`` (NaN channel: none)."""
     def predict(self, u: float, dtau: float = 0.0, dtau_h: float = 0.0) -> str:
