@@ -9,6 +9,7 @@
 //! docs/realtime.md).
 
 use clap::Parser;
+use sensaug_bridge::TransportError;
 use sensaug_config::outputs::{create_partial, partial_path, replace};
 use sensaug_config::{ConfigError, Resolved};
 use sensaug_core::controller::Robot;
@@ -105,8 +106,25 @@ fn say(stream: &mut dyn std::io::Write, line: &str) {
 /// Why a run did not reach its loop, or failed to report it.
 #[derive(Debug)]
 enum RunError {
-    /// A set-up or output error (exit 2).
-    Setup(String),
+    /// A setting the drive link refused (exit 2).
+    Config(ConfigError),
+    /// The core refused a configuration that resolved: a bug (exit 2).
+    Rejected(&'static str),
+    /// The bus `rig.can` names could not be opened or filtered (exit 2).
+    Bus(TransportError),
+    /// The stop signals' handlers could not be installed (exit 2).
+    Signals(std::io::Error),
+    /// The live feed's socket (exit 2).
+    Feed(feed::FeedError),
+    /// An output could not be created (exit 2): its field, path and flag.
+    Output {
+        field: &'static str,
+        path: PathBuf,
+        flag: &'static str,
+        error: std::io::Error,
+    },
+    /// The statistics could not be serialised (exit 2).
+    Report(serde_json::Error),
     /// The drive set-up failed (exit by [`StartError::exit_code`]).
     Start(StartError),
 }
@@ -114,8 +132,8 @@ enum RunError {
 impl RunError {
     fn exit_code(&self) -> u8 {
         match self {
-            RunError::Setup(_) => 2,
             RunError::Start(e) => e.exit_code(),
+            _ => 2,
         }
     }
 }
@@ -123,15 +141,27 @@ impl RunError {
 impl std::fmt::Display for RunError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            RunError::Setup(s) => write!(f, "{s}"),
+            RunError::Config(e) => write!(f, "{e}"),
+            RunError::Rejected(what) => write!(
+                f,
+                "{what}: the core rejected a configuration that resolved; please report this"
+            ),
+            RunError::Bus(e) => write!(f, "rig.can: {e}"),
+            RunError::Signals(e) => write!(f, "signal handler: {e}"),
+            RunError::Feed(e) => write!(f, "{e}"),
+            RunError::Output {
+                field,
+                path,
+                flag,
+                error,
+            } => write!(
+                f,
+                "{field}: cannot write {}: {error}; choose a writable path ({flag})",
+                partial_path(path).display()
+            ),
+            RunError::Report(e) => write!(f, "statistics: cannot be written as JSON: {e}"),
             RunError::Start(e) => write!(f, "{e}"),
         }
-    }
-}
-
-impl From<String> for RunError {
-    fn from(s: String) -> Self {
-        RunError::Setup(s)
     }
 }
 
@@ -164,22 +194,18 @@ fn load_args(args: &Args) -> Result<Resolved, ConfigError> {
 fn run(resolved: &Resolved, feed_to: &[SocketAddr]) -> Result<StopReason, RunError> {
     let settings = resolved.rig;
     let phases = resolved.phases();
-    let protocol = Protocol::new(&phases, resolved.dt_s).map_err(|_| {
-        "phases: the core rejected a configuration that resolved; please report this".to_string()
-    })?;
-    let robot = Robot::new(resolved.robot, protocol).map_err(|_| {
-        "robot: the controller rejected a configuration that validated; please report this"
-            .to_string()
-    })?;
+    let protocol =
+        Protocol::new(&phases, resolved.dt_s).map_err(|_| RunError::Rejected("phases"))?;
+    let robot = Robot::new(resolved.robot, protocol).map_err(|_| RunError::Rejected("robot"))?;
     let rig = &resolved.spec.rig;
-    let mut transport = sensaug_bridge::open(&rig.can).map_err(|e| format!("rig.can: {e}"))?;
-    let link = drive_link(&settings).map_err(|e| e.to_string())?;
+    let mut transport = sensaug_bridge::open(&rig.can).map_err(RunError::Bus)?;
+    let link = drive_link(&settings).map_err(RunError::Config)?;
     // Only this node's frames wake the loop (a kernel filter on SocketCAN):
     // the drive's, and commands to it, which only another sender can have
     // put on the bus (a socket does not receive its own frames).
     transport
         .accept_only(&link.receive_ids())
-        .map_err(|e| format!("rig.can: {e}"))?;
+        .map_err(RunError::Bus)?;
 
     // A file-size limit (RLIMIT_FSIZE) makes a write fail (EFBIG) instead of
     // killing the process, so the loop can stop under control.
@@ -187,7 +213,7 @@ fn run(resolved: &Resolved, feed_to: &[SocketAddr]) -> Result<StopReason, RunErr
         eprintln!("warning: SIGXFSZ not ignored ({e})");
     }
     let stop = Arc::new(AtomicUsize::new(0));
-    os::register_stop_signals(&stop).map_err(|e| format!("signal handler: {e}"))?;
+    os::register_stop_signals(&stop).map_err(RunError::Signals)?;
     let log_path = PathBuf::from(&rig.log);
     let stats_path = PathBuf::from(&rig.stats);
     let meta = log_metadata(resolved);
@@ -198,25 +224,27 @@ fn run(resolved: &Resolved, feed_to: &[SocketAddr]) -> Result<StopReason, RunErr
         [] => None,
         to => {
             let start = meta["start_unix_s"].as_f64().unwrap_or(0.0);
-            Some(feed::Feed::open(to, start).map_err(|e| e.to_string())?)
+            Some(feed::Feed::open(to, start).map_err(RunError::Feed)?)
         }
     };
     // Both outputs exist (as `.partial`) before the drive is enabled.
     let (mut sink, writer) = log::start(&log_path, rig.ring_capacity as usize, &meta, feed)
-        .map_err(|e| {
-            format!(
-                "rig.log: cannot write {}: {e}; choose a writable path (--log)",
-                partial_path(&log_path).display()
-            )
+        .map_err(|error| RunError::Output {
+            field: "rig.log",
+            path: log_path.clone(),
+            flag: "--log",
+            error,
         })?;
     let stats_file = match create_partial(&stats_path) {
         Ok(f) => f,
         Err(e) => {
             writer.abandon();
-            return Err(RunError::Setup(format!(
-                "rig.stats: cannot write {}: {e}; choose a writable path (--stats)",
-                partial_path(&stats_path).display()
-            )));
+            return Err(RunError::Output {
+                field: "rig.stats",
+                path: stats_path,
+                flag: "--stats",
+                error: e,
+            });
         }
     };
 
@@ -315,7 +343,7 @@ fn run(resolved: &Resolved, feed_to: &[SocketAddr]) -> Result<StopReason, RunErr
     report.log_write_errors = written.write_errors;
     report.log_records_lost = written.records_lost;
     report.log_error = written.error;
-    let json = serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?;
+    let json = serde_json::to_string_pretty(&report).map_err(RunError::Report)?;
     // A failure to save the statistics loses only that file: the run's stop
     // reason and exit code stand, and the statistics still reach stdout.
     if let Err(e) = write_stats(stats_file, &stats_path, &json) {
