@@ -109,7 +109,7 @@ def test_the_core_matches_the_oracle_tick_by_tick(seed, channel_std, lag, params
             ref.set_own_noise(R)
             ours.reset(y[k])
             ref.reset(y[k])
-        assert ours.update(np.array([y[k, 0], y[k, 1], c[k]])) == "nominal"
+        assert ours.update(np.array([y[k, 0], y[k, 1], c[k]])) == sensaug._core.Status.Nominal()
         ref.update(y[k], c[k])
         where = f"tick {k}"
         assert ours.change_point == ref.change_point, where

@@ -4,6 +4,7 @@ from typing import Any, Self, final
 import numpy as np
 import numpy.typing as npt
 from numpy.typing import NDArray
+from typing_extensions import disjoint_base
 
 __all__ = [
     "Config",
@@ -12,6 +13,7 @@ __all__ = [
     "GoalIntegrator",
     "Plant",
     "RiccatiConvergenceError",
+    "Status",
     "TrajectoryEstimator",
     "TrialTooLargeError",
     "UkfStepError",
@@ -76,6 +78,25 @@ class UkfStepError(RuntimeError):
     """A UKF predict/update was rejected (state unchanged) or reset P (state valid)."""
 # --- end errors ---
 
+@disjoint_base
+class Status:
+    """How a UKF step went: ``Status.Nominal()``, or
+    ``Status.Resymmetrised(stage=...)`` naming the stage whose covariance was
+    repaired (a counted repair). ``str()``: ``nominal`` / ``resymmetrised:<stage>``."""
+
+    @final
+    class Nominal(Status):
+        __match_args__ = ()
+        def __new__(cls) -> Status.Nominal: ...
+
+    @final
+    class Resymmetrised(Status):
+        __match_args__ = ("stage",)
+        def __new__(cls, stage: str) -> Status.Resymmetrised: ...
+        @property
+        def stage(self) -> str: ...
+
+
 # --- plant ---
 
 @final
@@ -135,13 +156,13 @@ class GainEstimator:
         beta: float = 2.0,
         kappa: float = 0.0,
     ) -> Self: ...
-    def update(self, y: NDArray[np.float64]) -> str:
-        """Fuse one measurement; returns "nominal" or "resymmetrised:<stage>".
+    def update(self, y: NDArray[np.float64]) -> Status:
+        """Fuse one measurement; returns the step's :class:`Status`.
 
         Raises:
             UkfStepError: non-finite input or a covariance reset (see docs/ukf.md).
         """
-    def predict(self, u: float, dtau: float = 0.0, dtau_h: float = 0.0) -> str: ...
+    def predict(self, u: float, dtau: float = 0.0, dtau_h: float = 0.0) -> Status: ...
     def run(
         self,
         y: NDArray[np.float64],
@@ -194,8 +215,8 @@ class TrajectoryEstimator:
         beta: float = 2.0,
         kappa: float = 0.0,
     ) -> Self: ...
-    def update(self, y: NDArray[np.float64]) -> str: ...
-    def predict(self, u: float, dtau: float = 0.0, dtau_h: float = 0.0) -> str: ...
+    def update(self, y: NDArray[np.float64]) -> Status: ...
+    def predict(self, u: float, dtau: float = 0.0, dtau_h: float = 0.0) -> Status: ...
     def run(
         self,
         y: NDArray[np.float64],
@@ -243,9 +264,9 @@ class GoalIntegrator:
         window_n0: float = 80.0,
         hold_max_s: float = 0.25,
     ) -> Self: ...
-    def update(self, y: NDArray[np.float64]) -> str:
+    def update(self, y: NDArray[np.float64]) -> Status:
         """``y`` = ``[x - tau, xdot]`` or ``[x - tau, xdot, x - tau_h^]`` (NaN channel: none)."""
-    def predict(self, u: float, dtau: float = 0.0, dtau_h: float = 0.0) -> str:
+    def predict(self, u: float, dtau: float = 0.0, dtau_h: float = 0.0) -> Status:
         """``u``: all known torque (own plus estimated partner); ``dtau_h`` must be 0."""
     def set_own_noise(self, R: npt.ArrayLike) -> None:
         """Phase start: the own measurement's covariance (sets the grid and the score window)."""

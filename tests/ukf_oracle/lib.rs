@@ -7,7 +7,7 @@
 #[path = "../../crates/sensaug-core/tests/common/pendulum.rs"]
 mod pendulum;
 
-use _core::convert::{mat_from, mat_to, py_err, recoveries_dict, status_str, vec_from, vec_to};
+use _core::convert::{mat_from, mat_to, py_err, recoveries_dict, status, vec_from, vec_to};
 use _core::convert::{CoreError, UkfStepError};
 use _core::estimators::{run_batch, Batch};
 use numpy::{PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
@@ -67,7 +67,7 @@ impl DemoUkf {
             Some(q) => ukf.predict_with_q(&mat_from::<N, N>(&q, "Q")?, f),
             None => ukf.predict(f),
         }
-        .map(status_str)
+        .map(|s| status(s).to_string())
         .map_err(py_err)
     }
 
@@ -85,7 +85,7 @@ impl DemoUkf {
             Some(r) => ukf.update_with_r(&z, &mat_from::<M, M>(&r, "R")?, h),
             None => ukf.update(&z, h),
         }
-        .map(status_str)
+        .map(|s| status(s).to_string())
         .map_err(py_err)
     }
 

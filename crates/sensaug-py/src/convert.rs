@@ -208,11 +208,39 @@ pub fn vec_to<'py, const D: usize>(
     v.as_slice().to_vec().into_pyarray(py)
 }
 
-/// "nominal" or "resymmetrised:<stage>".
-pub fn status_str(s: Status) -> String {
+/// How a UKF step went (the core's `ukf::Status`): `Status.Nominal()`, or
+/// `Status.Resymmetrised(stage=...)` with the stage that was repaired (a
+/// counted repair); `str()` gives `nominal` / `resymmetrised:<stage>`.
+#[pyclass(name = "Status", module = "sensaug._core", frozen, eq)]
+#[derive(Clone, Debug, PartialEq)]
+pub enum PyStatus {
+    Nominal(),
+    Resymmetrised { stage: String },
+}
+
+impl std::fmt::Display for PyStatus {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            PyStatus::Nominal() => f.write_str("nominal"),
+            PyStatus::Resymmetrised { stage } => write!(f, "resymmetrised:{stage}"),
+        }
+    }
+}
+
+#[pymethods]
+impl PyStatus {
+    fn __str__(&self) -> String {
+        self.to_string()
+    }
+}
+
+/// The core's status as [`PyStatus`].
+pub fn status(s: Status) -> PyStatus {
     match s {
-        Status::Nominal => "nominal".to_owned(),
-        Status::Resymmetrised { stage } => format!("resymmetrised:{}", stage.name()),
+        Status::Nominal => PyStatus::Nominal(),
+        Status::Resymmetrised { stage } => PyStatus::Resymmetrised {
+            stage: stage.name().to_owned(),
+        },
     }
 }
 

@@ -4,7 +4,8 @@
 #![allow(non_snake_case)]
 
 use crate::convert::Opt;
-use crate::convert::{mat_to, matrix, py_err, real, real_or, recoveries_dict, slice, status_str};
+use crate::convert::PyStatus;
+use crate::convert::{mat_to, matrix, py_err, real, real_or, recoveries_dict, slice, status};
 use crate::convert::{vec_from, vec_to, vector};
 use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
 use numpy::{PyUntypedArrayMethods, ToPyArray};
@@ -190,17 +191,17 @@ macro_rules! extended_estimator {
                 Ok(Self { inner })
             }
 
-            /// Fuse one measurement; returns "nominal" or "resymmetrised:<stage>".
-            fn update(&mut self, y: PyReadonlyArray1<'_, f64>) -> PyResult<String> {
+            /// Fuse one measurement; returns the step's `Status`.
+            fn update(&mut self, y: PyReadonlyArray1<'_, f64>) -> PyResult<PyStatus> {
                 let y = vec_from::<$m>(&y, "y")?;
-                self.inner.update(&y).map(status_str).map_err(py_err)
+                self.inner.update(&y).map(status).map_err(py_err)
             }
 
             /// Propagate with the own torque and the targets' increments.
             #[pyo3(signature = (u, dtau = 0.0, dtau_h = 0.0))]
-            fn predict(&mut self, u: f64, dtau: f64, dtau_h: f64) -> PyResult<String> {
+            fn predict(&mut self, u: f64, dtau: f64, dtau_h: f64) -> PyResult<PyStatus> {
                 finite(&[u, dtau, dtau_h], "u, dtau, dtau_h")?;
-                self.inner.predict(u, dtau, dtau_h).map(status_str).map_err(py_err)
+                self.inner.predict(u, dtau, dtau_h).map(status).map_err(py_err)
             }
 
             /// For each k: `update(y[k])`, then `predict(u[k], dtau[k], dtau_h[k])`.
@@ -312,23 +313,23 @@ impl GoalIntegrator {
 
     /// Fuse `y = [x - tau, xdot]` (own sensing only) or
     /// `y = [x - tau, xdot, x - tau_h^]` (with the partner channel; NaN: none).
-    fn update(&mut self, y: PyReadonlyArray1<'_, f64>) -> PyResult<String> {
+    fn update(&mut self, y: PyReadonlyArray1<'_, f64>) -> PyResult<PyStatus> {
         let y = slice(&y, "y")?;
         let mut one_tick = GoalReplay::new(&mut self.inner, with_channel(y.len())?);
-        one_tick.update_row(y).map(status_str).map_err(py_err)
+        one_tick.update_row(y).map(status).map_err(py_err)
     }
 
     /// Propagate with the known torque `u` (own plus estimated partner) and
     /// the own target's increment. `dtau_h` must be 0: this state has no `x - tau_h`.
     #[pyo3(signature = (u, dtau = 0.0, dtau_h = 0.0))]
-    fn predict(&mut self, u: f64, dtau: f64, dtau_h: f64) -> PyResult<String> {
+    fn predict(&mut self, u: f64, dtau: f64, dtau_h: f64) -> PyResult<PyStatus> {
         if dtau_h != 0.0 {
             return Err(PyValueError::new_err(
                 "dtau_h: must be 0 for GoalIntegrator (its state is [x - tau, xdot])",
             ));
         }
         finite(&[u, dtau], "u, dtau")?;
-        self.inner.predict(u, dtau).map(status_str).map_err(py_err)
+        self.inner.predict(u, dtau).map(status).map_err(py_err)
     }
 
     /// Phase start: the own measurement's covariance (target-view noise

@@ -21,6 +21,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     scenario::register(m)?;
     let py = m.py();
     m.add("UkfStepError", py.get_type::<convert::UkfStepError>())?;
+    m.add_class::<convert::PyStatus>()?;
     m.add(
         "RiccatiConvergenceError",
         py.get_type::<convert::RiccatiConvergenceError>(),
