@@ -402,9 +402,10 @@ class RigConfig:
     """
     node_id: int = 1
     """Drive node id (CiA 402: 1..15, node 0 is NMT broadcast)."""
-    position_unit: Literal["deg", "rad"] = 'deg'
-    """Unit of the controller's positions; the drive speaks rad and N m, and torque is scaled by
-    the same factor (docs/model.md, Units).
+    position_unit: Literal["deg", "rad", "m"] = 'deg'
+    """Unit of the controller's positions: "deg" or "rad" on the rig (the drive speaks rad and N
+    m, and torque is scaled by the same factor), "m" for a simulated linear handle (force in
+    N; the rig refuses it; docs/model.md, Units).
     """
     realtime: RealtimeConfig = field(default_factory=lambda: RealtimeConfig.from_dict({'mlockall': True, 'spin_us': 0}))
     """Thread settings."""

@@ -18,6 +18,7 @@ from sensaug.config import (
     PartnerIntegrationConfig,
     PhaseConfig,
     PlantConfig,
+    RigConfig,
     RobotConfig,
     RoundedSquare,
     ScenarioConfig,
@@ -143,6 +144,8 @@ def simulation_section(
     cosines = Harmonics(amplitude=1e-4, omega_rad_s=1.0, harmonics=3, cosine=True)
     q, r = 1e-10, 1e-10
     return ScenarioConfig(
+        # A linear handle: positions in m, forces in N, the mass in kg.
+        rig=RigConfig(position_unit="m"),
         plant=PlantConfig(mass=6.0, damping=0.0, dt_s=1e-3),
         world=WorldConfig(
             motor_noise_std=motor_noise_std,

@@ -472,6 +472,9 @@ pub fn resolve(spec: &ScenarioSpec) -> Result<Resolved<'_>, ConfigError> {
         rad_per_unit: match spec.rig.position_unit {
             PositionUnit::Deg => core::f64::consts::PI / 180.0,
             PositionUnit::Rad => 1.0,
+            // A linear handle has no angle: only simulated (the rig refuses
+            // "m" before it resolves, `check_rig_unit`); nothing reads it.
+            PositionUnit::M => 1.0,
         },
     };
     // The core's own set-up checks, so that a valid file always builds.

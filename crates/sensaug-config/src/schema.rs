@@ -558,14 +558,27 @@ impl Default for PartnerSpec {
     }
 }
 
-/// Unit of the controller's positions on the rig.
+/// Unit of the controller's positions; the torque, gain and mass units
+/// follow from it (docs/model.md, Units).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum PositionUnit {
-    /// Degrees (the paper's Hi5 numbers).
+    /// Degrees (the paper's Hi5 numbers): torque in (pi/180) N m.
     Deg,
-    /// Radians.
+    /// Radians: torque in N m.
     Rad,
+    /// Metres, a linear handle (the paper's simulation section: force in N,
+    /// mass in kg). Simulation only: the rig's joint is revolute and
+    /// `sensaug-rt` refuses it.
+    M,
+}
+
+impl PositionUnit {
+    /// Whether the unit is an angle (the only kind the rig's revolute joint,
+    /// and its drive's rad and N m, can take).
+    pub fn is_angle(self) -> bool {
+        matches!(self, PositionUnit::Deg | PositionUnit::Rad)
+    }
 }
 
 /// The drive's protocol on the CAN bus.
@@ -656,8 +669,10 @@ pub struct RigSpec {
     /// Drive node id (CiA 402: 1..15, node 0 is NMT broadcast).
     #[schemars(range(max = 15))]
     pub node_id: u32,
-    /// Unit of the controller's positions; the drive speaks rad and N m, and
-    /// torque is scaled by the same factor (docs/model.md, Units).
+    /// Unit of the controller's positions: "deg" or "rad" on the rig (the
+    /// drive speaks rad and N m, and torque is scaled by the same factor),
+    /// "m" for a simulated linear handle (force in N; the rig refuses it;
+    /// docs/model.md, Units).
     pub position_unit: PositionUnit,
     /// Torque limit at the drive (N m).
     #[schemars(extend("exclusiveMinimum" = 0.0), range(max = TORQUE_NM_MAX))]

@@ -220,3 +220,65 @@ fn the_drive_heartbeat_timeout_is_bounded_by_the_watchdog_on_cia402() {
         }
     }
 }
+
+/// MINIMAL with a two-phase base trial and a session of the given blocks.
+fn plan(blocks: &str) -> ScenarioSpec {
+    let text = format!(
+        "{MINIMAL}\n[[phases]]\nkind = \"trajectory\"\nduration_s = 1.0\n\
+         robot_target = [{{ kind = \"constant\", value = 0.0 }}]\n\
+         partner_target = [{{ kind = \"constant\", value = 0.0 }}]\n\n[session]\n{blocks}"
+    );
+    load_str(&text, Format::Toml).unwrap()
+}
+
+#[test]
+fn a_plans_conditions_are_expanded_and_checked() {
+    use sensaug_config::person::check_conditions;
+    let ok = plan(
+        "[[session.blocks]]\nname = \"a\"\ntrials = 3\nphases = [0, 1]\n\
+         set = { \"partner.gains.lhh\" = 1.5, \"phases[*].duration_s\" = 2.0 }\n",
+    );
+    check_conditions(&ok).unwrap();
+    let cases = [
+        // A path the configuration does not have, named with the block.
+        (
+            "set = { \"partner.gainz.lhh\" = 1.0 }",
+            "session.blocks[0].set: partner.gainz.lhh: partner.gainz is not a field",
+        ),
+        // Gains by name map to their index; the value is out of bounds.
+        (
+            "set = { \"partner.gains.lhh\" = 1e9 }",
+            "session.blocks[0].set: partner.gains[2]:",
+        ),
+        // The block keeps phase 0 only: the expanded trial has one phase.
+        (
+            "phases = [0]\nset = { \"phases[1].duration_s\" = 2.0 }",
+            "session.blocks[0].set: phases[1].duration_s: phases[1] does not exist",
+        ),
+        (
+            "set = { \"robot.stage1\" = 3.0 }",
+            "session.blocks[0].set: robot.stage1:",
+        ),
+        (
+            "set = { \"phases[x]\" = 3.0 }",
+            "session.blocks[0].set: phases[x]: not a dotted path",
+        ),
+    ];
+    for (set, expected) in cases {
+        let spec = plan(&format!(
+            "[[session.blocks]]\nname = \"a\"\ntrials = 2\n{set}\n"
+        ));
+        let err = check_conditions(&spec).unwrap_err().to_string();
+        assert!(err.starts_with(expected), "{set}: {err}");
+    }
+}
+
+#[test]
+fn the_rig_refuses_a_linear_position_unit() {
+    let mut spec = load_str(MINIMAL, Format::Toml).unwrap();
+    sensaug_config::check_rig_unit(&spec).unwrap();
+    spec.rig.position_unit = sensaug_config::PositionUnit::M;
+    sensaug_config::validate(&spec).unwrap(); // a valid simulation
+    let err = sensaug_config::check_rig_unit(&spec).unwrap_err();
+    assert_eq!(err.field, "rig.position_unit");
+}

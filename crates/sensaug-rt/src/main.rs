@@ -33,8 +33,9 @@ struct Args {
     /// file plus an optional [rig] table. `sensaug schema` prints
     /// every field.
     config: PathBuf,
-    /// Validate the configuration and its output paths, print "valid" and
-    /// exit (exit 2 and the first bad field on stderr when it is not).
+    /// Validate the configuration (a session plan's every block expanded, as
+    /// `sensaug check` does) and its output paths, print "valid" and exit
+    /// (exit 2 and the first bad field on stderr when it is not).
     #[arg(long)]
     check: bool,
     /// Print the configuration with every default filled in, as JSON, and exit.
@@ -164,6 +165,10 @@ fn load(args: &Args) -> Result<ScenarioSpec, ConfigError> {
         spec.rig.stats = p.clone();
     }
     validate(&spec)?;
+    sensaug_config::check_rig_unit(&spec)?;
+    if args.check {
+        sensaug_config::person::check_conditions(&spec)?;
+    }
     if !args.print_resolved {
         sensaug_config::check_rig_outputs(&spec)?;
     }
