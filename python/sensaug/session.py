@@ -159,15 +159,6 @@ def expand(plan: ScenarioConfig, participant: str) -> list[SessionTrial]:
     return out
 
 
-def check_plan(path: str | Path) -> ScenarioConfig:
-    """Reads a plan and expands it for a participant numbered 0 (every
-    block's condition validated); the plan."""
-    plan = ScenarioConfig.from_toml(path)
-    if plan.session is not None:
-        expand(plan, "P0")
-    return plan
-
-
 # --- running ------------------------------------------------------------------
 
 def _now() -> str:
