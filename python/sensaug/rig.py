@@ -268,7 +268,8 @@ def run_virtual_rig(
     ``rig_stats.json`` the run stands and the README says the file is missing.
 
     ``display``: a running :class:`sensaug.display.DisplayProcess` shows the
-    trial (it follows the log; ``out/display_log.csv``) and is watched
+    trial (fed by the loop's live feed, one more ``--feed`` address;
+    ``out/display_log.csv``) and is watched
     (:class:`sensaug.display.DisplayWatch`: Esc, a frozen or dead display).
 
     Raises:
@@ -299,6 +300,8 @@ def run_virtual_rig(
         drive = start_drive(port, duration_s=budget + 5.0, drive=cfg.rig.drive,
                             fifo_priority=cfg.rig.realtime.fifo_priority)
         time.sleep(0.5)
+        if display is not None:
+            feed = [*feed, _show_trial(display, cfg, out)]
         with _ElapsedBar(cfg.duration_s, progress):
             proc = subprocess.Popen(
                 [str(binary), str(toml_path), "--can", f"udp:{port}", "--log", str(log_path), "--stats", str(stats_path),
@@ -307,7 +310,7 @@ def run_virtual_rig(
                 stderr=subprocess.PIPE,
                 text=True,
             )
-            watch = _watch_display(display, cfg, log_path, out, proc)
+            watch = None if display is None else _watch_display(display, out, proc)
             try:
                 rt_stdout, rt_stderr = proc.communicate(timeout=budget)
             except KeyboardInterrupt:
@@ -372,16 +375,23 @@ def run_virtual_rig(
     return run
 
 
-def _watch_display(display, cfg: ScenarioConfig, log_path: Path, out: Path, proc: subprocess.Popen):
-    """Shows the trial on ``display`` and starts its watch (None: no display)."""
-    if display is None:
-        return None
-    from sensaug.display import Command, DisplayWatch, noisy_phases
+def _show_trial(display, cfg: ScenarioConfig, out: Path) -> str:
+    """Tells ``display`` to show the run about to start (the feed's next run
+    and its display log); the display's feed address for ``--feed``."""
+    from sensaug.display import Command, noisy_phases
 
-    display_log = out / "display_log.csv"
-    display.show(Command(log=str(log_path), display_log=str(display_log), sigma_v=cfg.display.sigma_v,
-                         seed=cfg.display.seed, noisy_phases=noisy_phases(cfg)))
-    return DisplayWatch(display, display_log, proc).start()
+    display.show(Command(follow_since_unix_ns=time.time_ns(), display_log=str(out / "display_log.csv"),
+                         sigma_v=cfg.display.sigma_v, seed=cfg.display.seed, noisy_phases=noisy_phases(cfg)))
+    if display.feed_address is None:
+        raise RuntimeError("display: it did not say its feed address; it is not a sensaug display of this version")
+    return display.feed_address
+
+
+def _watch_display(display, out: Path, proc: subprocess.Popen):
+    """The watch of the display showing this run (Esc, a frozen or dead display)."""
+    from sensaug.display import DisplayWatch
+
+    return DisplayWatch(display, out / "display_log.csv", proc).start()
 
 
 class _ElapsedBar:
