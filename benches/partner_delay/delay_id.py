@@ -98,7 +98,7 @@ class DelayIdentifier:
     is 1-D."""
 
     def __init__(self, h: Hi5, B: int, max_ms=300, coarse_ms=10, fine_half_ms=10, start_ms=300,
-                 fine_ms=6000, min_coarse_ms=1000, min_fine_ms=2000, every=100, dp_threshold=10.0):
+                 fine_ms=6000, min_coarse_ms=1000, min_fine_ms=2000, every=100, dp_threshold=100.0):
         tick = lambda ms: int(round(ms * 1e-3 / h.dt))
         self.h, self.B = h, B
         self.maxd = tick(max_ms)

@@ -42,6 +42,8 @@ def main(paths):
         d = json.load(open(p))
         meta.append((p, d["args"]))
         for r in d["results"]:
+            if r["lhv"] == 0 and r["dp_true"] != 0:
+                continue  # no velocity term: identical to d_p = 0 (table.py runs only d_p = 0 for it)
             rows[(r["lhh"], r["lhv"], r["dp_true"], r["dv_true"])].append(r)
     seeds = sorted({r["seed"] for v in rows.values() for r in v})
     print(f"seeds: {seeds}; files: {[m[0] for m in meta]}\n")

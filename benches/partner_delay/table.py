@@ -33,9 +33,12 @@ LHH = (0.5, 1.0, 2.0)
 
 
 def cells(h, family: str):
+    """The paper's virtual human has no velocity term, so its proprioceptive
+    delay changes nothing (the trials are identical, checked on seed 0): only
+    d_p = 0 is run for it."""
     for lhh in LHH:
         lhv = 0.0 if family == "paper" else math.sqrt(2 * h.M * lhh)
-        for dp in PROPRIO:
+        for dp in PROPRIO if family == "damped" else (0,):
             for dv in VISUAL:
                 yield lhh, lhv, dv, dp
 
