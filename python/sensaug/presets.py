@@ -31,6 +31,7 @@ __all__ = [
     "motor_velocity_variance",
     "hi5_experiment",
     "hi5_rig",
+    "hi5_person",
     "simulation_section",
     "simulation_integration",
     "HI5_LHH_VALUES",
@@ -122,6 +123,40 @@ def hi5_rig(lhh: float = 2.0, *, seed: int = 0, phase_s: float = 10.0) -> Scenar
     the real-time loop. ``configs/hi5_rig.toml`` is this preset as a file."""
     cfg = hi5_experiment(lhh, seed=seed, phase_s=phase_s)
     cfg.robot.gain_window_s = min(8.0, 0.4 * phase_s)
+    return cfg
+
+
+def hi5_person(
+    lhh: float = 1.0,
+    *,
+    seed: int = 0,
+    phase_s: float = 10.0,
+    visual_delay_ms: float = 120.0,
+    proprioceptive_delay_ms: float = 40.0,
+    motor_noise_gain: float = 0.1,
+) -> ScenarioConfig:
+    """:func:`hi5_rig` with a person-like partner and a robot that finds its
+    delay (docs/model.md, "A partner with a delay"): the partner acts on what
+    it saw ``visual_delay_ms`` and felt ``proprioceptive_delay_ms`` ago, with
+    10% signal-dependent motor noise and a velocity gain
+    ``sqrt(2 M Lhh)`` (an LQR partner's); the robot runs
+    ``robot.partner_delay = "auto"`` with stage 1's gain process noise at
+    1e-6 per step (the paper's 1e-2 is biased by a person's motor noise), and
+    does not integrate goals (a delayed partner channel hurts today's stage
+    3). ``configs/hi5_rig_person.toml`` is this preset as a file."""
+    from sensaug.config_types import HumanConfig
+
+    cfg = hi5_rig(lhh, seed=seed, phase_s=phase_s)
+    cfg.partner.gains = [0.0, math.sqrt(2 * cfg.plant.mass * lhh), lhh]
+    cfg.partner.human = HumanConfig(
+        visual_delay_ms=visual_delay_ms,
+        proprioceptive_delay_ms=proprioceptive_delay_ms,
+        motor_noise_gain=motor_noise_gain,
+        seed=seed,
+    )
+    cfg.robot.partner_delay = "auto"
+    cfg.robot.stage1.Q = list(cfg.robot.stage1.Q[:3]) + [1e-6] * 3
+    cfg.robot.integrate = False
     return cfg
 
 

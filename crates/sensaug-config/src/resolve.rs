@@ -9,13 +9,15 @@
 use crate::cov::Cov;
 use crate::error::{num, ConfigError};
 use crate::schema::{
-    ActsOnSpec, DriveProfile, PhaseKindSpec, PositionUnit, RigSpec, RobotSpec, ScenarioSpec,
-    ShapeSpec, MAX_PARTS,
+    ActsOnSpec, DriveProfile, PartnerDelaySpec, PhaseKindSpec, PositionUnit, RigSpec, RobotSpec,
+    ScenarioSpec, ShapeSpec, MAX_PARTS,
 };
 use nalgebra::{SVector, Vector2};
+use sensaug_core::agent::HumanLike;
 use sensaug_core::controller::{Robot, RobotConfig};
 use sensaug_core::estimator::{ExtendedFilterConfig, HandleModel};
 use sensaug_core::goal::{ChannelConfig, GoalIntegratorConfig};
+use sensaug_core::identifier::PartnerDelay;
 use sensaug_core::plant::{PlantParams, PlantState};
 use sensaug_core::protocol::{Phase, PhaseKind, Protocol};
 use sensaug_core::riccati::agent_gains;
@@ -181,6 +183,14 @@ fn robot(r: &RobotSpec, model: HandleModel) -> Result<RobotConfig, ConfigError> 
         },
         torque_limit: r.torque_limit,
         seed: r.seed,
+        partner_delay: match r.partner_delay {
+            None => PartnerDelay::Paper,
+            Some(PartnerDelaySpec::Auto(_)) => PartnerDelay::Auto,
+            Some(PartnerDelaySpec::Ms(ms)) => PartnerDelay::Known {
+                visual_ms: ms,
+                proprioceptive_ms: ms,
+            },
+        },
     })
 }
 
@@ -461,6 +471,14 @@ pub fn resolve(spec: &ScenarioSpec) -> Result<Resolved<'_>, ConfigError> {
                 ActsOnSpec::Measured => StateSource::Measured,
                 ActsOnSpec::True => StateSource::True,
             },
+            human: pa.human.as_ref().map(|h| HumanLike {
+                visual_delay_ms: h.visual_delay_ms,
+                proprioceptive_delay_ms: h.proprioceptive_delay_ms,
+                motor_noise_gain: h.motor_noise_gain,
+                drift_std: h.gain_drift.as_ref().map_or(0.0, |d| d.std),
+                drift_time_constant_s: h.gain_drift.as_ref().map_or(1.0, |d| d.time_constant_s),
+                seed: h.seed,
+            }),
             integration: pa.integration.as_ref().map(|i| PartnerIntegration {
                 target_noise_std: i.target_noise_std,
                 integrate: i.integrate,

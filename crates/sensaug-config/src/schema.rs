@@ -437,6 +437,13 @@ pub struct RobotSpec {
     #[serde(skip_serializing_if = "Option::is_none")]
     #[schemars(length(min = 3, max = 3), inner(range(min = -MAX_MAGNITUDE, max = MAX_MAGNITUDE)))]
     pub prior_partner_gains: Option<Vec<f64>>,
+    /// The partner model of stages 1 and 2: absent, the paper's (the
+    /// partner acts on the current state); a number of ms, the partner acts
+    /// on the robot's measured sample that long ago (visual and
+    /// proprioceptive delay alike); "auto", both delays identified online in
+    /// every gain phase (docs/model.md, "A partner with a delay").
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub partner_delay: Option<PartnerDelaySpec>,
     /// Sigma points of every filter.
     pub sigma: SigmaSpec,
     /// Stage 1 (partner gains).
@@ -457,10 +464,88 @@ impl Default for RobotSpec {
             torque_limit: 1e3,
             seed: 1,
             prior_partner_gains: None,
+            partner_delay: None,
             sigma: SigmaSpec::default(),
             stage1: GainFilterSpec::default(),
             stage2: TrajectoryFilterSpec::default(),
             stage3: IntegratorSpec::default(),
+        }
+    }
+}
+
+/// `robot.partner_delay`: "auto" or a delay in ms (0-300).
+#[derive(Clone, Copy, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(untagged)]
+pub enum PartnerDelaySpec {
+    /// "auto": identified online.
+    Auto(AutoDelay),
+    /// A known delay (ms), both visual and proprioceptive.
+    Ms(#[schemars(range(min = 0.0, max = 300.0))] f64),
+}
+
+/// The word "auto".
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum AutoDelay {
+    /// Identify the delays online.
+    Auto,
+}
+
+/// `[partner.human]`: a human-like virtual partner (docs/model.md, "The
+/// human-like partner"): it acts on what it perceived a sensorimotor delay
+/// ago, with signal-dependent motor noise and optionally drifting gains.
+/// Absent: the paper's virtual human, exactly.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct HumanSpec {
+    /// Visual delay (ms) on the target terms x - tau and x - tau_h (the
+    /// cursor and the target are both seen on the monitor that late).
+    #[schemars(range(min = 0.0, max = 300.0))]
+    pub visual_delay_ms: f64,
+    /// Proprioceptive delay (ms) on the velocity term.
+    #[schemars(range(min = 0.0, max = 300.0))]
+    pub proprioceptive_delay_ms: f64,
+    /// k_m: white noise of std k_m |c| on the partner's command c (the
+    /// constant floor is world.motor_noise_std).
+    #[schemars(range(min = 0.0, max = MAX_MAGNITUDE))]
+    pub motor_noise_gain: f64,
+    /// Slow drift of the gains; absent: none.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub gain_drift: Option<GainDriftSpec>,
+    /// Seed of the partner's motor noise and drift (its own stream).
+    pub seed: u64,
+}
+
+impl Default for HumanSpec {
+    fn default() -> Self {
+        HumanSpec {
+            visual_delay_ms: 0.0,
+            proprioceptive_delay_ms: 0.0,
+            motor_noise_gain: 0.0,
+            gain_drift: None,
+            seed: 24,
+        }
+    }
+}
+
+/// `[partner.human.gain_drift]`: each gain is L (1 + delta), delta a
+/// mean-reverting random walk clipped at +-3 std.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct GainDriftSpec {
+    /// Stationary relative std of delta (< 1/3, so a gain keeps its sign).
+    #[schemars(range(min = 0.0, max = 0.333))]
+    pub std: f64,
+    /// Its time constant (s).
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = MAX_DURATION_S))]
+    pub time_constant_s: f64,
+}
+
+impl Default for GainDriftSpec {
+    fn default() -> Self {
+        GainDriftSpec {
+            std: 0.1,
+            time_constant_s: 10.0,
         }
     }
 }
@@ -495,6 +580,9 @@ pub struct PartnerSpec {
     /// in both x - tau and x - tau_h, as inside the rig loop), or "true".
     #[serde(default)]
     pub acts_on: ActsOnSpec,
+    /// A human-like partner; absent: the paper's virtual human.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub human: Option<HumanSpec>,
     /// The partner's goal integration (the simulation section's "Goal
     /// integration"); absent: off, the partner tracks its own target exactly.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -553,6 +641,7 @@ impl Default for PartnerSpec {
             torque_limit: default_torque_limit(),
             estimates_robot: false,
             acts_on: ActsOnSpec::Measured,
+            human: None,
             integration: None,
         }
     }

@@ -249,6 +249,9 @@ schema! {
     e_hat_own_var: Float, "pos^2", "posterior variance of e_hat_own";
     e_hat_fused_var: Float, "pos^2", "posterior variance of e_hat_fused";
     partner_var: Float, "pos^2", "stage 3: the partner channel's effective variance (inf when not fused)";
+    partner_delay_visual_ms: Float, "ms", "the partner's visual delay stages 1-2 assume (robot.partner_delay; NaN: the paper's model, or no choice yet)";
+    partner_delay_proprioceptive_ms: Float, "ms", "the partner's proprioceptive delay stages 1-2 assume (NaN as above, or not identifiable: no velocity term)";
+    partner_delay_margin_nats: Float, "nats", "robot.partner_delay = \"auto\": profile log-likelihood of the chosen visual delay over the best other one (NaN otherwise)";
     Lx_hat: Float, "trq/pos", "partner's mirrored estimate of the robot gain Lx (simulation section; NaN otherwise)";
     Lv_hat: Float, "trq s/pos", "partner's mirrored estimate of the robot gain Lv";
     Lh_hat: Float, "trq/pos", "partner's mirrored estimate of the robot gain Lh";
@@ -302,6 +305,9 @@ impl Row {
             e_hat_own_var: r.e_hat_own_var,
             e_hat_fused_var: r.e_hat_fused_var,
             partner_var: r.partner_var,
+            partner_delay_visual_ms: r.partner_delay_ms[0],
+            partner_delay_proprioceptive_ms: r.partner_delay_ms[1],
+            partner_delay_margin_nats: r.partner_delay_margin_nats,
             ..Row::UNKNOWN
         }
     }

@@ -76,6 +76,11 @@ pub fn loop_settings(resolved: &Resolved<'_>) -> Result<LoopSettings, ConfigErro
             [0.0; 3]
         },
         partner_torque_limit: resolved.partner.torque_limit,
+        partner_human: if rig.virtual_human {
+            resolved.partner.human
+        } else {
+            None
+        },
         plant: resolved.world.plant,
         max_feedback_velocity_rad_s: rig.max_feedback_velocity_rad_s,
         feedback_step_margin_rad: rig.feedback_step_margin_rad,

@@ -19,7 +19,7 @@ use sensaug_bridge::drive_link::{Absorbed, DriveLink, DriveSample};
 use sensaug_bridge::protocol::NodeId;
 use sensaug_bridge::{Frame, Transport};
 use sensaug_config::DriveProfile;
-use sensaug_core::agent::{guard_torque, Guard, VirtualHuman};
+use sensaug_core::agent::{guard_torque, Guard, HumanLike, PartnerLaw};
 use sensaug_core::controller::{Robot, RobotTick};
 use sensaug_core::plant::{Plant, PlantParams, PlantState};
 use sensaug_core::protocol::{Protocol, Sample};
@@ -181,6 +181,9 @@ pub struct LoopSettings {
     pub partner_gains: [f64; 3],
     /// Virtual human torque limit (model units).
     pub partner_torque_limit: f64,
+    /// The human-like partner's delays, noise and drift (`partner.human`);
+    /// `None`: the paper's virtual human.
+    pub partner_human: Option<HumanLike>,
     /// The handle's model (model units): the virtual human's view of the
     /// handle on ticks without fresh feedback ([`HandleView`]).
     pub plant: PlantParams,
@@ -321,7 +324,7 @@ pub struct Rig<'a> {
     link: Box<dyn DriveLink + Send>,
     transport: Box<dyn Transport + Send>,
     robot: Robot<'a>,
-    partner: VirtualHuman,
+    partner: PartnerLaw,
     /// The virtual human's view of the handle.
     handle_view: HandleView,
     protocol: Protocol<'a>,
@@ -362,8 +365,13 @@ impl<'a> Rig<'a> {
         robot: Robot<'a>,
     ) -> Result<Self, StartError> {
         let protocol = *robot.protocol();
-        let partner = VirtualHuman::new(settings.partner_gains, settings.partner_torque_limit)
-            .map_err(StartError::Scenario)?;
+        let partner = PartnerLaw::new(
+            settings.partner_gains,
+            settings.partner_torque_limit,
+            settings.partner_human,
+            settings.dt_s,
+        )
+        .map_err(StartError::Scenario)?;
         let handle_view = HandleView::new(settings.plant)
             .map_err(|e| StartError::Scenario(ScenarioError::Plant(e)))?;
         let mut rig = Rig {

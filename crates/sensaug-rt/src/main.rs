@@ -377,6 +377,7 @@ fn log_metadata(resolved: &Resolved<'_>, s: &LoopSettings) -> serde_json::Value 
             "stop_rest_velocity_rad_s": s.stop.rest_velocity_rad_s,
             "partner_gains": s.partner_gains,
             "partner_torque_limit": s.partner_torque_limit,
+            "partner_human": s.partner_human.is_some(),
             "ring_capacity": spec.rig.ring_capacity,
             "max_feedback_velocity_rad_s": s.max_feedback_velocity_rad_s,
             "feedback_step_margin_rad": s.feedback_step_margin_rad,

@@ -185,18 +185,18 @@ pub const TICK_PHASE_S: f64 = 10.0;
 /// hand-off or restart happens in the timed calls). Until the first wrap the
 /// robot reproduces the simulated trial's estimates exactly.
 fn robot_tick(phase: usize) -> Call {
+    robot_tick_with(phase, common::robot())
+}
+
+/// [`robot_tick`] for the robot `cfg`.
+fn robot_tick_with(phase: usize, cfg: sensaug_core::controller::RobotConfig) -> Call {
     let phases = common::phases(TICK_PHASE_S, 1.0);
-    let mut scenario = Scenario::new(
-        &phases,
-        common::robot(),
-        common::partner(2.0),
-        common::world(3),
-    )
-    .expect("valid scenario");
+    let mut scenario = Scenario::new(&phases, cfg, common::partner(2.0), common::world(3))
+        .expect("valid scenario");
     let mut records = vec![TickRecord::default(); scenario.ticks()];
     scenario.run(&mut records).expect("simulated trial");
     let protocol = Protocol::new(&phases, common::DT).expect("valid protocol");
-    let mut robot = Robot::new(common::robot(), protocol).expect("valid robot");
+    let mut robot = Robot::new(cfg, protocol).expect("valid robot");
     let phase_ticks = (TICK_PHASE_S / common::DT).round() as u64;
     let (start, end) = (phase as u64 * phase_ticks, (phase as u64 + 1) * phase_ticks);
     for (k, r) in records.iter().enumerate().take(start as usize) {
@@ -237,11 +237,40 @@ pub fn robot_tick_integration() -> Call {
     robot_tick(2)
 }
 
-/// The robot-tick workloads, one per phase.
-pub const TICK_WORKLOADS: [Workload; 3] = [
+/// The robot with `robot.partner_delay = "auto"` (docs/model.md, "A partner
+/// with a delay").
+fn delay_aware_robot() -> sensaug_core::controller::RobotConfig {
+    sensaug_core::controller::RobotConfig {
+        partner_delay: sensaug_core::identifier::PartnerDelay::Auto,
+        ..common::robot()
+    }
+}
+
+/// The gain phase's tick with the delay search (its coarse grid for the
+/// first 30% of the phase, the fine one after: the timed ticks wrap round
+/// the whole phase, so both are in the figures) and the delay-aware stage 1.
+pub fn robot_tick_gains_delay_auto() -> Call {
+    robot_tick_with(0, delay_aware_robot())
+}
+
+/// The trajectory phase's tick with the delay-aware stage 2.
+pub fn robot_tick_trajectory_delay_auto() -> Call {
+    robot_tick_with(1, delay_aware_robot())
+}
+
+/// The robot-tick workloads, one per phase, then the delay-aware robot's.
+pub const TICK_WORKLOADS: [Workload; 5] = [
     ("robot_tick/gains_phase", robot_tick_gains),
     ("robot_tick/trajectory_phase", robot_tick_trajectory),
     ("robot_tick/integration_phase", robot_tick_integration),
+    (
+        "robot_tick/gains_phase_delay_auto",
+        robot_tick_gains_delay_auto,
+    ),
+    (
+        "robot_tick/trajectory_phase_delay_auto",
+        robot_tick_trajectory_delay_auto,
+    ),
 ];
 
 /// Phase length of the whole-trial workload (s), as
@@ -277,7 +306,7 @@ pub fn trial() -> (Call, usize) {
 
 /// Every workload by name (the names of the criterion benches and of the
 /// rows of `BENCHMARKS.md`).
-pub fn all() -> [Workload; 10] {
+pub fn all() -> [Workload; 12] {
     [
         ("ukf_step/6_states_3_measurements", ukf_step_3),
         ("ukf_step/6_states_5_measurements", ukf_step_5),
@@ -289,5 +318,7 @@ pub fn all() -> [Workload; 10] {
         TICK_WORKLOADS[0],
         TICK_WORKLOADS[1],
         TICK_WORKLOADS[2],
+        TICK_WORKLOADS[3],
+        TICK_WORKLOADS[4],
     ]
 }

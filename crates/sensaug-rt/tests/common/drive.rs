@@ -144,6 +144,7 @@ pub fn loop_settings(resolved: &Resolved<'_>) -> LoopSettings {
         },
         partner_gains: resolved.partner.gains,
         partner_torque_limit: 1e3,
+        partner_human: resolved.partner.human,
         plant: resolved.world.plant,
         max_feedback_velocity_rad_s: 8.0,
         feedback_step_margin_rad: 0.01,
