@@ -85,7 +85,9 @@ def hi5(phase_s: float = 20.0) -> Hi5:
         Q3=np.diag(s3.Q),
         R3=np.diag(s3.R_sensor),
         P03=np.diag(s3.P0),
-        partner_window_s=s3.partner_window_s,
+        # Retired from the schema after the prototype (issue 22's adaptive
+        # channel); the prototype's stage 3 keeps the old rule's 0.5 s.
+        partner_window_s=getattr(s3, "partner_window_s", 0.5),
         target_noise_std=cfg.phases[2].target_noise_std,
     )
 

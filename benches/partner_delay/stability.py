@@ -24,30 +24,14 @@ import numpy as np
 
 from settings import Hi5, hi5
 
+from sensaug.partner_delay import spectral_radius
+
 
 def discrete_spectral_radius(h: Hi5, gains, dv: int, dp: int) -> float:
-    """Spectral radius of the discrete closed loop; delays in ticks."""
-    lhx, lhv, lhh = gains
-    nx, nv = dv + 1, dp + 1  # x[k..k-dv], v[k..k-dp]
-    n = nx + nv
-    A = np.zeros((n, n))
-    h1, h2 = h.dt / h.M, h.dt * h.dt / (2 * h.M)
-    # f = fx . state
-    f = np.zeros(n)
-    f[0] -= h.kp
-    f[nx] -= h.kv
-    f[dv] -= lhx + lhh
-    f[nx + dp] -= lhv
-    A[0] = h2 * f
-    A[0, 0] += 1.0
-    A[0, nx] += h.dt
-    A[nx] = h1 * f
-    A[nx, nx] += 1.0
-    for i in range(1, nx):
-        A[i, i - 1] = 1.0
-    for i in range(1, nv):
-        A[nx + i, nx + i - 1] = 1.0
-    return float(np.max(np.abs(np.linalg.eigvals(A))))
+    """Spectral radius of the discrete closed loop; delays in ticks (the
+    product's computation, sensaug.partner_delay.spectral_radius, on the
+    same preset as ``h``)."""
+    return spectral_radius(gains, dv, dp)
 
 
 def critical_visual_delay(h: Hi5, stiffness: float) -> float:

@@ -137,10 +137,12 @@ pub enum Value {
 
 /// The unit symbols used in [`COLUMNS`]; `u^2` and `(u)^2` are squares of `u`
 /// (variances).
-pub const UNITS: [(&str, &str); 9] = [
+pub const UNITS: [(&str, &str); 11] = [
     ("1", "dimensionless count or code"),
     ("s", "second"),
+    ("ms", "millisecond"),
     ("us", "microsecond"),
+    ("nats", "natural-log units of a log-likelihood"),
     ("pos", "controller position unit: rig.position_unit on the rig (rad_per_unit rad), deg in the Hi5 presets"),
     ("pos/s", "controller position unit per second"),
     ("trq", "model torque unit: the robot's torque in the handle model (on the rig, N m = trq * rad_per_unit)"),

@@ -30,10 +30,10 @@ stage-3 ratio own / integrated RMSE (> 1: goal integration helps). A cell
 whose closed loop (robot + delayed partner, noise-free) is unstable is
 reported as such and not run.
 
-    .venv/bin/python scripts/partner_delay_table.py --seeds 300 301 [--out FILE.md]
+    .venv/bin/python -m sensaug.partner_delay --seeds 300 301 302 [--out FILE.md]
 
 prints the Markdown table (one row per cell and seed); `sensaug figures`
-adds it to REPORT.md.
+adds it to REPORT.md (`--quick`: the reduced cells, one seed).
 """
 
 from __future__ import annotations
@@ -182,6 +182,18 @@ def run_cell(family: str, dv: float, dp: float, lhh: float, seed: int, *, phase_
     return row
 
 
+#: The reduced table (the tests' and `sensaug figures --quick`'s): the
+#: damped partner at d_p = 40 ms across the visual delays, the paper's
+#: virtual human at a long delay, and an unstable cell.
+REDUCED = (
+    ("damped", 0, 40, 1.0),
+    ("damped", 100, 40, 1.0),
+    ("damped", 200, 40, 1.0),
+    ("paper", 150, 0, 0.5),
+    ("paper", 100, 0, 2.0),
+)
+
+
 def cells():
     for family in ("paper", "damped"):
         for lhh in LHH:
@@ -214,10 +226,10 @@ def fmt(row: dict) -> str:
     )
 
 
-def table(seeds: list[int], phase_s: float = 20.0, progress=None) -> str:
+def table(seeds, phase_s: float = 20.0, progress=None, *, reduced: bool = False) -> str:
     lines = [HEADER]
     rows = []
-    for family, dv, dp, lhh in cells():
+    for family, dv, dp, lhh in REDUCED if reduced else cells():
         for seed in seeds:
             row = run_cell(family, dv, dp, lhh, seed, phase_s=phase_s)
             rows.append(row)
@@ -241,8 +253,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=[300, 301])
     ap.add_argument("--phase-s", type=float, default=20.0)
     ap.add_argument("--out", help="also write the table to this Markdown file")
+    ap.add_argument("--reduced", action="store_true", help="only the reduced table's cells")
     args = ap.parse_args(argv)
-    text = table(args.seeds, args.phase_s, progress=lambda line: print(line, file=sys.stderr, flush=True))
+    text = table(args.seeds, args.phase_s, progress=lambda line: print(line, file=sys.stderr, flush=True),
+                 reduced=args.reduced)
     print(text)
     if args.out:
         with open(args.out, "w") as f:
