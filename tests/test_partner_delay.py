@@ -113,6 +113,24 @@ def test_human_partner_motor_noise_is_signal_dependent():
     assert abs(ratio.mean()) < 0.02
 
 
+def test_human_partner_gain_drift_is_bounded_and_of_the_stated_size():
+    """gain_drift std 0.1, time constant 0.2 s over a 4 s phase (20 time
+    constants): u_h / c - 1 is the drift delta of Lhh, clipped at 3 std
+    (0.3); its std within 40% of 0.1 (20 independent stretches: the sample
+    std's relative error is about 1/sqrt(40) = 16%, 40% is 2.5 of those)."""
+    from sensaug.config_types import GainDriftConfig
+
+    cfg = presets.hi5_experiment(1.0, seed=205, phase_s=4.0)
+    cfg.phases = cfg.phases[:1]
+    cfg.partner.human = HumanConfig(gain_drift=GainDriftConfig(std=0.1, time_constant_s=0.2), seed=205)
+    d = experiment.run(cfg).data
+    c = -1.0 * (d["x_meas"] - d["tau_h"])
+    ok = np.abs(c) > 1e-2
+    delta = d["u_h"][ok] / c[ok] - 1.0
+    assert np.abs(delta).max() <= 0.3 + 1e-9
+    assert 0.06 < delta.std() < 0.14, delta.std()
+
+
 def test_a_bad_delay_names_the_field():
     cfg = one_gain_phase(50.0)
     cfg.partner.human.visual_delay_ms = 400.0
