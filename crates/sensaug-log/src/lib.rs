@@ -269,7 +269,7 @@ schema! {
     sleep_latency_us: Float, "us", "rig: the deadline sleep's return after its own target, the deadline less rig.realtime.spin_us: the OS timer's latency; equal to wake_latency_us without a spin (NaN in simulations)";
     compute_us: Float, "us", "rig: wake-up to command sent (NaN in simulations)";
     feedback_age_ticks: Int, "1", "ticks since the last feedback (0 in simulations: a measurement every tick)";
-    drive_state: Int, "1", "rig: drive state 0 boot, 1 disabled, 2 enabled, 3 fault (-1 in simulations)";
+    drive_state: Int, "1", "rig: the drive's status, whatever its profile: 0 booting, 1 disabled, 2 enabled, 3 fault (-1 in simulations)";
     guard: Int, "1", "rig: the drive-torque guard 0 passed, 1 clamped, 2 non-finite (-1 controlled stop and simulations)";
     ramp: Bool, "1", "rig: the controlled stop's ticks, braking after a stop request (false in simulations)";
 }

@@ -15,7 +15,7 @@ use crate::log::{LogRecord, LogSink};
 use crate::os;
 use crate::stats::{CanCounters, ComputeParts, DriveReport, Histogram, LoopReport, StartGap};
 use crate::wake::{wake_up, Wake};
-use sensaug_bridge::drive_link::{Absorbed, DriveLink, DriveSample};
+use sensaug_bridge::drive_link::{Absorbed, DriveLink, DriveSample, DriveStatus};
 use sensaug_bridge::protocol::NodeId;
 use sensaug_bridge::{Frame, Transport};
 use sensaug_config::DriveProfile;
@@ -264,13 +264,13 @@ struct StartTimes {
 /// What the drive last told us.
 #[derive(Clone, Copy, Debug)]
 struct DriveView {
-    /// The link's sample as of the last sense.
+    /// The link's sample as of the last sense: the position, velocity and
+    /// status the loop acts on.
     sample: DriveSample,
-    x_rad: f64,
-    v_rad_s: f64,
-    /// A feedback has been received.
-    had_feedback: bool,
-    last_feedback_tick: u64,
+    /// The last feedback taken and the tick it came in: the plausibility
+    /// check's previous feedback (several can arrive between two senses)
+    /// and the feedback's age.
+    last_feedback: Option<(Reading, u64)>,
 }
 
 /// What the virtual human acts on: the handle's state, measured when the
@@ -386,10 +386,7 @@ impl<'a> Rig<'a> {
             protocol,
             drive: DriveView {
                 sample: DriveSample::default(),
-                x_rad: 0.0,
-                v_rad_s: 0.0,
-                had_feedback: false,
-                last_feedback_tick: 0,
+                last_feedback: None,
             },
             wake: Histogram::new(50_000),
             sleep: Histogram::new(50_000),
@@ -436,7 +433,7 @@ impl<'a> Rig<'a> {
         rig.times.first_command_ns = instant_ns(times.first_command);
         // The enable's feedback: the first one, seen by tick 0.
         let first = rig.link.sample(0);
-        rig.check_plausible(
+        rig.take_feedback(
             Reading {
                 x_rad: first.position_rad,
                 v_rad_s: first.velocity_rad_s,
@@ -445,9 +442,6 @@ impl<'a> Rig<'a> {
             0,
         );
         rig.drive.sample = first;
-        rig.drive.x_rad = first.position_rad;
-        rig.drive.v_rad_s = first.velocity_rad_s;
-        rig.drive.had_feedback = true;
         Ok(rig)
     }
 
@@ -476,11 +470,7 @@ impl<'a> Rig<'a> {
                     x_rad: position_rad,
                     v_rad_s: velocity_rad_s,
                 };
-                self.check_plausible(reading, steps, tick);
-                self.drive.x_rad = position_rad;
-                self.drive.v_rad_s = velocity_rad_s;
-                self.drive.had_feedback = true;
-                self.drive.last_feedback_tick = tick;
+                self.take_feedback(reading, steps, tick);
             }
             Absorbed::StaleFeedback => self.can.feedback_discarded += 1,
             Absorbed::ConflictingFeedback { sequence } => {
@@ -492,20 +482,19 @@ impl<'a> Rig<'a> {
         }
     }
 
-    /// Checks a feedback against physics and against the one before it
-    /// (`steps` drive steps earlier, 0: unknown; [`FeedbackLimits::check`]).
-    fn check_plausible(&mut self, reading: Reading, steps: u32, tick: u64) {
-        let prev = self.drive.had_feedback.then(|| Previous {
-            reading: Reading {
-                x_rad: self.drive.x_rad,
-                v_rad_s: self.drive.v_rad_s,
-            },
-            ticks_apart: tick.saturating_sub(self.drive.last_feedback_tick),
+    /// A feedback the link took in tick `tick`: checked against physics
+    /// and against the one before it (`steps` drive steps earlier, 0:
+    /// unknown; [`FeedbackLimits::check`]), then kept as the previous one.
+    fn take_feedback(&mut self, reading: Reading, steps: u32, tick: u64) {
+        let prev = self.drive.last_feedback.map(|(reading, at)| Previous {
+            reading,
+            ticks_apart: tick.saturating_sub(at),
             steps,
         });
         if let Err(why) = self.feedback_limits.check(reading, prev) {
             self.implausible_feedback(why);
         }
+        self.drive.last_feedback = Some((reading, tick));
     }
 
     /// Counts an implausible feedback and keeps the first.
@@ -581,7 +570,7 @@ impl<'a> Rig<'a> {
         };
         self.page_faults = os::thread_page_faults().saturating_sub(faults_before);
         self.ticks_run = k;
-        self.stop.speed_at_end_rad_s = self.drive.v_rad_s.abs();
+        self.stop.speed_at_end_rad_s = self.drive.sample.velocity_rad_s.abs();
         self.shut_down(reason);
         reason
     }
@@ -589,7 +578,7 @@ impl<'a> Rig<'a> {
     /// Keeps how the stop goes for the report ([`StopReport`]): when it was
     /// decided and the speed then, the braking ticks, why braking ended.
     fn note_stop(&mut self, from: Safety, to: Safety, c: &Checks) {
-        let speed_rad_s = self.drive.v_rad_s.abs();
+        let speed_rad_s = self.drive.sample.velocity_rad_s.abs();
         match (from, to) {
             (Safety::Running, Safety::Braking { .. } | Safety::Stopped(_)) => {
                 self.stop.tick = c.tick;
@@ -620,7 +609,7 @@ impl<'a> Rig<'a> {
         let stop = &self.settings.stop;
         let torque_nm = if sensed.fresh {
             brake_torque_nm(
-                self.drive.v_rad_s,
+                self.drive.sample.velocity_rad_s,
                 stop.damping_nm_s_per_rad,
                 stop.torque_limit_nm,
             )
@@ -665,10 +654,10 @@ impl<'a> Rig<'a> {
         let unit = self.settings.rad_per_unit;
         Sensed {
             wake,
-            x: self.drive.x_rad / unit,
-            v: self.drive.v_rad_s / unit,
+            x: self.drive.sample.position_rad / unit,
+            v: self.drive.sample.velocity_rad_s / unit,
             fresh,
-            age_ticks: k.saturating_sub(self.drive.last_feedback_tick),
+            age_ticks: k.saturating_sub(self.drive.last_feedback.map_or(0, |(_, at)| at)),
         }
     }
 
@@ -702,7 +691,7 @@ impl<'a> Rig<'a> {
             },
             protocol_done: k >= self.protocol.total_ticks(),
             at_rest: sensed.fresh
-                && self.drive.v_rad_s.abs() < self.settings.stop.rest_velocity_rad_s,
+                && self.drive.sample.velocity_rad_s.abs() < self.settings.stop.rest_velocity_rad_s,
             stop_ticks: timing.stop_ticks,
         }
     }
@@ -776,7 +765,7 @@ impl<'a> Rig<'a> {
             sleep_latency_us: wake.sleep_latency_ns() as f64 / 1e3,
             compute_us: compute_ns as f64 / 1e3,
             feedback_age_ticks: sensed.age_ticks,
-            drive_state: self.drive.sample.state_code,
+            drive_state: self.drive.sample.status,
             guard: command.guard,
             ramp: matches!(safety, Safety::Braking { .. }),
         });
@@ -797,6 +786,12 @@ impl<'a> Rig<'a> {
         {
             self.can.send_errors += 1;
         }
+    }
+
+    /// The drive's status as the loop last sensed it (the log's end
+    /// status: "fault" after a drive fault stopped the run).
+    pub fn drive_status(&self) -> DriveStatus {
+        self.drive.sample.status
     }
 
     /// The end-of-run report (without the log and real-time fields).

@@ -312,6 +312,7 @@ fn run(spec: &ScenarioSpec, feed_to: &[SocketAddr]) -> Result<StopReason, RunErr
     end.insert("ring_overflows".into(), overflows.into());
     end.insert("realtime".into(), report.realtime.clone().into());
     end.insert("exit_code".into(), reason.exit_code().into());
+    end.insert("drive_status".into(), rig_loop.drive_status().name().into());
     let written = writer.finish(end);
     if let Some(e) = &written.error {
         say(
