@@ -160,7 +160,7 @@ def rig_demo(
     t_start = time.perf_counter()
     phases = ", ".join(f"{p.kind} {p.duration_s:g} s" for p in config.phases)
     port = rig.bus_port(port)
-    drive = _DRIVE_NAMES[config.rig.drive]
+    drive = rig.drive_profile_name(config.rig.drive)
     what = "the Hi5 experiment" if command == "demo" else "one trial"
     print(f"sensaug {command}: {what} on the virtual rig ({phases})")
     print(f"virtual {drive} drive (Python, python-can) <-> sensaug-rt (Rust, 1 kHz) over the loopback CAN bus")
@@ -452,13 +452,16 @@ def docs(page: str | None) -> int:
     return 0
 
 
-#: How the demo names each ``[rig] drive`` profile.
-_DRIVE_NAMES = {"hi5": "Hi5", "cia402": "CiA 402 (CANopen)"}
+def _drive_profiles() -> list[str]:
+    """The ``[rig] drive`` profiles: the schema's enum."""
+    from sensaug.config import schema
+
+    return [choice["const"] for choice in schema()["$defs"]["DriveProfile"]["oneOf"]]
 
 
 def _rig_options(p: argparse.ArgumentParser) -> None:
     """``demo``'s and ``rig``'s drive profile, bus, capture and progress options."""
-    p.add_argument("--drive", choices=sorted(_DRIVE_NAMES), default=None,
+    p.add_argument("--drive", choices=_drive_profiles(), default=None,
                    help="drive profile (sets [rig] drive; default: the configuration's, hi5 unless it says otherwise)")
     p.add_argument("--port", type=int, default=None, help="loopback CAN bus UDP port 1..65535 (default: a free one)")
     p.add_argument("--capture", default="bus.log", metavar="NAME",
