@@ -490,7 +490,8 @@ class RigConfig:
     """Run the virtual human inside the loop (false: a person holds the handle)."""
     watchdog_ms: int = 50
     """Drive command watchdog (ms): the drive disables itself when commands stop for this long
-    (the protocol's range, from hi5.dbc).
+    (Hi5: 5..200, hi5.dbc's SetState.watchdog_ms; CiA 402: 2..200, the drive's heartbeat
+    consumer time 0x1016).
     """
 
     @classmethod

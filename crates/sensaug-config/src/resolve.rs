@@ -265,6 +265,18 @@ fn rig_timing(rig: &RigSpec, dt_s: f64) -> Result<(), ConfigError> {
             ),
         ));
     }
+    let (min, max, bound) = rig.drive.watchdog_ms_range();
+    if !(min..=max).contains(&rig.watchdog_ms) {
+        return Err(ConfigError::new(
+            "rig.watchdog_ms",
+            format!(
+                "{} ms is outside {min}..={max} ms, the range of {bound} \
+                 (rig.drive = \"{}\"); use a value in it",
+                rig.watchdog_ms,
+                rig.drive.name()
+            ),
+        ));
+    }
     if f64::from(rig.watchdog_ms) < 2.0 * dt_ms {
         return Err(ConfigError::new(
             "rig.watchdog_ms",

@@ -27,10 +27,14 @@ pub const MAX_DURATION_S: f64 = 3600.0;
 pub const MAX_PHASES: usize = sensaug_core::protocol::MAX_PHASES;
 /// Most shapes summed into one target.
 pub const MAX_PARTS: usize = sensaug_core::target::MAX_PARTS;
-/// The drive watchdog's range (ms), from `hi5.dbc` (`SetState.watchdog_ms`).
-pub const WATCHDOG_MS_MIN: f64 = sensaug_bridge::dbc::set_state::WATCHDOG_MS.min;
-/// See [`WATCHDOG_MS_MIN`].
-pub const WATCHDOG_MS_MAX: f64 = sensaug_bridge::dbc::set_state::WATCHDOG_MS.max;
+/// The drive watchdog's bounds whatever the profile (ms): at least 2 ms (the
+/// CiA 402 master's own least, [`sensaug_bridge::cia402::master::DRIVE_CONSUMER_MS_MIN`]).
+/// Each profile narrows the range ([`DriveProfile::watchdog_ms_range`]).
+pub const WATCHDOG_MS_MIN: f64 = 2.0;
+/// At most 200 ms: the longest a drive may go on applying its last torque
+/// after the controller fell silent (a crashed process, docs/safety.md),
+/// whatever its protocol allows.
+pub const WATCHDOG_MS_MAX: f64 = 200.0;
 /// Largest torque the drive protocol carries (N m), from `hi5.dbc`
 /// (`TorqueCommand.torque`).
 pub const TORQUE_NM_MAX: f64 = sensaug_bridge::dbc::torque_command::TORQUE.max;
@@ -681,6 +685,48 @@ pub enum DriveProfile {
     Cia402,
 }
 
+impl DriveProfile {
+    /// Its name in a configuration file (`rig.drive`).
+    pub fn name(self) -> &'static str {
+        match self {
+            DriveProfile::Hi5 => "hi5",
+            DriveProfile::Cia402 => "cia402",
+        }
+    }
+
+    /// The drive watchdog's range on this profile (ms, both ends included)
+    /// within [`WATCHDOG_MS_MIN`]..=[`WATCHDOG_MS_MAX`], and what bounds it.
+    pub fn watchdog_ms_range(self) -> (u32, u32, &'static str) {
+        let within = |min: f64, max: f64| {
+            (
+                min.max(WATCHDOG_MS_MIN) as u32,
+                max.min(WATCHDOG_MS_MAX) as u32,
+            )
+        };
+        match self {
+            DriveProfile::Hi5 => {
+                let ms = sensaug_bridge::dbc::set_state::WATCHDOG_MS;
+                let (min, max) = within(ms.min, ms.max);
+                (
+                    min,
+                    max,
+                    "the Hi5 protocol's SetState.watchdog_ms (hi5.dbc)",
+                )
+            }
+            DriveProfile::Cia402 => {
+                use sensaug_bridge::cia402::master::DRIVE_CONSUMER_MS_MIN;
+                let (min, max) = within(f64::from(DRIVE_CONSUMER_MS_MIN), f64::from(u16::MAX));
+                (
+                    min,
+                    max,
+                    "the drive's heartbeat consumer time (0x1016, 16-bit ms, longer than the \
+                     master's 1 ms least heartbeat period)",
+                )
+            }
+        }
+    }
+}
+
 /// `[rig.realtime]`: thread settings of the loop; each falls back with a
 /// warning if the OS refuses it.
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
@@ -767,7 +813,8 @@ pub struct RigSpec {
     #[schemars(extend("exclusiveMinimum" = 0.0), range(max = TORQUE_NM_MAX))]
     pub torque_limit_nm: f64,
     /// Drive command watchdog (ms): the drive disables itself when commands
-    /// stop for this long (the protocol's range, from hi5.dbc).
+    /// stop for this long (Hi5: 5..200, hi5.dbc's SetState.watchdog_ms;
+    /// CiA 402: 2..200, the drive's heartbeat consumer time 0x1016).
     #[schemars(range(min = WATCHDOG_MS_MIN, max = WATCHDOG_MS_MAX))]
     pub watchdog_ms: u32,
     /// Feedback older than this stops the loop with an emergency stop (ms).

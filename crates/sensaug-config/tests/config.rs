@@ -282,3 +282,44 @@ fn the_rig_refuses_a_linear_position_unit() {
     let err = sensaug_config::check_rig_unit(&spec).unwrap_err();
     assert_eq!(err.field, "rig.position_unit");
 }
+
+/// `rig.watchdog_ms` is bounded per drive profile inside the schema's
+/// 2..=200 ms: Hi5 by its protocol (hi5.dbc's SetState.watchdog_ms, 5..=200),
+/// CiA 402 by its consumer time (2..=200), not by the Hi5's range.
+#[test]
+fn the_watchdog_is_bounded_per_drive_profile() {
+    let with = |drive: &str, watchdog: u32| {
+        load_str(
+            &format!(
+                "{MINIMAL}\n[rig]\ndrive = \"{drive}\"\nwatchdog_ms = {watchdog}\n\
+                 [rig.cia402]\nheartbeat_timeout_ms = 10\n"
+            ),
+            Format::Toml,
+        )
+    };
+    assert_eq!(
+        sensaug_config::DriveProfile::Hi5.watchdog_ms_range().0,
+        5,
+        "the DBC's minimum"
+    );
+    // CiA 402's least in practice is 4 ms: its heartbeat consumer time
+    // (at least 10 ms) is at most 3 watchdogs.
+    for (watchdog, hi5_ok, cia402_ok) in [(1, false, false), (4, false, true)].into_iter().chain([
+        (5, true, true),
+        (200, true, true),
+        (201, false, false),
+    ]) {
+        let (hi5, cia402) = (with("hi5", watchdog), with("cia402", watchdog));
+        assert_eq!(hi5.is_ok(), hi5_ok, "hi5 {watchdog}: {hi5:?}");
+        assert_eq!(cia402.is_ok(), cia402_ok, "cia402 {watchdog}: {cia402:?}");
+        for e in [hi5.err(), cia402.err()].into_iter().flatten() {
+            assert_eq!(e.field, "rig.watchdog_ms");
+        }
+    }
+    let e = with("hi5", 4).unwrap_err();
+    assert_eq!(
+        e.message,
+        "4 ms is outside 5..=200 ms, the range of the Hi5 protocol's SetState.watchdog_ms \
+         (hi5.dbc) (rig.drive = \"hi5\"); use a value in it"
+    );
+}
