@@ -1,7 +1,10 @@
 """Ready-made configurations for the paper's Hi5 experiment and simulation.
 
 Every number here is either the paper's or a documented choice
-(``docs/model.md``); the defaults are what ``sensaug demo`` runs.
+(``docs/model.md``); the defaults are what ``sensaug demo`` runs. The
+schema's defaults are the paper's Hi5 experiment (``docs/config.md``), so a
+preset sets only what differs from them: its arguments and the paper's
+other sections' numbers.
 """
 
 from __future__ import annotations
@@ -78,31 +81,18 @@ def hi5_experiment(
     """
     rounded = RoundedSquare(amplitude=8.0, period_s=4.0)
     chirp = Chirp(amplitude=chirp_amplitude, f0_hz=0.0, f1_hz=2.0, duration_s=phase_s)
-    sensor_var = 1e-7
+    # The handle, the sensors, the robot's Q and R and its filters' Q_k,
+    # R_1, R_2, P0 are the schema's defaults (the paper's Hi5 numbers).
+    plant = PlantConfig()
     return ScenarioConfig(
-        plant=PlantConfig(mass=0.0035, damping=0.0, dt_s=1e-3),
-        world=WorldConfig(
-            motor_noise_std=motor_noise_std,
-            position_noise_std=math.sqrt(sensor_var),
-            velocity_noise_std=math.sqrt(sensor_var),
-            seed=seed,
-        ),
+        plant=plant,
+        world=WorldConfig(motor_noise_std=motor_noise_std, seed=seed),
         robot=RobotConfig(
-            q_pos=1.0,
-            q_vel=0.0,
             integrate=integrate,
-            gain_window_s=8.0,
-            torque_limit=1e3,
             seed=seed + 1_000_003,
-            stage1=GainFilterConfig(Q=[1e-2] * 6, R=[sensor_var] * 3, P0=[1e-4] * 3 + [1.0] * 3),
-            stage2=TrajectoryFilterConfig(Q=[1e-2] * 6, R=[sensor_var] * 5, P0=[1e-4] * 3 + [1.0] * 3),
-            stage3=IntegratorConfig(
-                Q=[1e-2, motor_velocity_variance(motor_noise_std, 1e-3, 0.0035)],
-                R_sensor=[sensor_var, sensor_var],
-                P0=[1e-2, 1e-2],
-            ),
+            stage3=IntegratorConfig(Q=[1e-2, motor_velocity_variance(motor_noise_std, plant.dt_s, plant.mass)]),
         ),
-        partner=PartnerConfig(gains=[0.0, 0.0, lhh], torque_limit=1e3),
+        partner=PartnerConfig(gains=[0.0, 0.0, lhh]),
         phases=[
             PhaseConfig("gains", phase_s, robot_target=[rounded, chirp], partner_target=[rounded]),
             PhaseConfig("trajectory", phase_s, robot_target=[rounded], partner_target=[rounded]),
@@ -181,7 +171,7 @@ def simulation_section(
     return ScenarioConfig(
         # A linear handle: positions in m, forces in N, the mass in kg.
         rig=RigConfig(position_unit="m"),
-        plant=PlantConfig(mass=6.0, damping=0.0, dt_s=1e-3),
+        plant=PlantConfig(mass=6.0),
         world=WorldConfig(
             motor_noise_std=motor_noise_std,
             position_noise_std=math.sqrt(r),
@@ -192,13 +182,12 @@ def simulation_section(
             q_pos=20000.0,
             q_vel=2.0,
             integrate=False,
-            gain_window_s=8.0,
             torque_limit=1e6,
             seed=seed + 1_000_003,
             stage1=GainFilterConfig(Q=[q] * 6, R=[r] * 3, P0=[1e-6] * 3 + [1e4] * 3),
             stage2=TrajectoryFilterConfig(Q=[q] * 6, R=[r] * 5, P0=[1e-6] * 3 + [1e-2] * 3),
         ),
-        partner=PartnerConfig(gains=None, q_pos=20000.0, q_vel=2.0, torque_limit=1e6, estimates_robot=True),
+        partner=PartnerConfig(q_pos=20000.0, q_vel=2.0, torque_limit=1e6, estimates_robot=True),
         phases=[
             PhaseConfig(
                 "gains",
@@ -259,7 +248,7 @@ def simulation_integration(
     q_v = motor_velocity_variance(motor_noise_std, cfg.plant.dt_s, cfg.plant.mass)
     cfg.robot.integrate = integrate
     cfg.robot.stage2 = TrajectoryFilterConfig(Q=[walk, q_v, walk] + [r] * 3, R=[r] * 5, P0=[1e-6] * 3 + [1e-2] * 3)
-    cfg.robot.stage3 = IntegratorConfig(Q=[walk, q_v], R_sensor=[r, r], P0=[1e-2, 1e-2])
+    cfg.robot.stage3 = IntegratorConfig(Q=[walk, q_v], R_sensor=[r, r])
     cfg.partner.integration = PartnerIntegrationConfig(
         target_noise_std=math.sqrt(partner_R), integrate=integrate, seed=seed + PARTNER_SEED_OFFSET
     )
