@@ -10,13 +10,10 @@ mod common;
 
 use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector2, Vector3};
 use sensaug_core::controller::Robot;
-use sensaug_core::estimator::{
-    ExtendedFilterConfig, GainEstimator, HandleModel, TrajectoryEstimator,
-};
+use sensaug_core::estimator::{GainEstimator, TrajectoryEstimator};
 use sensaug_core::goal::{ChannelConfig, GoalIntegrator, GoalIntegratorConfig};
 use sensaug_core::protocol::Protocol;
 use sensaug_core::riccati::{care, dare};
-use sensaug_core::ukf::MerweParams;
 use sensaug_core::world::{Scenario, TickRecord};
 use std::hint::black_box;
 
@@ -27,9 +24,9 @@ pub type Call = Box<dyn FnMut()>;
 pub type Workload = (&'static str, fn() -> Call);
 
 /// Handle mass of the Hi5 experiment (kg m^2), as in `compare_oracles.py`.
-pub const MASS: f64 = 0.0035;
+pub const MASS: f64 = common::M;
 /// Tick (s).
-pub const DT: f64 = 1e-3;
+pub const DT: f64 = common::DT;
 
 /// The 3-state system timed here and in `benches/compare_oracles.py`.
 pub fn system3() -> (Matrix3<f64>, SMatrix<f64, 3, 1>) {
@@ -39,33 +36,10 @@ pub fn system3() -> (Matrix3<f64>, SMatrix<f64, 3, 1>) {
     )
 }
 
-/// The estimators' settings in the oracle script: `P0 = diag(1e-4 x3, 1 x3)`,
-/// `Q = 1e-2 I`, `R = 1e-7 I`, Merwe `(1, 2, 0)`.
-fn extended<const R: usize>() -> ExtendedFilterConfig<R> {
-    let mut P0 = SMatrix::<f64, 6, 6>::identity();
-    for i in 0..3 {
-        P0[(i, i)] = 1e-4;
-    }
-    ExtendedFilterConfig {
-        x0: SVector::zeros(),
-        P0,
-        Q: SMatrix::identity() * 1e-2,
-        R: SMatrix::identity() * 1e-7,
-        sigma: MerweParams {
-            alpha: 1.0,
-            beta: 2.0,
-            kappa: 0.0,
-        },
-    }
-}
-
-fn model() -> HandleModel {
-    HandleModel {
-        mass: MASS,
-        damping: 0.0,
-        dt_s: DT,
-    }
-}
+// The estimators' settings in the oracle script are the tests' Hi5 ones
+// (`tests/common`): `P0 = diag(1e-4 x3, 1 x3)`, `Q = 1e-2 I`, `R = 1e-7 I`,
+// Merwe `(1, 2, 0)`; the handle model `(MASS, C = 0, DT)`.
+use common::{extended, model};
 
 /// Stage 1: `update(y1)` then `predict(u, dtau, dtau_h)`, 6 states, 3
 /// measurements.
