@@ -56,26 +56,3 @@ def test_the_bridges_plant_refuses_what_the_core_refuses():
     with pytest.raises(ValueError, match="not finite"):
         tiny.step(1e300)
     assert (tiny.x, tiny.v) == (0.0, 0.0), "a refused step leaves the state unchanged"
-
-
-@pytest.mark.parametrize("drive", ["hi5", "cia402"])
-def test_the_virtual_rig_gives_its_drive_the_configurations_handle(drive):
-    """``sensaug.rig.virtual_drive_args``: the registered virtual drive of
-    each profile gets the configuration's plant, node and torque limit (not
-    its own defaults); Coulomb friction converted from model torque (deg
-    units) to N m."""
-    import importlib
-
-    from sensaug import presets, rig
-    from sensaug_bridge.virtual_hi5 import drive_config_fields
-
-    cfg = presets.hi5_rig()
-    cfg.rig.drive = drive
-    cfg.rig.node_id = 3
-    cfg.rig.torque_limit_nm = 2.5
-    cfg.plant.mass, cfg.plant.damping, cfg.plant.coulomb, cfg.plant.dt_s = 0.005, 0.01, 0.5, 2e-3
-    module = importlib.import_module(rig.virtual_drives()[drive])
-    fields = drive_config_fields(module.parse_args(rig.virtual_drive_args(cfg)))
-    assert (fields["node"], fields["torque_limit_nm"]) == (3, 2.5)
-    assert (fields["mass"], fields["damping"], fields["dt_s"]) == (0.005, 0.01, 2e-3)
-    assert fields["coulomb"] == pytest.approx(0.5 * math.pi / 180.0, rel=1e-15)

@@ -22,7 +22,6 @@ import errno
 import importlib
 import importlib.metadata
 import json
-import math
 import signal
 import socket
 import subprocess
@@ -220,25 +219,6 @@ def drive_profile_name(drive: str) -> str:
     return str(getattr(importlib.import_module(_drive_module(drive)), "PROFILE_NAME", drive))
 
 
-def virtual_drive_args(cfg: ScenarioConfig) -> list[str]:
-    """The virtual drive's options for a configuration: its handle is the
-    controller's model (``[plant]``; mass and damping are the same numbers in
-    rad and N m whatever ``rig.position_unit``, Coulomb friction is a torque:
-    N m = model torque x rad per unit), its node and torque limit the rig's.
-    Every other drive setting (encoder, overspeed limit, heartbeat) is the
-    drive's own."""
-    p = cfg.plant
-    rad_per_unit = math.pi / 180.0 if cfg.rig.position_unit == "deg" else 1.0
-    return [
-        "--node", str(cfg.rig.node_id),
-        "--torque-limit", repr(cfg.rig.torque_limit_nm),
-        "--mass", repr(p.mass),
-        "--damping", repr(p.damping),
-        "--coulomb", repr(p.coulomb * rad_per_unit),
-        "--dt", repr(p.dt_s),
-    ]
-
-
 def start_drive(
     port: int,
     *,
@@ -343,7 +323,7 @@ def run_virtual_rig(
     interrupted = False
     watch = None
     try:
-        drive = start_drive(port, duration_s=budget + 5.0, drive=cfg.rig.drive, extra=virtual_drive_args(cfg),
+        drive = start_drive(port, duration_s=budget + 5.0, drive=cfg.rig.drive,
                             fifo_priority=cfg.rig.realtime.fifo_priority)
         time.sleep(0.5)
         if display is not None:

@@ -85,10 +85,10 @@ def write_cia402_config(path: Path) -> None:
 
 
 def drive_args(cfg: ScenarioConfig) -> str:
-    """The virtual drive's options for the configuration's plant and rig (:func:`sensaug.rig.virtual_drive_args`)."""
-    from sensaug.rig import virtual_drive_args
-
-    return " ".join(virtual_drive_args(cfg))
+    """The virtual drive's options for the configuration's plant and rig."""
+    p = cfg.plant
+    return (f"--node {cfg.rig.node_id} --torque-limit {cfg.rig.torque_limit_nm!r} --mass {p.mass!r} "
+            f"--damping {p.damping!r} --coulomb {p.coulomb!r} --dt {p.dt_s!r}")
 
 
 # -- checks ---------------------------------------------------------------------------------
