@@ -33,6 +33,8 @@ CLASS = {
     "RobotSpec": "RobotConfig",
     "PartnerSpec": "PartnerConfig",
     "PartnerIntegrationSpec": "PartnerIntegrationConfig",
+    "HumanSpec": "HumanConfig",
+    "GainDriftSpec": "GainDriftConfig",
     "RealtimeSpec": "RealtimeConfig",
     "Cia402Spec": "RigCia402Config",
     "RigSpec": "RigConfig",
@@ -85,6 +87,8 @@ class Gen:
             if name == "ShapeSpec":
                 return "Shape"
             d = self.defs[name]
+            if "anyOf" in d:  # an untagged choice (robot.partner_delay: "auto" or ms)
+                return " | ".join(self.py_type(b) for b in d["anyOf"])
             if "enum" in d or "oneOf" in d and all("const" in b for b in d["oneOf"]):
                 return self.enum_type(d)
             return CLASS[name]

@@ -130,7 +130,7 @@ def main() -> None:
         os.environ["PYTHONPATH"] = f"{tmp}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"
         drives = {"A": name, "B": "sensaug_bridge.virtual_cia402"}
         for i, which in enumerate("ABBA" * args.runs):
-            rig.VIRTUAL_DRIVES["cia402"] = drives[which]
+            rig.virtual_drives = lambda: {"cia402": drives[which]}  # noqa: B023 (this run's drive)
             load = os.getloadavg()[0]
             run = rig.run_virtual_rig(experiment_config("cia402"), out=tmp_path / f"run{i}", capture=None)
             fresh = run.log["fresh"]

@@ -134,3 +134,27 @@ def test_ctrl_c_on_the_rig_reports_an_interruption_and_only_completed_phases(tmp
     assert "Stage 2: cut off after" in stdout and "no result from a partial phase" in stdout, stdout
     assert "Stage 3: not reached (interrupted by the user)" in stdout, stdout
     assert "Traceback" not in stdout + stderr
+
+
+def test_the_rig_with_a_person_prints_no_truth(tmp_path: Path) -> None:
+    """rig.virtual_human = false: nobody knows the person's gains or target,
+    so `sensaug rig` prints the estimates with their posterior std and, with
+    no display, no error against a target nobody was shown (issue 19)."""
+    cfg = presets.hi5_rig(phase_s=2.5)
+    cfg.robot.gain_window_s = 1.0
+    cfg.rig.virtual_human = False
+    cfg.rig.realtime.fifo_priority = 20  # as the rig tests: this shared machine must not starve the drive
+    cfg.rig.feedback_timeout_ms, cfg.rig.watchdog_ms, cfg.rig.max_stale_feedback_ticks = 300.0, 200, 1000
+    cfg.to_toml(tmp_path / "person.toml")
+    proc = subprocess.run(
+        [sys.executable, "-m", "sensaug", "rig", str(tmp_path / "person.toml"), "--out", str(tmp_path / "out"),
+         "--no-capture", "--quiet"], capture_output=True, text=True, timeout=120,
+    )
+    out = proc.stdout
+    assert proc.returncode == 0, out + proc.stderr
+    assert "A person at the handle (rig.virtual_human = false): no true partner gain or target" in out, out
+    stage1 = out[out.index("Stage 1:"): out.index("Stage 2:")]
+    assert "posterior std" in stage1 and "true" not in stage1 and "error" not in stage1, stage1
+    stage2 = out[out.index("Stage 2:"): out.index("Stage 3:")]
+    assert "no target was shown, so no error is computed" in stage2 and "%" not in stage2, stage2
+    assert "Stage 3: RMSE of the robot's estimate of x - tau" in out, out  # its own target: no truth about the person

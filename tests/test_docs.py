@@ -94,7 +94,9 @@ def test_site_builds_strictly(tmp_path: Path) -> None:
     assert built.returncode == 0, built.stdout + built.stderr
     assert "WARNING" not in built.stderr, built.stderr
     api = (site / "api" / "index.html").read_text()
-    for name in ("sensaug.experiment.Trial.plot", "sensaug.experiment.run", "sensaug.logs.load_log", "sensaug.sweep.sweep"):
+    for name in ("sensaug.experiment.Trial.plot", "sensaug.experiment.run", "sensaug.logs.load_log", "sensaug.sweep.sweep",
+                 "sensaug.figures.measure", "sensaug.figures.write_all", "sensaug.figures.fig_rmse",
+                 "sensaug.figures.fig_integration"):
         assert f'id="{name}"' in api, name
     for page in (REPO / "docs").glob("*.md"):
         assert (site / page.stem / "index.html").is_file(), page.name

@@ -23,9 +23,10 @@ from test_rig import presets_gains, short_config, stall_tolerant
 NODE = 1
 #: CiA 402 COB-IDs of node 1 (docs/cia402.md) and the SYNC.
 RPDO1, TPDO1, TPDO2, SYNC = 0x200 + NODE, 0x180 + NODE, 0x280 + NODE, 0x080
-#: The log's ``drive_state`` for CiA 402 OperationEnabled (the state's
-#: position in CiA 402 table 30, firmware_bridge/src/cia402/state.rs).
-OPERATION_ENABLED = 4
+#: The log's ``drive_state`` code of an enabled drive, whatever the profile
+#: (docs/drive_profiles.md; CiA 402 OperationEnabled, whose own number in
+#: CiA 402 table 30 is 4, the log's "fault" code 3 plus one).
+ENABLED = 2
 
 
 def experiment_config(drive: str):
@@ -55,7 +56,8 @@ def test_the_whole_experiment_runs_on_cia402_and_logs_every_tick(runs):
     sim = experiment.run(short_config())
     assert log.data.dtype == sim.data.dtype == logs.DTYPE
     assert list(np.unique(log["phase"])) == [0, 1, 2]
-    assert set(np.unique(log["drive_state"])) == {OPERATION_ENABLED}
+    assert set(np.unique(log["drive_state"])) == {ENABLED}
+    assert log.meta["end"]["drive_status"] == "enabled"
     # The share of ticks with fresh feedback depends on the machine's
     # scheduling, not on the code (0.86 in a CI run at load 5, ~0.98 idle):
     # more than half (the default rig.max_missing_feedback_fraction). Which ticks are

@@ -1301,7 +1301,9 @@ def test_a_latched_drive_fault_stops_the_run_with_the_profiles_own_code(tmp_path
     """The drive's own overspeed limit set low (--max-velocity 0.05 rad/s):
     it latches its fault at the first fast move; the controller stops at once
     and says why in the drive's terms: CiA 402 the EMCY code and error
-    register (0x8400, 0x01), Hi5 its fault flags (OVERSPEED), exit 1."""
+    register (0x8400, 0x01), Hi5 its fault flags (OVERSPEED), exit 1. The
+    log says so in the profile-neutral status: every row logged "enabled"
+    (code 2), the end line's drive_status "fault"."""
     cfg = stall_tolerant(short_config(gain_s=10.0))
     cfg.rig.drive = drive
     pr = Processes(tmp_path, cfg, drive_args=["--max-velocity", "0.05"])
@@ -1317,6 +1319,10 @@ def test_a_latched_drive_fault_stops_the_run_with_the_profiles_own_code(tmp_path
             assert "FaultFlags" not in reason
         else:
             assert "Hi5 FAULT" in reason and "OVERSPEED" in reason, reason
+        log = load_log(pr.log)
+        assert len(log) == stats["ticks"] > 0
+        assert set(np.unique(log["drive_state"])) == {2}, np.unique(log["drive_state"])
+        assert log.meta["end"]["drive_status"] == "fault", log.meta["end"]
         print(f"\n{drive}: {reason} at tick {stats['ticks']}")
     finally:
         pr.close()

@@ -60,6 +60,45 @@ def test_a_condition_that_sets_a_field_wrongly_is_named(tmp_path):
     assert proc.returncode == 2 and "session.blocks[1].set: partner.gainz.lhh" in proc.stderr
 
 
+@pytest.mark.parametrize("old, new, named", [
+    ('"partner.gains.lhh" = 0.5', '"partner.gainz.lhh" = 0.5', "session.blocks[1].set: partner.gainz.lhh: partner.gainz"),
+    ('"partner.gains.lhh" = 0.5', '"partner.gains.lhh" = 1e9', "session.blocks[1].set: partner.gains[2]"),
+    ('"partner.gains.lhh" = 0.5', '"partner.gains.lhh" = "high"', "session.blocks[1].set: partner.gains[2]"),
+    ('"partner.gains.lhh" = 0.5', '"phases[3].duration_s" = 5.0', "session.blocks[1].set: phases[3].duration_s: phases[3] does not exist"),
+    ('"partner.gains.lhh" = 0.5', '"display.sigma_v" = -1.0', "session.blocks[1].set: display.sigma_v"),
+    ('"partner.gains.lhh" = 0.5', '"phases[*].duration_s" = 0.0', "session.blocks[1].set: phases[0].duration_s"),
+    ('"partner.gains.lhh" = 2.0 }\n\n[[session.blocks]]\nname = "integration"',
+     '"partner.gains.lhh" = 2.0, "robot.stage3.channel.gate" = -3.0 }\n\n[[session.blocks]]\nname = "integration"',
+     "session.blocks[5].set: robot.stage3.channel.gate"),
+    (None, None, None),
+])
+def test_both_checkers_expand_the_conditions_alike(tmp_path, old, new, named):
+    """`sensaug check` and `sensaug-rt --check` expand every block of a plan
+    (one implementation, sensaug_config::person::check_conditions) and print
+    the same first bad field; the session runner's expansion refuses the
+    same plans, naming the same block and path."""
+    from sensaug.rig import find_binary
+
+    text = PAPER.read_text()
+    if old is not None:
+        assert old in text, old
+        text = text.replace(old, new, 1)
+    path = tmp_path / "plan.toml"
+    path.write_text(text)
+    outs = [subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path)
+            for cmd in ([sys.executable, "-m", "sensaug", "check", str(path)], [str(find_binary()), "--check", str(path)])]
+    if named is None:
+        assert [(o.returncode, o.stdout.strip()) for o in outs] == [(0, "valid")] * 2, outs
+        expand(ScenarioConfig.from_toml(path), "P0")
+        return
+    assert [o.returncode for o in outs] == [2, 2], outs
+    assert outs[0].stderr == outs[1].stderr, outs
+    assert outs[0].stderr.startswith(named), outs[0].stderr
+    with pytest.raises(ConfigError) as e:
+        expand(ScenarioConfig.from_toml(path), "P0")
+    assert str(e.value).startswith(named.split(": ")[0] + ": " + named.split(": ")[1].split(".")[0]), (str(e.value), named)
+
+
 def test_the_schema_refuses_unsafe_or_ambiguous_plans(tmp_path):
     base = PAPER.read_text()
     cases = {

@@ -31,15 +31,76 @@ pub struct DriveSample {
     pub velocity_rad_s: f64,
     /// The report answers the previous tick's command.
     pub fresh: bool,
-    /// The drive applies torque commands (Hi5 ENABLED, CiA 402
-    /// OperationEnabled).
-    pub enabled: bool,
+    /// The drive's state, whatever its profile (the log's `drive_state`).
+    pub status: DriveStatus,
     /// Why the drive cannot be driven on, if it cannot: its fault, its
     /// heartbeat lost, or a reset.
     pub alarm: Option<DriveAlarm>,
-    /// The profile's state code, for the log (Hi5: the DBC's `state`;
-    /// CiA 402: [`Cia402State`] as `u8`, 255 before the first statusword).
-    pub state_code: u8,
+}
+
+/// The drive's state in the loop's terms, whatever its profile: the log's
+/// `drive_state` column holds [`DriveStatus::code`] (`sensaug-log`). Each
+/// profile maps its own states onto these four (`From` below).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[repr(u8)]
+pub enum DriveStatus {
+    /// Powering up, or no state report yet (Hi5 BOOT; CiA 402
+    /// NotReadyToSwitchOn, or no statusword yet).
+    #[default]
+    Booting = 0,
+    /// On the bus, torque off (Hi5 DISABLED; CiA 402 SwitchOnDisabled,
+    /// ReadyToSwitchOn, SwitchedOn, QuickStopActive).
+    Disabled = 1,
+    /// Applies torque commands (Hi5 ENABLED; CiA 402 OperationEnabled).
+    Enabled = 2,
+    /// Torque off, a fault latched (Hi5 FAULT; CiA 402 FaultReactionActive,
+    /// Fault).
+    Fault = 3,
+}
+
+impl DriveStatus {
+    /// The log's `drive_state` code: 0 booting, 1 disabled, 2 enabled, 3 fault.
+    pub const fn code(self) -> u8 {
+        self as u8
+    }
+
+    /// Its name, lower case (the log's end status, messages).
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Booting => "booting",
+            Self::Disabled => "disabled",
+            Self::Enabled => "enabled",
+            Self::Fault => "fault",
+        }
+    }
+}
+
+impl From<DriveState> for DriveStatus {
+    fn from(s: DriveState) -> Self {
+        match s {
+            DriveState::Boot => Self::Booting,
+            DriveState::Disabled => Self::Disabled,
+            DriveState::Enabled => Self::Enabled,
+            DriveState::Fault => Self::Fault,
+        }
+    }
+}
+
+impl From<Option<Cia402State>> for DriveStatus {
+    /// `None`: no statusword received yet.
+    fn from(s: Option<Cia402State>) -> Self {
+        match s {
+            None | Some(Cia402State::NotReadyToSwitchOn) => Self::Booting,
+            Some(
+                Cia402State::SwitchOnDisabled
+                | Cia402State::ReadyToSwitchOn
+                | Cia402State::SwitchedOn
+                | Cia402State::QuickStopActive,
+            ) => Self::Disabled,
+            Some(Cia402State::OperationEnabled) => Self::Enabled,
+            Some(Cia402State::FaultReactionActive | Cia402State::Fault) => Self::Fault,
+        }
+    }
 }
 
 /// Why the loop must stop driving the drive at once, as the profile says it.
@@ -659,14 +720,13 @@ impl DriveLink for Hi5Link {
 
     fn sample(&mut self, k: u64) -> DriveSample {
         self.sample.fresh = k == 0 || self.order.up_to_date();
-        self.sample.enabled = self.state == DriveState::Enabled;
+        self.sample.status = self.state.into();
         self.sample.alarm = match self.reset {
             Some(s) => Some(DriveAlarm::Reset(ResetReport::Hi5State(s))),
             None => (self.state == DriveState::Fault).then_some(DriveAlarm::Hi5Fault {
                 flags: self.faults.bits(),
             }),
         };
-        self.sample.state_code = self.state.raw();
         self.sample
     }
 
@@ -819,7 +879,9 @@ impl Cia402Link {
         }
     }
 
-    /// The master (units, feedback counters).
+    /// The master (units, feedback counters), for tests: the loop reads
+    /// the link only through [`DriveLink`].
+    #[cfg(feature = "test-support")]
     pub fn master(&self) -> &Master {
         &self.master
     }
@@ -890,9 +952,8 @@ impl DriveLink for Cia402Link {
             position_rad,
             velocity_rad_s,
             fresh: k == 0 || self.order.up_to_date(),
-            enabled: fb.state == Some(Cia402State::OperationEnabled),
+            status: fb.state.into(),
             alarm: self.alarm(),
-            state_code: fb.state.map_or(u8::MAX, |s| s as u8),
         }
     }
 
@@ -1002,6 +1063,45 @@ mod tests {
             velocity_rad_s,
             steps,
         }
+    }
+
+    /// Both profiles' states on the four neutral ones, with the log's codes
+    /// (the Hi5's are its DBC's values, so Hi5 logs read as before).
+    #[test]
+    fn each_profiles_states_map_onto_the_neutral_status() {
+        use DriveStatus::*;
+        for (hi5, status) in [
+            (DriveState::Boot, Booting),
+            (DriveState::Disabled, Disabled),
+            (DriveState::Enabled, Enabled),
+            (DriveState::Fault, Fault),
+        ] {
+            assert_eq!(DriveStatus::from(hi5), status);
+            assert_eq!(status.code(), hi5.raw(), "{hi5:?}");
+        }
+        for (cia402, status) in [
+            (None, Booting),
+            (Some(Cia402State::NotReadyToSwitchOn), Booting),
+            (Some(Cia402State::SwitchOnDisabled), Disabled),
+            (Some(Cia402State::ReadyToSwitchOn), Disabled),
+            (Some(Cia402State::SwitchedOn), Disabled),
+            (Some(Cia402State::QuickStopActive), Disabled),
+            (Some(Cia402State::OperationEnabled), Enabled),
+            (Some(Cia402State::FaultReactionActive), Fault),
+            (Some(Cia402State::Fault), Fault),
+        ] {
+            assert_eq!(DriveStatus::from(cia402), status, "{cia402:?}");
+        }
+        let codes = [Booting, Disabled, Enabled, Fault].map(|s| (s.code(), s.name()));
+        assert_eq!(
+            codes,
+            [
+                (0, "booting"),
+                (1, "disabled"),
+                (2, "enabled"),
+                (3, "fault")
+            ]
+        );
     }
 
     #[test]

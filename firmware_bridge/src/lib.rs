@@ -7,7 +7,9 @@
 //!   profile, `docs/cia402.md`).
 //! - [`drive_link`]: one interface to a drive of either profile.
 //! - [`transport`]: sending and receiving frames over SocketCAN or over a
-//!   loopback-only UDP "virtual CAN bus".
+//!   loopback-only UDP "virtual CAN bus" (those two: the default feature
+//!   `transports`; without it the crate is the protocols, the DBC's ranges
+//!   and bus URL parsing, with no socket code).
 //!
 //! The per-frame paths (encode, decode, send, receive) do not allocate.
 //! The protocol and the state machine the drive implements are described in
@@ -27,4 +29,6 @@ pub use protocol::{
     decode, decode_any, encode, seq_is_newer, CommandGate, DecodeError, DriveState, EncodeError,
     FaultFlags, Message, MessageKind, NodeId, Rejection,
 };
-pub use transport::{open, Transport, TransportError};
+#[cfg(feature = "transports")]
+pub use transport::open;
+pub use transport::{Transport, TransportError};

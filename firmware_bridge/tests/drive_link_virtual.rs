@@ -5,7 +5,7 @@
 //!
 //! Each run: enable, 300 ticks of a smooth torque (sense, then actuate, on
 //! absolute 1 ms deadlines), shut down. The drives step the same plant
-//! (`sensaug.Plant` is sensaug-core's) once per command / SYNC, so the last
+//! (`sensaug_bridge.plant`, checked bit for bit against sensaug-core's) once per command / SYNC, so the last
 //! feedback must equal the reference plant stepped with the torques as the
 //! wire carries them (1 uN m steps for the Hi5, 1 mN m = 1 per-mille of the
 //! rated torque for CiA 402), within the feedback's resolution. Timing
@@ -23,7 +23,7 @@ use std::time::{Duration, Instant};
 
 use sensaug_bridge::cia402::od::{self, Pdo, PdoMapping};
 use sensaug_bridge::cia402::{CanopenNode, Master, MasterSettings};
-use sensaug_bridge::drive_link::{Cia402Link, DriveLink, Hi5Link};
+use sensaug_bridge::drive_link::{Cia402Link, DriveLink, DriveStatus, Hi5Link};
 use sensaug_bridge::protocol::NodeId;
 use sensaug_bridge::transport::UdpBus;
 use sensaug_core::plant::{Plant, PlantParams};
@@ -156,7 +156,7 @@ fn trip_watchdog(module: &str, link: &mut dyn DriveLink, watchdog: Duration) -> 
     loop {
         let s = link.drain(&mut bus, 51).unwrap();
         if s.alarm.is_some() {
-            assert!(!s.enabled);
+            assert_ne!(s.status, DriveStatus::Enabled);
             return (bus, child);
         }
         assert!(
@@ -174,7 +174,7 @@ fn reenable(module: &str, link: &mut dyn DriveLink, mut bus: UdpBus, child: Chil
     idle_ticks(module, link, &mut bus, 0, 50);
     let s = link.drain(&mut bus, 50).unwrap();
     assert!(
-        s.enabled && s.alarm.is_none(),
+        s.status == DriveStatus::Enabled && s.alarm.is_none(),
         "{module}: not enabled again: {s:?}"
     );
     link.shut_down(&mut bus, 50).unwrap();
@@ -247,7 +247,7 @@ fn run(profile: &Profile, link: &mut dyn DriveLink) {
         last.velocity_rad_s,
         state.v
     );
-    assert!(last.enabled);
+    assert_eq!(last.status, DriveStatus::Enabled);
     link.shut_down(&mut bus, ticks).unwrap();
     let err = stop(child);
     println!("{}: {err}", profile.module);

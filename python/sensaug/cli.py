@@ -160,7 +160,7 @@ def rig_demo(
     t_start = time.perf_counter()
     phases = ", ".join(f"{p.kind} {p.duration_s:g} s" for p in config.phases)
     port = rig.bus_port(port)
-    drive = _DRIVE_NAMES[config.rig.drive]
+    drive = rig.drive_profile_name(config.rig.drive)
     what = "the Hi5 experiment" if command == "demo" else "one trial"
     print(f"sensaug {command}: {what} on the virtual rig ({phases})")
     print(f"virtual {drive} drive (Python, python-can) <-> sensaug-rt (Rust, 1 kHz) over the loopback CAN bus")
@@ -209,22 +209,46 @@ def rig_demo(
             return f"not reached ({why})"
         return f"cut off after {m.sum() * config.plant.dt_s:.1f} s ({why}); no result from a partial phase"
 
-    true = np.array(s["partner_gains_true"])
+    # A person has no true gain and no true target: their estimates, the
+    # estimates' variances and the target the person was shown, never an
+    # error against a "truth" (docs/person.md).
+    person = not config.rig.virtual_human
+    if person:
+        shown = "shown on the display" if config.display.enabled else "NOT shown to the person: the display is off"
+        print(f"A person at the handle (rig.virtual_human = false): no true partner gain or target; "
+              f"the partner's target tau_h {shown}\n")
     if "gains" in done:
         window = run.gain_window_s()
         print(f"Stage 1: partner gains (mean over the last {window:g} s of the gain phase)")
         units = [run.log.units.get(c, "") for c in ("Lhx_hat", "Lhv_hat", "Lhh_hat")]
-        print(_table(["gain", "unit", "true", "estimated", "error"], [
-            [name, u, f"{t:.4f}", f"{e:.4f}", f"{e - t:+.4f}"]
-            for name, u, t, e in zip(experiment.GAIN_SYMBOLS, units, true, run.gain_estimate())
-        ]))
+        if person:
+            m = run.phase_mask("gains", last_s=window)
+            sd = [float(np.sqrt(np.mean(run.log[c][m]))) for c in ("Lhx_var", "Lhv_var", "Lhh_var")]
+            print(_table(["gain", "unit", "estimated", "posterior std"], [
+                [name, u, f"{e:.4f}", f"{v:.4f}"]
+                for name, u, e, v in zip(experiment.GAIN_SYMBOLS, units, run.gain_estimate(), sd)
+            ]))
+        else:
+            true = np.array(s["partner_gains_true"])
+            print(_table(["gain", "unit", "true", "estimated", "error"], [
+                [name, u, f"{t:.4f}", f"{e:.4f}", f"{e - t:+.4f}"]
+                for name, u, t, e in zip(experiment.GAIN_SYMBOLS, units, true, run.gain_estimate())
+            ]))
     else:
         print(f"Stage 1: {cut('gains')}")
     if "trajectory" in done:
         amp = max(abs(sh.amplitude) for sh in config.phases[1].partner_target if hasattr(sh, "amplitude")) if len(config.phases) > 1 else 1.0
         rmse = run.partner_target_rmse()
         unit = run.log.units.get("tau_h_hat", "")
-        print(f"\nStage 2: partner-target RMSE {rmse:.4f} {unit} ({100 * rmse / amp:.2f}% of the {amp:g} {unit} amplitude)")
+        if not person:
+            print(f"\nStage 2: partner-target RMSE {rmse:.4f} {unit} ({100 * rmse / amp:.2f}% of the {amp:g} {unit} amplitude)")
+        elif config.display.enabled:
+            print(f"\nStage 2: RMSE of the partner-target estimate against the target shown to the person "
+                  f"{rmse:.4f} {unit} ({100 * rmse / amp:.2f}% of its {amp:g} {unit} amplitude)")
+        else:
+            m = run.phase_mask("trajectory")
+            print(f"\nStage 2: partner-target estimate, posterior std {np.sqrt(np.mean(run.log['tau_h_var'][m])):.4f} "
+                  f"{unit} (mean over the phase); no target was shown, so no error is computed")
     else:
         print(f"\nStage 2: {cut('trajectory')}")
     if "integration" in done:
@@ -396,12 +420,11 @@ def sweep_command(
 
 def check(path: str) -> int:
     """``valid`` and 0 for a good file; the first bad field on stderr and 2
-    otherwise (the file itself is named when its syntax is bad)."""
-    from sensaug.session import check_plan
-
+    otherwise (the file itself is named when its syntax is bad). A session
+    plan's blocks are expanded and checked, as ``sensaug-rt --check`` does
+    (one implementation: ``sensaug_config::person::check_conditions``)."""
     try:
         _core.Config.from_file(path, check_outputs=True)
-        check_plan(path)
     except _core.ConfigError as e:
         print(e, file=sys.stderr)
         return 2
@@ -429,13 +452,16 @@ def docs(page: str | None) -> int:
     return 0
 
 
-#: How the demo names each ``[rig] drive`` profile.
-_DRIVE_NAMES = {"hi5": "Hi5", "cia402": "CiA 402 (CANopen)"}
+def _drive_profiles() -> list[str]:
+    """The ``[rig] drive`` profiles: the schema's enum."""
+    from sensaug.config import schema
+
+    return [choice["const"] for choice in schema()["$defs"]["DriveProfile"]["oneOf"]]
 
 
 def _rig_options(p: argparse.ArgumentParser) -> None:
     """``demo``'s and ``rig``'s drive profile, bus, capture and progress options."""
-    p.add_argument("--drive", choices=sorted(_DRIVE_NAMES), default=None,
+    p.add_argument("--drive", choices=_drive_profiles(), default=None,
                    help="drive profile (sets [rig] drive; default: the configuration's, hi5 unless it says otherwise)")
     p.add_argument("--port", type=int, default=None, help="loopback CAN bus UDP port 1..65535 (default: a free one)")
     p.add_argument("--capture", default="bus.log", metavar="NAME",

@@ -198,6 +198,55 @@ class DisplayConfig:
 
 
 @dataclass
+class GainDriftConfig:
+    """`[partner.human.gain_drift]`: each gain is L (1 + delta), delta a mean-reverting random
+    walk clipped at +-3 std.
+    """
+
+    std: float = 0.1
+    """Stationary relative std of delta (< 1/3, so a gain keeps its sign)."""
+    time_constant_s: float = 10.0
+    """Its time constant (s)."""
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> GainDriftConfig:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        return cls(**kw)
+
+
+@dataclass
+class HumanConfig:
+    """`[partner.human]`: a human-like virtual partner (docs/model.md, "The human-like partner"):
+    it acts on what it perceived a sensorimotor delay ago, with signal-dependent motor noise
+    and optionally drifting gains. Absent: the paper's virtual human, exactly.
+    """
+
+    gain_drift: GainDriftConfig | None = None
+    """Slow drift of the gains; absent: none."""
+    motor_noise_gain: float = 0.0
+    """k_m: white noise of std k_m |c| on the partner's command c (the constant floor is
+    world.motor_noise_std).
+    """
+    proprioceptive_delay_ms: float = 0.0
+    """Proprioceptive delay (ms) on the velocity term."""
+    seed: int = 24
+    """Seed of the partner's motor noise and drift (its own stream)."""
+    visual_delay_ms: float = 0.0
+    """Visual delay (ms) on the target terms x - tau and x - tau_h (the cursor and the target are
+    both seen on the monitor that late).
+    """
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> HumanConfig:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        if kw.get('gain_drift') is not None:
+            kw['gain_drift'] = GainDriftConfig.from_dict(kw['gain_drift'])
+        return cls(**kw)
+
+
+@dataclass
 class PartnerIntegrationConfig:
     """`[partner.integration]`: the partner runs the robot's controller on the mirrored protocol
     (the robot's filter settings; needs estimates_robot): in integration phases it sees its
@@ -235,6 +284,8 @@ class PartnerConfig:
     """Imposed gains [Lhx, Lhv, Lhh] over xi = [x - tau, xdot, x - tau_h] (the Hi5 virtual human:
     [0, 0, Lhh]).
     """
+    human: HumanConfig | None = None
+    """A human-like partner; absent: the paper's virtual human."""
     integration: PartnerIntegrationConfig | None = None
     """The partner's goal integration (the simulation section's "Goal integration"); absent: off,
     the partner tracks its own target exactly.
@@ -250,6 +301,8 @@ class PartnerConfig:
     def from_dict(cls, d: dict[str, Any]) -> PartnerConfig:
         """From a plain dict as the schema describes it (already validated)."""
         kw = dict(d)
+        if kw.get('human') is not None:
+            kw['human'] = HumanConfig.from_dict(kw['human'])
         if kw.get('integration') is not None:
             kw['integration'] = PartnerIntegrationConfig.from_dict(kw['integration'])
         return cls(**kw)
@@ -402,9 +455,10 @@ class RigConfig:
     """
     node_id: int = 1
     """Drive node id (CiA 402: 1..15, node 0 is NMT broadcast)."""
-    position_unit: Literal["deg", "rad"] = 'deg'
-    """Unit of the controller's positions; the drive speaks rad and N m, and torque is scaled by
-    the same factor (docs/model.md, Units).
+    position_unit: Literal["deg", "rad", "m"] = 'deg'
+    """Unit of the controller's positions: "deg" or "rad" on the rig (the drive speaks rad and N
+    m, and torque is scaled by the same factor), "m" for a simulated linear handle (force in
+    N; the rig refuses it; docs/model.md, Units).
     """
     realtime: RealtimeConfig = field(default_factory=lambda: RealtimeConfig.from_dict({'mlockall': True, 'spin_us': 0}))
     """Thread settings."""
@@ -436,7 +490,8 @@ class RigConfig:
     """Run the virtual human inside the loop (false: a person holds the handle)."""
     watchdog_ms: int = 50
     """Drive command watchdog (ms): the drive disables itself when commands stop for this long
-    (the protocol's range, from hi5.dbc).
+    (Hi5: 5..200, hi5.dbc's SetState.watchdog_ms; CiA 402: 2..200, the drive's heartbeat
+    consumer time 0x1016).
     """
 
     @classmethod
@@ -577,6 +632,12 @@ class RobotConfig:
     """
     integrate: bool = True
     """Let the integrated estimate drive control in integration phases."""
+    partner_delay: Literal["auto"] | float | None = None
+    """The partner model of stages 1 and 2: absent, the paper's (the partner acts on the current
+    state); a number of ms, the partner acts on the robot's measured sample that long ago
+    (visual and proprioceptive delay alike); "auto", both delays identified online in every
+    gain phase (docs/model.md, "A partner with a delay").
+    """
     prior_partner_gains: list[float] | None = None
     """Partner gains [Lhx, Lhv, Lhh] to use when no gain phase precedes."""
     q_pos: float = 1.0

@@ -3,10 +3,10 @@ the handle's position (a cursor) and the target the current phase shows the
 person, with text prompts between trials (docs/person.md).
 
 It runs as its own process (``python -m sensaug.display`` or ``sensaug
-display``) and never talks to the 1 kHz loop: it reads the rig's log as the
-loop's writer thread appends it (:class:`LogTail`, off the loop's thread;
-the live feed of issue 20 plugs in as another :class:`Source`), so a slow,
-frozen or killed display costs the loop nothing. The launcher watches the
+display``) and never talks to the 1 kHz loop: it reads the loop's live feed
+(:class:`FeedTail`: ``sensaug-rt --feed``, loopback datagrams sent by the
+log writer thread, off the loop's thread, never waiting on a reader), so a
+slow, frozen or killed display costs the loop nothing. The launcher watches the
 display's own log (:class:`DisplayWatch`): a display that has drawn nothing
 for ``display.freeze_timeout_ms`` ends the trial with the loop's controlled
 stop (SIGTERM) or, with the virtual human and ``on_freeze = "continue"``,
@@ -44,7 +44,7 @@ __all__ = [
     "DisplayLog",
     "DisplayWatch",
     "Geometry",
-    "LogTail",
+    "FeedTail",
     "ScriptedSource",
     "Shown",
     "Source",
@@ -132,62 +132,47 @@ class Source(Protocol):
     def poll(self) -> Optional[Shown]: ...
 
 
-class LogTail:
-    """Follows a rig log (``<log>.partial``, renamed to ``<log>`` at the first
-    record) as the loop's writer thread appends it (every 10 ms), and
-    returns the newest complete row. Reads only what is new; never blocks."""
+class FeedTail:
+    """The loop's live feed (``sensaug-rt --feed 127.0.0.1:PORT``,
+    :mod:`sensaug.feed`): a loopback UDP socket the display holds for its
+    whole life; :meth:`poll` drains what the log writer thread sent since
+    the last frame, without blocking, and returns the newest row.
 
-    def __init__(self, path: str | Path) -> None:
-        self.path = Path(path)
-        self._file = None
-        self._rest = b""
-        self._index: dict[str, int] = {}
-        # A log already there is an earlier run's: wait for the new one.
-        try:
-            self._old = self.path.stat().st_ino
-        except FileNotFoundError:
-            self._old = None
+    The loop's tick never sees the display: the writer thread sends each
+    batch with one non-blocking ``sendto`` and the kernel drops what a slow,
+    frozen or dead display does not read (``docs/live.md``). A trial's rows
+    are told from an earlier run's late datagrams by the run's start
+    (:meth:`follow`: only runs started at or after a given time)."""
 
-    def _open(self) -> bool:
-        for p in (self.path.with_name(self.path.name + ".partial"), self.path):
-            try:
-                f = open(p, "rb")  # noqa: SIM115 - kept open across the rename
-            except FileNotFoundError:
-                continue
-            if p == self.path and os.fstat(f.fileno()).st_ino == self._old:
-                f.close()
-                continue
-            self._file = f
-            return True
-        return False
+    def __init__(self, port: int = 0) -> None:
+        from sensaug.feed import FeedReader
+
+        self.reader = FeedReader(port)
+        self._since_unix_ns: Optional[int] = None
+
+    @property
+    def address(self) -> str:
+        """What the launcher gives ``sensaug-rt --feed``."""
+        return self.reader.address
+
+    def follow(self, since_unix_ns: Optional[int]) -> None:
+        """Show only runs that started at or after ``since_unix_ns`` (the
+        launcher's clock just before it started the run; None: none)."""
+        self._since_unix_ns = since_unix_ns
 
     def poll(self) -> Optional[Shown]:
-        if self._file is None and not self._open():
-            return None
-        data = self._rest + self._file.read()
-        cut = data.rfind(b"\n")
-        if cut < 0:
-            self._rest = data
-            return None
-        self._rest = data[cut + 1:]
         newest = None
-        for line in data[:cut].split(b"\n"):
-            if not line or line.startswith(b"#"):
+        while (batch := self.reader.recv(0.0)) is not None:
+            if self._since_unix_ns is None or batch.start_unix_ns < self._since_unix_ns or not len(batch.rows):
                 continue
-            if not self._index:
-                self._index = {name: i for i, name in enumerate(line.decode().split(","))}
-                continue
-            newest = line
+            newest = batch.rows[-1]
         if newest is None:
             return None
-        f = newest.decode().split(",")
-        i = self._index
-        return Shown(tick=int(f[i["tick"]]), t=float(f[i["t"]]), phase=int(f[i["phase"]]),
-                     x=float(f[i["x"]]), target=float(f[i["tau_h"]]))
+        return Shown(tick=int(newest["tick"]), t=float(newest["t"]), phase=int(newest["phase"]),
+                     x=float(newest["x"]), target=float(newest["tau_h"]))
 
     def close(self) -> None:
-        if self._file is not None:
-            self._file.close()
+        self.reader.close()
 
 
 class ScriptedSource:
@@ -292,8 +277,10 @@ class Command:
 
     #: Text shown (empty: none).
     prompt: str = ""
-    #: Follow this rig log (None: show only the prompt).
-    log: Optional[str] = None
+    #: Show the feed's run that started at or after this time (ns since the
+    #: Unix epoch, the launcher's clock before it started sensaug-rt; None:
+    #: show only the prompt).
+    follow_since_unix_ns: Optional[int] = None
     #: Write this display log while following it.
     display_log: Optional[str] = None
     #: Visual noise of this trial.
@@ -390,7 +377,10 @@ def run_display(cfg: ScenarioConfig, *, control_port: int = 0, reply_port: int =
 
     ``control_port``: a loopback UDP port the launcher sends :class:`Command`
     JSON to (0: none); key presses (space, escape, digits, return, closing
-    the window) are sent as ``{"key": name}`` to ``reply_port``.
+    the window) are sent as ``{"key": name}`` to ``reply_port``. Under a
+    launcher the display holds a :class:`FeedTail` of its own and says its
+    address with its first frame (``{"key": "ready", "feed": ...}``); the
+    launcher gives it to ``sensaug-rt --feed``.
     ``screenshots``: a folder for PNGs of the frames in ``screenshot_frames``
     or of every ``screenshot_every``-th frame (relative to the trial's
     display log's folder when commanded)."""
@@ -404,11 +394,12 @@ def run_display(cfg: ScenarioConfig, *, control_port: int = 0, reply_port: int =
     ctl = _udp(control_port) if control_port else None
     reply = socket.socket(socket.AF_INET, socket.SOCK_DGRAM) if reply_port else None
     pressed: list[str] = []
+    feed = FeedTail() if ctl is not None else None
 
-    def send(name: str) -> None:
+    def send(name: str, **extra: str) -> None:
         pressed.append(name)
         if reply is not None:
-            reply.sendto(json.dumps({"key": name}).encode(), ("127.0.0.1", reply_port))
+            reply.sendto(json.dumps({"key": name, **extra}).encode(), ("127.0.0.1", reply_port))
 
     names = {key.SPACE: "space", key.ESCAPE: "escape", key.RETURN: "return", key.R: "r", key.Q: "q",
              **{getattr(key, f"_{i}"): str(i) for i in range(10)}}
@@ -448,9 +439,8 @@ def run_display(cfg: ScenarioConfig, *, control_port: int = 0, reply_port: int =
                     if new.quit:
                         break
                     cmd, shown, frame, dropped_total, last_swap = new, Shown(), 0, 0, None
-                    if isinstance(source, LogTail):
-                        source.close()
-                    source = LogTail(cmd.log) if cmd.log else None
+                    feed.follow(cmd.follow_since_unix_ns)
+                    source = feed
                     if cmd.display_log:
                         log = _open_log(cmd.display_log, cfg, geom, cmd, win)
                         if shots_rel is not None:
@@ -472,7 +462,8 @@ def run_display(cfg: ScenarioConfig, *, control_port: int = 0, reply_port: int =
             win.flip()
             swap = time.monotonic_ns()
             if frame == 0 and not ready:
-                send("ready")  # after the first frame: shaders compiled, the window mapped
+                # After the first frame: shaders compiled, the window mapped.
+                send("ready", **({"feed": feed.address} if feed is not None else {}))
                 ready = True
             dropped = 0
             if last_swap is not None:
@@ -492,6 +483,8 @@ def run_display(cfg: ScenarioConfig, *, control_port: int = 0, reply_port: int =
     finally:
         if log is not None:
             log.close({"frames": frame, "dropped": dropped_total})
+        for src in {id(x): x for x in (feed, source) if isinstance(x, FeedTail)}.values():
+            src.close()
         win.close()
     return 0
 
@@ -514,7 +507,8 @@ def _open_log(path, cfg, geom: Geometry, cmd: Command, win) -> DisplayLog:
         "fullscreen": d.fullscreen, "vsync_requested": True, "vsync": bool(win.vsync),
         "gl_renderer": pyglet.gl.gl_info.get_renderer(), "gl_version": pyglet.gl.gl_info.get_version_string(),
         "dots": d.dots, "sigma_v": cmd.sigma_v, "seed": cmd.seed, "refresh_ms": d.refresh_ms,
-        "noisy_phases": cmd.noisy_phases, "rig_log": cmd.log, "frame_s_without_vsync": FRAME_S,
+        "noisy_phases": cmd.noisy_phases, "frame_s_without_vsync": FRAME_S,
+        "source": "the loop's live feed (sensaug-rt --feed, the log writer thread's datagrams; the newest row at each frame)",
         "units": DISPLAY_UNITS,
         "dots_rule": "sensaug.display.visual_dots(seed, dots_refresh, dots, sigma_v): offsets along, across the axis",
     }
@@ -556,6 +550,8 @@ class DisplayProcess:
             # display must not take their CPU on a machine with few cores.
             preexec_fn=lambda: os.nice(DISPLAY_NICE))
         self._tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        #: The display's feed socket, for ``sensaug-rt --feed`` (said with "ready").
+        self.feed_address: Optional[str] = None
         # The window is up before a trial starts (the freeze watch times frames).
         if self.wait_key({"ready"}, timeout_s=60.0) is None:
             err = self.proc.stderr.read() if self.proc.poll() is not None else "no window after 60 s"
@@ -569,9 +565,11 @@ class DisplayProcess:
         out = []
         while True:
             try:
-                out.append(json.loads(self.keys_sock.recv(4096))["key"])
+                msg = json.loads(self.keys_sock.recv(4096))
             except BlockingIOError:
                 return out
+            self.feed_address = msg.get("feed", self.feed_address)
+            out.append(msg["key"])
 
     def wait_key(self, wanted: set[str], poll_s: float = 0.02, timeout_s: Optional[float] = None) -> Optional[str]:
         """The first key of ``wanted`` pressed (None on timeout or a dead display)."""
@@ -685,8 +683,8 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="sensaug display", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("config", type=Path, help="the trial configuration (its [display] table)")
-    p.add_argument("--log", type=Path, default=None,
-                   help="follow this rig log as sensaug-rt writes it (default: play --replay, or show a prompt)")
+    p.add_argument("--feed", type=int, default=None, metavar="PORT",
+                   help="show the runs of `sensaug-rt --feed 127.0.0.1:PORT` (default: play --replay, or show a prompt)")
     p.add_argument("--replay", type=Path, default=None, help="play a saved log (simulated or rig) at wall-clock speed")
     p.add_argument("--display-log", type=Path, default=None, help="write the frame log here")
     p.add_argument("--prompt", default="", help="text shown")
@@ -701,8 +699,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.window:
         cfg.display.fullscreen = False
     source: Optional[Source] = None
-    if args.log is not None:
-        source = LogTail(args.log)
+    if args.feed is not None:
+        try:
+            tail = FeedTail(args.feed)
+        except ValueError as e:
+            p.error(str(e))
+        tail.follow(0)  # every run sent to this port
+        source = tail
     elif args.replay is not None:
         from sensaug.logs import load_log
 

@@ -112,7 +112,7 @@ class FeedReader:
             self.sock.settimeout(remaining)
             try:
                 data = self.sock.recv(65536)
-            except (TimeoutError, socket.timeout):
+            except (TimeoutError, socket.timeout, BlockingIOError):  # BlockingIOError: timeout_s 0
                 return None
             try:
                 batch = parse(data)

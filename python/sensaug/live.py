@@ -268,6 +268,8 @@ def layout():
         plot("Partner gains (estimates)", "/partner_gains.Lhx_hat", "/partner_gains.Lhv_hat",
              "/partner_gains.Lhh_hat", label=f"{u['Lhx_hat']}, {u['Lhv_hat']}"),
         plot("Partner-gain variances", "/partner_gains.Lhx_var", "/partner_gains.Lhv_var", "/partner_gains.Lhh_var"),
+        plot("Partner delay assumed [ms] (robot.partner_delay)", "/partner_delay.partner_delay_visual_ms",
+             "/partner_delay.partner_delay_proprioceptive_ms", label="ms"),
         plot("Goal integration: (x - tau) estimates [pos]", "/targets.e", "/goal_integration.e_hat_own",
              "/goal_integration.e_hat_fused", label=u["e"]),
     )

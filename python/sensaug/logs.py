@@ -373,7 +373,37 @@ def _read(raw: bytes, verify: bool, edited_metadata_ok: bool) -> Log:
         raise _Corrupt(end_line, f"the end status counts {counted} rows, the file has {len(data)}")
     if meta_edited:
         meta["metadata_edited"] = True
+    data = _with_added_columns(data)
+    if data.dtype == DTYPE and len(columns) != len(COLUMNS):
+        # Upgraded: the metadata describes today's columns, so saving it
+        # again writes a consistent header.
+        meta["columns"] = [dict(zip(("name", "unit", "kind", "description"), c)) for c in _SCHEMA["columns"]]
     return Log(data=data, meta=meta, verified=checked and not meta_edited and not meta.get("unverified_source"))
+
+
+#: Columns added to the schema after logs were written without them, and the
+#: value such a log means by their absence: the partner-delay columns (issue
+#: 24) are NaN, the paper's model (no delay assumed).
+ADDED_COLUMNS: dict[str, float] = {
+    "partner_delay_visual_ms": np.nan,
+    "partner_delay_proprioceptive_ms": np.nan,
+    "partner_delay_margin_nats": np.nan,
+}
+
+
+def _with_added_columns(data: np.ndarray) -> np.ndarray:
+    """A log written before :data:`ADDED_COLUMNS` existed, in today's schema
+    (those columns at their meaning-of-absence); any other log unchanged."""
+    names = data.dtype.names or ()
+    missing = [c for c in COLUMNS if c not in names]
+    if not missing or any(c not in ADDED_COLUMNS for c in missing) or [c for c in COLUMNS if c in names] != list(names):
+        return data
+    out = np.empty(len(data), dtype=DTYPE)
+    for c in names:
+        out[c] = data[c]
+    for c in missing:
+        out[c] = ADDED_COLUMNS[c]
+    return out
 
 
 def _json_line_unchecked(n: int, line: str) -> dict:

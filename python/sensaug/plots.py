@@ -15,7 +15,7 @@ backend and saving works headless.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Optional
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -96,19 +96,22 @@ def _mark_phases(ax, log: Log) -> None:
                     color="0.4")
 
 
-def gains_figure(log: Log, mask: np.ndarray, true_gains: np.ndarray, title: str) -> Figure:
+def gains_figure(log: Log, mask: np.ndarray, true_gains: Optional[np.ndarray], title: str) -> Figure:
     """The robot's estimates of the partner's gains (eq. gains) in one gain
-    phase, each with its truth dotted in the same colour."""
+    phase, each with its truth dotted in the same colour (``true_gains``
+    None: a person, who has no true gain; only the estimates)."""
     fig, ax = _new()
     t = log["t"][mask]
     converged = t >= t[0] + (1 - CONVERGED_FRACTION) * (t[-1] - t[0]) if len(t) else t.astype(bool)
-    shown = [np.asarray(true_gains, dtype=float)]
-    for col, true in zip(("Lhx_hat", "Lhv_hat", "Lhh_hat"), true_gains):
+    shown = [] if true_gains is None else [np.asarray(true_gains, dtype=float)]
+    for i, col in enumerate(("Lhx_hat", "Lhv_hat", "Lhh_hat")):
         y = log[col][mask]
         line = ax.plot(t, y, lw=0.8, label=f"{NAMES[col]} ({_unit(log, col)})")[0]
-        ax.axhline(true, color=line.get_color(), ls=":", lw=1.2)
+        if true_gains is not None:
+            ax.axhline(true_gains[i], color=line.get_color(), ls=":", lw=1.2)
         shown.append(y[converged])
-    ax.plot([], [], color="0.3", ls=":", lw=1.2, label="truth (dotted)")
+    if true_gains is not None:
+        ax.plot([], [], color="0.3", ls=":", lw=1.2, label="truth (dotted)")
     values = np.concatenate(shown)
     values = values[np.isfinite(values)]
     if len(t) and values.size:
@@ -217,7 +220,9 @@ def write_rig_plots(run: RigRun, folder: Path) -> list[Path]:
     folder = Path(folder)
     log = run.log
     figures = (
-        gains_figure(log, run.phase_mask("gains"), np.asarray(run.stats["partner_gains_true"]), "rig"),
+        # A person has no true gain (docs/person.md): none is drawn.
+        gains_figure(log, run.phase_mask("gains"),
+                     np.asarray(run.stats["partner_gains_true"]) if run.config.rig.virtual_human else None, "rig"),
         trajectory_figure(log, run.phase_mask("trajectory"), "rig"),
         integration_figure(log, run.phase_mask("integration"), "rig"),
         timing_figure(log, run.config.plant.dt_s * 1e6, "rig"),

@@ -35,6 +35,7 @@ ESTIMATE_COLUMNS: tuple[str, ...] = (
     "Lhx_hat", "Lhv_hat", "Lhh_hat", "Lhx_var", "Lhv_var", "Lhh_var",
     "tau_h_hat", "tau_h_var",
     "e_hat_own", "e_hat_fused", "e_hat_own_var", "e_hat_fused_var", "partner_var",
+    "partner_delay_visual_ms", "partner_delay_proprioceptive_ms", "partner_delay_margin_nats",
 )  # fmt: skip
 #: The columns a replay reads: the measurement the robot received, whether
 #: it was new that tick, the tick number, and the rig's controlled-stop flag (``ramp``).

@@ -19,6 +19,8 @@ paths").
 from __future__ import annotations
 
 import errno
+import importlib
+import importlib.metadata
 import json
 import signal
 import socket
@@ -187,8 +189,34 @@ def write_readme(out: Path, files: dict[str, str], *, title: str) -> Path:
     return path
 
 
-#: The virtual drive's module for each ``[rig] drive`` profile.
-VIRTUAL_DRIVES = {"hi5": "sensaug_bridge.virtual_hi5", "cia402": "sensaug_bridge.virtual_cia402"}
+#: The entry-point group of the virtual drives, as python-can's
+#: ``can.interface``: one entry per ``[rig] drive`` profile, its name the
+#: profile, its value the drive's module (run with ``python -m``; its
+#: ``PROFILE_NAME`` names the profile for people). ``sensaug_bridge``
+#: registers ``hi5`` and ``cia402`` (firmware_bridge/pyproject.toml).
+VIRTUAL_DRIVE_ENTRY_POINTS = "sensaug.virtual_drives"
+
+
+def virtual_drives() -> dict[str, str]:
+    """``[rig] drive`` profile -> the module of its virtual drive, from the
+    installed packages' :data:`VIRTUAL_DRIVE_ENTRY_POINTS`."""
+    return {ep.name: ep.module for ep in importlib.metadata.entry_points(group=VIRTUAL_DRIVE_ENTRY_POINTS)}
+
+
+def _drive_module(drive: str) -> str:
+    drives = virtual_drives()
+    if drive not in drives:
+        raise ValueError(
+            f"rig.drive: no virtual drive is registered for {drive!r} (registered: {sorted(drives)}); "
+            f"install the package that registers it under the {VIRTUAL_DRIVE_ENTRY_POINTS!r} entry points "
+            f"(pip install -e firmware_bridge registers hi5 and cia402)"
+        )
+    return drives[drive]
+
+
+def drive_profile_name(drive: str) -> str:
+    """The profile's name for people (its virtual drive's ``PROFILE_NAME``)."""
+    return str(getattr(importlib.import_module(_drive_module(drive)), "PROFILE_NAME", drive))
 
 
 def start_drive(
@@ -199,18 +227,16 @@ def start_drive(
     drive: str = "hi5",
     fifo_priority: int | None = None,
 ) -> subprocess.Popen:
-    """The virtual drive of profile ``drive`` ("hi5" or "cia402",
-    :data:`VIRTUAL_DRIVES`) as a subprocess on the loopback bus at ``port``;
+    """The virtual drive of profile ``drive`` ("hi5" or "cia402", registered
+    under :data:`VIRTUAL_DRIVE_ENTRY_POINTS`) as a subprocess on the loopback bus at ``port``;
     under SCHED_FIFO at ``fifo_priority`` when given (the loop's
     ``rig.realtime.fifo_priority``: a real drive is hardware that never
     stalls, and a simulated one held off the CPU starves the loop of
     feedback)."""
-    if drive not in VIRTUAL_DRIVES:
-        raise ValueError(f"rig.drive: {drive!r} is not a drive profile; use one of {sorted(VIRTUAL_DRIVES)}")
     cmd = [
         sys.executable,
         "-m",
-        VIRTUAL_DRIVES[drive],
+        _drive_module(drive),
         "--channel",
         str(port),
         "--duration",
@@ -249,7 +275,7 @@ def run_virtual_rig(
     """Runs one trial on the virtual rig and returns its log and statistics.
 
     ``config`` is a configuration or a TOML path; its ``[rig]`` table is used
-    (``drive`` picks the virtual drive started, :data:`VIRTUAL_DRIVES`)
+    (``drive`` picks the virtual drive started, :func:`virtual_drives`)
     except for the CAN URL (``port``, checked by :func:`bus_port`; default: a
     free loopback port) and the output paths (under ``out``). ``capture`` is
     the bus capture's file name in ``out`` (the suffix picks python-can's
@@ -268,7 +294,8 @@ def run_virtual_rig(
     ``rig_stats.json`` the run stands and the README says the file is missing.
 
     ``display``: a running :class:`sensaug.display.DisplayProcess` shows the
-    trial (it follows the log; ``out/display_log.csv``) and is watched
+    trial (fed by the loop's live feed, one more ``--feed`` address;
+    ``out/display_log.csv``) and is watched
     (:class:`sensaug.display.DisplayWatch`: Esc, a frozen or dead display).
 
     Raises:
@@ -299,6 +326,8 @@ def run_virtual_rig(
         drive = start_drive(port, duration_s=budget + 5.0, drive=cfg.rig.drive,
                             fifo_priority=cfg.rig.realtime.fifo_priority)
         time.sleep(0.5)
+        if display is not None:
+            feed = [*feed, _show_trial(display, cfg, out)]
         with _ElapsedBar(cfg.duration_s, progress):
             proc = subprocess.Popen(
                 [str(binary), str(toml_path), "--can", f"udp:{port}", "--log", str(log_path), "--stats", str(stats_path),
@@ -307,7 +336,7 @@ def run_virtual_rig(
                 stderr=subprocess.PIPE,
                 text=True,
             )
-            watch = _watch_display(display, cfg, log_path, out, proc)
+            watch = None if display is None else _watch_display(display, out, proc)
             try:
                 rt_stdout, rt_stderr = proc.communicate(timeout=budget)
             except KeyboardInterrupt:
@@ -372,16 +401,23 @@ def run_virtual_rig(
     return run
 
 
-def _watch_display(display, cfg: ScenarioConfig, log_path: Path, out: Path, proc: subprocess.Popen):
-    """Shows the trial on ``display`` and starts its watch (None: no display)."""
-    if display is None:
-        return None
-    from sensaug.display import Command, DisplayWatch, noisy_phases
+def _show_trial(display, cfg: ScenarioConfig, out: Path) -> str:
+    """Tells ``display`` to show the run about to start (the feed's next run
+    and its display log); the display's feed address for ``--feed``."""
+    from sensaug.display import Command, noisy_phases
 
-    display_log = out / "display_log.csv"
-    display.show(Command(log=str(log_path), display_log=str(display_log), sigma_v=cfg.display.sigma_v,
-                         seed=cfg.display.seed, noisy_phases=noisy_phases(cfg)))
-    return DisplayWatch(display, display_log, proc).start()
+    display.show(Command(follow_since_unix_ns=time.time_ns(), display_log=str(out / "display_log.csv"),
+                         sigma_v=cfg.display.sigma_v, seed=cfg.display.seed, noisy_phases=noisy_phases(cfg)))
+    if display.feed_address is None:
+        raise RuntimeError("display: it did not say its feed address; it is not a sensaug display of this version")
+    return display.feed_address
+
+
+def _watch_display(display, out: Path, proc: subprocess.Popen):
+    """The watch of the display showing this run (Esc, a frozen or dead display)."""
+    from sensaug.display import DisplayWatch
+
+    return DisplayWatch(display, out / "display_log.csv", proc).start()
 
 
 class _ElapsedBar:

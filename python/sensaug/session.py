@@ -159,15 +159,6 @@ def expand(plan: ScenarioConfig, participant: str) -> list[SessionTrial]:
     return out
 
 
-def check_plan(path: str | Path) -> ScenarioConfig:
-    """Reads a plan and expands it for a participant numbered 0 (every
-    block's condition validated); the plan."""
-    plan = ScenarioConfig.from_toml(path)
-    if plan.session is not None:
-        expand(plan, "P0")
-    return plan
-
-
 # --- running ------------------------------------------------------------------
 
 def _now() -> str:
@@ -539,10 +530,15 @@ class LoadedSession:
         import matplotlib.pyplot as plt
         from matplotlib.ticker import MaxNLocator
 
+        from sensaug.units import physical
+
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         written = []
         df = self.finished()
+        # The plan's position unit names the axes (sensaug.units).
+        unit = ScenarioConfig.from_toml(self.folder / "plan.toml").rig.position_unit
+        pos, gain = physical("pos", unit), physical("trq/pos", unit)
         for block, g in df.groupby("block", sort=False):
             cols = [c for c in ("Lhh_hat", "tau_h_rmse", "rmse_own", "rmse_integrated") if g[c].notna().any()]
             if not cols:
@@ -556,8 +552,9 @@ class LoadedSession:
                     ax.axhline(g["truth_Lhh"].iloc[0], color="k", ls="--", lw=1, label="virtual human's Lhh")
                     ax.legend(fontsize=8)
                 ax.set_xlabel("trial in block")
-                ax.set_ylabel({"Lhh_hat": "Lhh^ (trq/deg, docs/model.md)", "tau_h_rmse": "partner-target RMSE (deg)",
-                               "rmse_own": "(x - tau)^ RMSE own (deg)", "rmse_integrated": "(x - tau)^ RMSE integrated (deg)"}[c])
+                ax.set_ylabel({"Lhh_hat": f"Lhh^ ({gain})", "tau_h_rmse": f"partner-target RMSE ({pos})",
+                               "rmse_own": f"(x - tau)^ RMSE own ({pos})",
+                               "rmse_integrated": f"(x - tau)^ RMSE integrated ({pos})"}[c])
             fig.suptitle(f"{self.info['participant']}: block {block}")
             fig.tight_layout()
             path = out / f"block_{block}.png"

@@ -43,6 +43,8 @@ TOPICS: tuple[Topic, ...] = (
     Topic("/partner_gains", "the robot's estimates of the partner's LQR gains and their variances",
           ("Lhx_hat", "Lhv_hat", "Lhh_hat", "Lhx_var", "Lhv_var", "Lhh_var")),
     Topic("/partner_target", "the robot's estimate of the partner's target", ("tau_h_hat", "tau_h_var")),
+    Topic("/partner_delay", "the partner's sensorimotor delays stages 1-2 assume (ms) and the search's margin",
+          ("partner_delay_visual_ms", "partner_delay_proprioceptive_ms", "partner_delay_margin_nats")),
     Topic("/goal_integration", "stage 3: (x - tau) estimated from own sensing and fused with the partner channel",
           ("e_hat_own", "e_hat_fused", "e_hat_own_var", "e_hat_fused_var", "partner_var")),
     Topic("/torque", "commanded torque (model units), the partner's, motor noise, torque sent to the drive",

@@ -1,16 +1,15 @@
 """Physical units of a log's columns.
 
 The model keeps one position unit and a torque unit scaled with it (the log
-schema's symbols ``pos``, ``trq``; ``sensaug-log``): on the rig and in the
-Hi5 presets the position unit is ``rig.position_unit`` (deg or rad) and the
-drive's N m is ``trq * rad_per_unit``, so a ``trq`` is (pi/180) N m when
-positions are in degrees and a gain ``trq/pos`` is exactly N m/rad either
-way (docs/logs.md, docs/model.md "Units"). Everywhere a person reads a
-number (plots, CLI tables, ``Log.units``) the symbols are replaced by these.
-
-Known gap: the simulation-section presets model a linear handle (m, N,
-kg; docs/model.md) but the schema has no linear position unit, so they
-carry the default ``deg`` and are labelled as if rotational.
+schema's symbols ``pos``, ``trq``; ``sensaug-log``), named by
+``rig.position_unit``. On the rig and in the Hi5 presets it is deg or rad
+and the drive's N m is ``trq * rad_per_unit``, so a ``trq`` is (pi/180) N m
+when positions are in degrees and a gain ``trq/pos`` is exactly N m/rad
+either way. The simulation-section presets model a linear handle: ``m``,
+the "torque" a force in N, gains in N/m and N s/m (simulation only; the rig
+refuses ``m``). docs/logs.md, docs/model.md "Units". Everywhere a person
+reads a number (plots, CLI tables, ``Log.units``, the MCAP export) the
+symbols are replaced by these.
 """
 
 from __future__ import annotations
@@ -23,6 +22,7 @@ __all__ = ["POSITION_UNITS", "physical", "position_unit"]
 POSITION_UNITS: dict[str, dict[str, str]] = {
     "deg": {"pos": "deg", "trq": "(pi/180) N m", "trq/pos": "N m/rad", "trq s/pos": "N m s/rad"},
     "rad": {"pos": "rad", "trq": "N m", "trq/pos": "N m/rad", "trq s/pos": "N m s/rad"},
+    "m": {"pos": "m", "trq": "N", "trq/pos": "N/m", "trq s/pos": "N s/m"},
 }
 
 

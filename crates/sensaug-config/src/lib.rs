@@ -112,12 +112,28 @@ pub fn parse_file(path: &Path) -> Result<ScenarioSpec, ConfigError> {
 }
 
 /// What both checkers (`sensaug check`, `sensaug-rt --check`) run: the file
-/// loaded and validated ([`load_file`]), then the rig's output paths
-/// ([`outputs::check_outputs`]; relative paths from the current folder).
+/// loaded and validated ([`load_file`]), a session plan's every block
+/// expanded and validated ([`person::check_conditions`]), then the rig's
+/// output paths ([`outputs::check_outputs`]; relative paths from the
+/// current folder).
 pub fn check_file(path: &Path) -> Result<Resolved, ConfigError> {
     let resolved = load_file(path)?;
+    person::check_conditions(&resolved.spec)?;
     check_rig_outputs(&resolved.spec)?;
     Ok(resolved)
+}
+
+/// What the rig needs of the position unit: an angle (its joint is
+/// revolute, its drive speaks rad and N m). "m" is for simulations.
+pub fn check_rig_unit(spec: &ScenarioSpec) -> Result<(), ConfigError> {
+    if spec.rig.position_unit.is_angle() {
+        return Ok(());
+    }
+    Err(ConfigError::new(
+        "rig.position_unit",
+        "\"m\" is a simulated linear handle; the rig's joint is revolute: use \"deg\" or \"rad\" \
+         (and the gains, noises and targets in that unit)",
+    ))
 }
 
 /// The rig's output paths (`rig.log`, `rig.stats`) checked against the file

@@ -241,3 +241,190 @@ pub fn check(spec: &ScenarioSpec) -> Result<(), ConfigError> {
     }
     Ok(())
 }
+
+/// Seed fields a session trial sets from its seed `s` (`session.seed` + its
+/// index in the block), and their offsets: as `sensaug.sweep.SEED_FIELDS`
+/// (`partner.integration.seed` only when the partner integrates goals).
+pub const SEED_FIELDS: [(&str, u64); 3] = [
+    ("world.seed", 0),
+    ("robot.seed", 1_000_003),
+    ("partner.integration.seed", 2_000_003),
+];
+
+/// Every block of a plan's `[session]` expanded as `sensaug session` runs it
+/// and validated as a whole trial configuration: the base trial without
+/// `[session]`, only the block's `phases`, the condition's fields `set` by
+/// dotted path (as `sensaug sweep`: `a.b[2].c`, `[*]` for every element,
+/// `lhx`/`lhv`/`lhh` for `partner.gains`), and the seed fields of the
+/// block's first and last trial. Both checkers (`sensaug check`,
+/// `sensaug-rt --check`) run it; a plan without `[session]` passes.
+///
+/// Errors name the block's condition and then the path or field, as
+/// `sensaug.session.expand` does: `session.blocks[2].set: partner.gainz.lhh:
+/// partner.gainz is not a field ...` for a path the configuration does not
+/// have, `session.blocks[2].set: partner.gains[2]: ...` for a bad value.
+pub fn check_conditions(spec: &ScenarioSpec) -> Result<(), ConfigError> {
+    let Some(session) = &spec.session else {
+        return Ok(());
+    };
+    let mut base = serde_json::to_value(spec)
+        .map_err(|e| ConfigError::new("(config)", format!("cannot be represented: {e}")))?;
+    if let Some(tables) = base.as_object_mut() {
+        tables.remove("session");
+    }
+    for (i, block) in session.blocks.iter().enumerate() {
+        let at = format!("session.blocks[{i}]");
+        let mut trial = base.clone();
+        if !block.phases.is_empty() {
+            let phases = &base["phases"];
+            trial["phases"] = block
+                .phases
+                .iter()
+                .map(|&p| phases[p as usize].clone())
+                .collect();
+        }
+        for (path, value) in &block.set {
+            set_path(&mut trial, path, value)
+                .map_err(|why| ConfigError::new(format!("{at}.set"), format!("{path}: {why}")))?;
+        }
+        let last = u64::from(block.trials.max(1) - 1);
+        for k in [0, last] {
+            let mut seeded = trial.clone();
+            for (field, offset) in SEED_FIELDS {
+                let seed = session
+                    .seed
+                    .checked_add(k)
+                    .and_then(|s| s.checked_add(offset));
+                if block.set.contains_key(field) {
+                    continue;
+                }
+                let Some(seed) = seed else {
+                    return Err(ConfigError::new(
+                        "session.seed",
+                        format!(
+                            "{}: trial {k}'s {field} would overflow 2^64; choose a smaller seed",
+                            session.seed
+                        ),
+                    ));
+                };
+                // partner.integration absent: no seed to set.
+                let _ = set_path(&mut seeded, field, &serde_json::Value::from(seed));
+            }
+            crate::load_str(&seeded.to_string(), crate::Format::Json)
+                .map_err(|e| ConfigError::new(format!("{at}.set"), e.to_string()))?;
+        }
+    }
+    Ok(())
+}
+
+/// One segment of a dotted path: a field name, an index, or `[*]`.
+#[derive(Debug, PartialEq)]
+enum Segment<'a> {
+    Field(&'a str),
+    Index(usize),
+    Every,
+}
+
+fn segments(path: &str) -> Result<Vec<Segment<'_>>, String> {
+    let bad =
+        || "not a dotted path of the configuration (e.g. robot.stage3.channel.gate)".to_string();
+    let mut out = Vec::new();
+    for part in path.split('.') {
+        let (name, mut rest) = part.split_at(part.find('[').unwrap_or(part.len()));
+        let ok = name
+            .chars()
+            .next()
+            .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
+            && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
+        if !ok {
+            return Err(bad());
+        }
+        out.push(Segment::Field(name));
+        while !rest.is_empty() {
+            let close = rest.find(']').ok_or_else(bad)?;
+            let inner = rest
+                .get(1..close)
+                .filter(|_| rest.starts_with('['))
+                .ok_or_else(bad)?;
+            out.push(match inner {
+                "*" => Segment::Every,
+                n => Segment::Index(n.parse().map_err(|_| bad())?),
+            });
+            rest = &rest[close + 1..];
+        }
+    }
+    Ok(out)
+}
+
+/// Sets the field at dotted `path` of a configuration's JSON (as
+/// `sensaug.sweep.set_path`); the reason when the path names no field.
+fn set_path(
+    root: &mut serde_json::Value,
+    path: &str,
+    value: &serde_json::Value,
+) -> Result<(), String> {
+    assign(root, &segments(path)?, value, "")
+}
+
+fn assign(
+    node: &mut serde_json::Value,
+    segs: &[Segment<'_>],
+    value: &serde_json::Value,
+    done: &str,
+) -> Result<(), String> {
+    use serde_json::Value;
+    let Some((head, rest)) = segs.split_first() else {
+        *node = value.clone();
+        return Ok(());
+    };
+    // Gains by name: partner.gains.lhh is partner.gains[2].
+    let head = match (head, &*node) {
+        (Segment::Field(n), Value::Array(_)) if GAIN_NAMES.contains(n) => {
+            Segment::Index(GAIN_NAMES.iter().position(|g| g == n).unwrap_or(0))
+        }
+        (Segment::Field(n), _) => Segment::Field(n),
+        (Segment::Index(i), _) => Segment::Index(*i),
+        (Segment::Every, _) => Segment::Every,
+    };
+    match (head, node) {
+        (Segment::Every, Value::Array(items)) => {
+            for (i, item) in items.iter_mut().enumerate() {
+                assign(item, rest, value, &format!("{done}[{i}]"))?;
+            }
+            Ok(())
+        }
+        (Segment::Every, _) => Err(format!("{done} is not a list; [*] needs one")),
+        (Segment::Index(i), Value::Array(items)) if i < items.len() => {
+            assign(&mut items[i], rest, value, &format!("{done}[{i}]"))
+        }
+        (Segment::Index(i), _) => Err(format!(
+            "{done}[{i}] does not exist (index out of range or not a list)"
+        )),
+        (Segment::Field(name), Value::Object(fields)) => {
+            let here = if done.is_empty() {
+                name.to_string()
+            } else {
+                format!("{done}.{name}")
+            };
+            match fields.get_mut(name) {
+                Some(Value::Null) | None if !rest.is_empty() => Err(format!(
+                    "{here} is not a field of the configuration, or an optional one the base \
+                     leaves unset (give it a value first); see `sensaug schema`"
+                )),
+                Some(child) => assign(child, rest, value, &here),
+                // An optional field the base leaves out; a name the schema
+                // does not have is refused when the trial is read.
+                None => {
+                    fields.insert(name.to_string(), value.clone());
+                    Ok(())
+                }
+            }
+        }
+        (Segment::Field(name), _) => Err(format!(
+            "{done}.{name} is not a field of the configuration; see `sensaug schema`"
+        )),
+    }
+}
+
+/// `partner.gains` by name.
+const GAIN_NAMES: [&str; 3] = ["lhx", "lhv", "lhh"];

@@ -10,13 +10,15 @@ use crate::cov::Cov;
 use crate::error::{num, ConfigError};
 use crate::rig::{period_ns, RigSettings};
 use crate::schema::{
-    ActsOnSpec, DriveProfile, PhaseKindSpec, PositionUnit, RigSpec, RobotSpec, ScenarioSpec,
-    ShapeSpec, MAX_PARTS,
+    ActsOnSpec, DriveProfile, PartnerDelaySpec, PhaseKindSpec, PositionUnit, RigSpec, RobotSpec,
+    ScenarioSpec, ShapeSpec, MAX_PARTS,
 };
 use nalgebra::{SVector, Vector2};
+use sensaug_core::agent::HumanLike;
 use sensaug_core::controller::{Robot, RobotConfig};
 use sensaug_core::estimator::{ExtendedFilterConfig, HandleModel};
 use sensaug_core::goal::{ChannelConfig, GoalIntegratorConfig};
+use sensaug_core::identifier::PartnerDelay;
 use sensaug_core::plant::{PlantParams, PlantState};
 use sensaug_core::protocol::{Phase, PhaseKind, Protocol};
 use sensaug_core::riccati::agent_gains;
@@ -245,6 +247,14 @@ fn robot(r: &RobotSpec, model: HandleModel) -> Result<RobotConfig, ConfigError> 
         },
         torque_limit: r.torque_limit,
         seed: r.seed,
+        partner_delay: match r.partner_delay {
+            None => PartnerDelay::Paper,
+            Some(PartnerDelaySpec::Auto(_)) => PartnerDelay::Auto,
+            Some(PartnerDelaySpec::Ms(ms)) => PartnerDelay::Known {
+                visual_ms: ms,
+                proprioceptive_ms: ms,
+            },
+        },
     })
 }
 
@@ -316,6 +326,18 @@ fn rig_timing(rig: &RigSpec, dt_s: f64) -> Result<(), ConfigError> {
                  stopped; use at most {} ms, or a longer rig.watchdog_ms",
                 rig.watchdog_ms,
                 MAX_HEARTBEAT_WATCHDOGS * rig.watchdog_ms
+            ),
+        ));
+    }
+    let (min, max, bound) = rig.drive.watchdog_ms_range();
+    if !(min..=max).contains(&rig.watchdog_ms) {
+        return Err(ConfigError::new(
+            "rig.watchdog_ms",
+            format!(
+                "{} ms is outside {min}..={max} ms, the range of {bound} \
+                 (rig.drive = \"{}\"); use a value in it",
+                rig.watchdog_ms,
+                rig.drive.name()
             ),
         ));
     }
@@ -513,6 +535,14 @@ fn resolve(spec: ScenarioSpec) -> Result<Resolved, ConfigError> {
             ActsOnSpec::Measured => StateSource::Measured,
             ActsOnSpec::True => StateSource::True,
         },
+        human: pa.human.as_ref().map(|h| HumanLike {
+            visual_delay_ms: h.visual_delay_ms,
+            proprioceptive_delay_ms: h.proprioceptive_delay_ms,
+            motor_noise_gain: h.motor_noise_gain,
+            drift_std: h.gain_drift.as_ref().map_or(0.0, |d| d.std),
+            drift_time_constant_s: h.gain_drift.as_ref().map_or(1.0, |d| d.time_constant_s),
+            seed: h.seed,
+        }),
         integration: pa.integration.as_ref().map(|i| PartnerIntegration {
             target_noise_std: i.target_noise_std,
             integrate: i.integrate,
@@ -522,6 +552,9 @@ fn resolve(spec: ScenarioSpec) -> Result<Resolved, ConfigError> {
     let rad_per_unit = match spec.rig.position_unit {
         PositionUnit::Deg => core::f64::consts::PI / 180.0,
         PositionUnit::Rad => 1.0,
+        // A linear handle has no angle: only simulated (the rig refuses
+        // "m" before it resolves, `check_rig_unit`); nothing reads it.
+        PositionUnit::M => 1.0,
     };
     let rig = RigSettings::new(&spec, rad_per_unit, &partner, world.plant);
     let resolved = Resolved {

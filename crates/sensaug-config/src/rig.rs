@@ -9,6 +9,7 @@
 //! `sensaug-rt` (docs/realtime.md, "Adding a rig setting").
 
 use crate::schema::{DriveProfile, RigSpec, ScenarioSpec};
+use sensaug_core::agent::HumanLike;
 use sensaug_core::plant::PlantParams;
 use sensaug_core::world::PartnerConfig;
 use serde::Serialize;
@@ -69,6 +70,11 @@ pub struct RigSettings {
     pub partner_gains: [f64; 3],
     /// Virtual human torque limit (model units).
     pub partner_torque_limit: f64,
+    /// The human-like partner's delays, noise and drift (`partner.human`;
+    /// `None`: the paper's virtual human). The metadata says only whether
+    /// there is one: the configuration has its settings.
+    #[serde(serialize_with = "is_some")]
+    pub partner_human: Option<HumanLike>,
     /// The handle's model (model units): the virtual human's view of the
     /// handle on ticks without fresh feedback (the configuration has it).
     #[serde(skip)]
@@ -96,6 +102,11 @@ pub struct RigSettings {
     /// How long set-up listens for another controller before enabling:
     /// [`QUIET_WATCHDOG_PERIODS`] drive watchdogs (ms).
     pub quiet_period_ms: u64,
+}
+
+/// The metadata's `partner_human`: whether the virtual human is human-like.
+fn is_some<S: serde::Serializer>(human: &Option<HumanLike>, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_bool(human.is_some())
 }
 
 /// The loop period in whole ns, as the loop steps its deadlines.
@@ -141,6 +152,11 @@ impl RigSettings {
                 [0.0; 3]
             },
             partner_torque_limit: partner.torque_limit,
+            partner_human: if rig.virtual_human {
+                partner.human
+            } else {
+                None
+            },
             plant,
             ring_capacity: rig.ring_capacity,
             max_feedback_velocity_rad_s: rig.max_feedback_velocity_rad_s,

@@ -27,10 +27,14 @@ pub const MAX_DURATION_S: f64 = 3600.0;
 pub const MAX_PHASES: usize = sensaug_core::protocol::MAX_PHASES;
 /// Most shapes summed into one target.
 pub const MAX_PARTS: usize = sensaug_core::target::MAX_PARTS;
-/// The drive watchdog's range (ms), from `hi5.dbc` (`SetState.watchdog_ms`).
-pub const WATCHDOG_MS_MIN: f64 = sensaug_bridge::dbc::set_state::WATCHDOG_MS.min;
-/// See [`WATCHDOG_MS_MIN`].
-pub const WATCHDOG_MS_MAX: f64 = sensaug_bridge::dbc::set_state::WATCHDOG_MS.max;
+/// The drive watchdog's bounds whatever the profile (ms): at least 2 ms (the
+/// CiA 402 master's own least, [`sensaug_bridge::cia402::master::DRIVE_CONSUMER_MS_MIN`]).
+/// Each profile narrows the range ([`DriveProfile::watchdog_ms_range`]).
+pub const WATCHDOG_MS_MIN: f64 = 2.0;
+/// At most 200 ms: the longest a drive may go on applying its last torque
+/// after the controller fell silent (a crashed process, docs/safety.md),
+/// whatever its protocol allows.
+pub const WATCHDOG_MS_MAX: f64 = 200.0;
 /// Largest torque the drive protocol carries (N m), from `hi5.dbc`
 /// (`TorqueCommand.torque`).
 pub const TORQUE_NM_MAX: f64 = sensaug_bridge::dbc::torque_command::TORQUE.max;
@@ -437,6 +441,13 @@ pub struct RobotSpec {
     #[serde(skip_serializing_if = "Option::is_none")]
     #[schemars(length(min = 3, max = 3), inner(range(min = -MAX_MAGNITUDE, max = MAX_MAGNITUDE)))]
     pub prior_partner_gains: Option<Vec<f64>>,
+    /// The partner model of stages 1 and 2: absent, the paper's (the
+    /// partner acts on the current state); a number of ms, the partner acts
+    /// on the robot's measured sample that long ago (visual and
+    /// proprioceptive delay alike); "auto", both delays identified online in
+    /// every gain phase (docs/model.md, "A partner with a delay").
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub partner_delay: Option<PartnerDelaySpec>,
     /// Sigma points of every filter.
     pub sigma: SigmaSpec,
     /// Stage 1 (partner gains).
@@ -457,10 +468,88 @@ impl Default for RobotSpec {
             torque_limit: 1e3,
             seed: 1,
             prior_partner_gains: None,
+            partner_delay: None,
             sigma: SigmaSpec::default(),
             stage1: GainFilterSpec::default(),
             stage2: TrajectoryFilterSpec::default(),
             stage3: IntegratorSpec::default(),
+        }
+    }
+}
+
+/// `robot.partner_delay`: "auto" or a delay in ms (0-300).
+#[derive(Clone, Copy, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(untagged)]
+pub enum PartnerDelaySpec {
+    /// "auto": identified online.
+    Auto(AutoDelay),
+    /// A known delay (ms), both visual and proprioceptive.
+    Ms(#[schemars(range(min = 0.0, max = 300.0))] f64),
+}
+
+/// The word "auto".
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum AutoDelay {
+    /// Identify the delays online.
+    Auto,
+}
+
+/// `[partner.human]`: a human-like virtual partner (docs/model.md, "The
+/// human-like partner"): it acts on what it perceived a sensorimotor delay
+/// ago, with signal-dependent motor noise and optionally drifting gains.
+/// Absent: the paper's virtual human, exactly.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct HumanSpec {
+    /// Visual delay (ms) on the target terms x - tau and x - tau_h (the
+    /// cursor and the target are both seen on the monitor that late).
+    #[schemars(range(min = 0.0, max = 300.0))]
+    pub visual_delay_ms: f64,
+    /// Proprioceptive delay (ms) on the velocity term.
+    #[schemars(range(min = 0.0, max = 300.0))]
+    pub proprioceptive_delay_ms: f64,
+    /// k_m: white noise of std k_m |c| on the partner's command c (the
+    /// constant floor is world.motor_noise_std).
+    #[schemars(range(min = 0.0, max = MAX_MAGNITUDE))]
+    pub motor_noise_gain: f64,
+    /// Slow drift of the gains; absent: none.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub gain_drift: Option<GainDriftSpec>,
+    /// Seed of the partner's motor noise and drift (its own stream).
+    pub seed: u64,
+}
+
+impl Default for HumanSpec {
+    fn default() -> Self {
+        HumanSpec {
+            visual_delay_ms: 0.0,
+            proprioceptive_delay_ms: 0.0,
+            motor_noise_gain: 0.0,
+            gain_drift: None,
+            seed: 24,
+        }
+    }
+}
+
+/// `[partner.human.gain_drift]`: each gain is L (1 + delta), delta a
+/// mean-reverting random walk clipped at +-3 std.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct GainDriftSpec {
+    /// Stationary relative std of delta (< 1/3, so a gain keeps its sign).
+    #[schemars(range(min = 0.0, max = 0.333))]
+    pub std: f64,
+    /// Its time constant (s).
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = MAX_DURATION_S))]
+    pub time_constant_s: f64,
+}
+
+impl Default for GainDriftSpec {
+    fn default() -> Self {
+        GainDriftSpec {
+            std: 0.1,
+            time_constant_s: 10.0,
         }
     }
 }
@@ -495,6 +584,9 @@ pub struct PartnerSpec {
     /// in both x - tau and x - tau_h, as inside the rig loop), or "true".
     #[serde(default)]
     pub acts_on: ActsOnSpec,
+    /// A human-like partner; absent: the paper's virtual human.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub human: Option<HumanSpec>,
     /// The partner's goal integration (the simulation section's "Goal
     /// integration"); absent: off, the partner tracks its own target exactly.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -553,19 +645,33 @@ impl Default for PartnerSpec {
             torque_limit: default_torque_limit(),
             estimates_robot: false,
             acts_on: ActsOnSpec::Measured,
+            human: None,
             integration: None,
         }
     }
 }
 
-/// Unit of the controller's positions on the rig.
+/// Unit of the controller's positions; the torque, gain and mass units
+/// follow from it (docs/model.md, Units).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum PositionUnit {
-    /// Degrees (the paper's Hi5 numbers).
+    /// Degrees (the paper's Hi5 numbers): torque in (pi/180) N m.
     Deg,
-    /// Radians.
+    /// Radians: torque in N m.
     Rad,
+    /// Metres, a linear handle (the paper's simulation section: force in N,
+    /// mass in kg). Simulation only: the rig's joint is revolute and
+    /// `sensaug-rt` refuses it.
+    M,
+}
+
+impl PositionUnit {
+    /// Whether the unit is an angle (the only kind the rig's revolute joint,
+    /// and its drive's rad and N m, can take).
+    pub fn is_angle(self) -> bool {
+        matches!(self, PositionUnit::Deg | PositionUnit::Rad)
+    }
 }
 
 /// The drive's protocol on the CAN bus.
@@ -577,6 +683,48 @@ pub enum DriveProfile {
     /// CiA 402 over CANopen (docs/cia402.md): rated torque, maximum torque,
     /// encoder and gear ratios are read from the drive over SDO at set-up.
     Cia402,
+}
+
+impl DriveProfile {
+    /// Its name in a configuration file (`rig.drive`).
+    pub fn name(self) -> &'static str {
+        match self {
+            DriveProfile::Hi5 => "hi5",
+            DriveProfile::Cia402 => "cia402",
+        }
+    }
+
+    /// The drive watchdog's range on this profile (ms, both ends included)
+    /// within [`WATCHDOG_MS_MIN`]..=[`WATCHDOG_MS_MAX`], and what bounds it.
+    pub fn watchdog_ms_range(self) -> (u32, u32, &'static str) {
+        let within = |min: f64, max: f64| {
+            (
+                min.max(WATCHDOG_MS_MIN) as u32,
+                max.min(WATCHDOG_MS_MAX) as u32,
+            )
+        };
+        match self {
+            DriveProfile::Hi5 => {
+                let ms = sensaug_bridge::dbc::set_state::WATCHDOG_MS;
+                let (min, max) = within(ms.min, ms.max);
+                (
+                    min,
+                    max,
+                    "the Hi5 protocol's SetState.watchdog_ms (hi5.dbc)",
+                )
+            }
+            DriveProfile::Cia402 => {
+                use sensaug_bridge::cia402::master::DRIVE_CONSUMER_MS_MIN;
+                let (min, max) = within(f64::from(DRIVE_CONSUMER_MS_MIN), f64::from(u16::MAX));
+                (
+                    min,
+                    max,
+                    "the drive's heartbeat consumer time (0x1016, 16-bit ms, longer than the \
+                     master's 1 ms least heartbeat period)",
+                )
+            }
+        }
+    }
 }
 
 /// `[rig.realtime]`: thread settings of the loop; each falls back with a
@@ -656,14 +804,17 @@ pub struct RigSpec {
     /// Drive node id (CiA 402: 1..15, node 0 is NMT broadcast).
     #[schemars(range(max = 15))]
     pub node_id: u32,
-    /// Unit of the controller's positions; the drive speaks rad and N m, and
-    /// torque is scaled by the same factor (docs/model.md, Units).
+    /// Unit of the controller's positions: "deg" or "rad" on the rig (the
+    /// drive speaks rad and N m, and torque is scaled by the same factor),
+    /// "m" for a simulated linear handle (force in N; the rig refuses it;
+    /// docs/model.md, Units).
     pub position_unit: PositionUnit,
     /// Torque limit at the drive (N m).
     #[schemars(extend("exclusiveMinimum" = 0.0), range(max = TORQUE_NM_MAX))]
     pub torque_limit_nm: f64,
     /// Drive command watchdog (ms): the drive disables itself when commands
-    /// stop for this long (the protocol's range, from hi5.dbc).
+    /// stop for this long (Hi5: 5..200, hi5.dbc's SetState.watchdog_ms;
+    /// CiA 402: 2..200, the drive's heartbeat consumer time 0x1016).
     #[schemars(range(min = WATCHDOG_MS_MIN, max = WATCHDOG_MS_MAX))]
     pub watchdog_ms: u32,
     /// Feedback older than this stops the loop with an emergency stop (ms).

@@ -270,3 +270,106 @@ fn a_load_resolves_once_into_one_owned_value() {
     }
     assert!(!settings.contains_key("plant"));
 }
+
+/// MINIMAL with a two-phase base trial and a session of the given blocks.
+fn plan(blocks: &str) -> ScenarioSpec {
+    let text = format!(
+        "{MINIMAL}\n[[phases]]\nkind = \"trajectory\"\nduration_s = 1.0\n\
+         robot_target = [{{ kind = \"constant\", value = 0.0 }}]\n\
+         partner_target = [{{ kind = \"constant\", value = 0.0 }}]\n\n[session]\n{blocks}"
+    );
+    load_str(&text, Format::Toml).unwrap()
+}
+
+#[test]
+fn a_plans_conditions_are_expanded_and_checked() {
+    use sensaug_config::person::check_conditions;
+    let ok = plan(
+        "[[session.blocks]]\nname = \"a\"\ntrials = 3\nphases = [0, 1]\n\
+         set = { \"partner.gains.lhh\" = 1.5, \"phases[*].duration_s\" = 2.0 }\n",
+    );
+    check_conditions(&ok).unwrap();
+    let cases = [
+        // A path the configuration does not have, named with the block.
+        (
+            "set = { \"partner.gainz.lhh\" = 1.0 }",
+            "session.blocks[0].set: partner.gainz.lhh: partner.gainz is not a field",
+        ),
+        // Gains by name map to their index; the value is out of bounds.
+        (
+            "set = { \"partner.gains.lhh\" = 1e9 }",
+            "session.blocks[0].set: partner.gains[2]:",
+        ),
+        // The block keeps phase 0 only: the expanded trial has one phase.
+        (
+            "phases = [0]\nset = { \"phases[1].duration_s\" = 2.0 }",
+            "session.blocks[0].set: phases[1].duration_s: phases[1] does not exist",
+        ),
+        (
+            "set = { \"robot.stage1\" = 3.0 }",
+            "session.blocks[0].set: robot.stage1:",
+        ),
+        (
+            "set = { \"phases[x]\" = 3.0 }",
+            "session.blocks[0].set: phases[x]: not a dotted path",
+        ),
+    ];
+    for (set, expected) in cases {
+        let spec = plan(&format!(
+            "[[session.blocks]]\nname = \"a\"\ntrials = 2\n{set}\n"
+        ));
+        let err = check_conditions(&spec).unwrap_err().to_string();
+        assert!(err.starts_with(expected), "{set}: {err}");
+    }
+}
+
+#[test]
+fn the_rig_refuses_a_linear_position_unit() {
+    let mut spec = load_str(MINIMAL, Format::Toml).unwrap();
+    sensaug_config::check_rig_unit(&spec).unwrap();
+    spec.rig.position_unit = sensaug_config::PositionUnit::M;
+    sensaug_config::Resolved::new(spec.clone()).unwrap(); // a valid simulation
+    let err = sensaug_config::check_rig_unit(&spec).unwrap_err();
+    assert_eq!(err.field, "rig.position_unit");
+}
+
+/// `rig.watchdog_ms` is bounded per drive profile inside the schema's
+/// 2..=200 ms: Hi5 by its protocol (hi5.dbc's SetState.watchdog_ms, 5..=200),
+/// CiA 402 by its consumer time (2..=200), not by the Hi5's range.
+#[test]
+fn the_watchdog_is_bounded_per_drive_profile() {
+    let with = |drive: &str, watchdog: u32| {
+        load_str(
+            &format!(
+                "{MINIMAL}\n[rig]\ndrive = \"{drive}\"\nwatchdog_ms = {watchdog}\n\
+                 [rig.cia402]\nheartbeat_timeout_ms = 10\n"
+            ),
+            Format::Toml,
+        )
+    };
+    assert_eq!(
+        sensaug_config::DriveProfile::Hi5.watchdog_ms_range().0,
+        5,
+        "the DBC's minimum"
+    );
+    // CiA 402's least in practice is 4 ms: its heartbeat consumer time
+    // (at least 10 ms) is at most 3 watchdogs.
+    for (watchdog, hi5_ok, cia402_ok) in [(1, false, false), (4, false, true)].into_iter().chain([
+        (5, true, true),
+        (200, true, true),
+        (201, false, false),
+    ]) {
+        let (hi5, cia402) = (with("hi5", watchdog), with("cia402", watchdog));
+        assert_eq!(hi5.is_ok(), hi5_ok, "hi5 {watchdog}: {hi5:?}");
+        assert_eq!(cia402.is_ok(), cia402_ok, "cia402 {watchdog}: {cia402:?}");
+        for e in [hi5.err(), cia402.err()].into_iter().flatten() {
+            assert_eq!(e.field, "rig.watchdog_ms");
+        }
+    }
+    let e = with("hi5", 4).unwrap_err();
+    assert_eq!(
+        e.message,
+        "4 ms is outside 5..=200 ms, the range of the Hi5 protocol's SetState.watchdog_ms \
+         (hi5.dbc) (rig.drive = \"hi5\"); use a value in it"
+    );
+}

@@ -8,9 +8,10 @@
 //! trouble is counted, never a panic.
 
 use crate::agent::{feedback_torque, guard_torque, xi, Guard};
+use crate::delay::DelayEvidence;
 use crate::estimator::{ExtendedFilterConfig, HandleModel, E_H};
 use crate::goal::{GoalIntegrator, GoalIntegratorConfig};
-use crate::identifier::{FilterTally, Identifier, PartnerEstimate};
+use crate::identifier::{FilterTally, Identifier, PartnerDelay, PartnerEstimate};
 use crate::protocol::{PhaseKind, Protocol, Sample};
 use crate::rng::Noise;
 use crate::ukf::Status;
@@ -48,6 +49,9 @@ pub struct RobotConfig {
     pub torque_limit: f64,
     /// Seed of the injected target-view noise.
     pub seed: u64,
+    /// The partner model of stages 1 and 2 (`robot.partner_delay`): the
+    /// paper's, known delays, or delays identified online.
+    pub partner_delay: PartnerDelay,
 }
 
 /// Counters of everything unusual in the robot's loop.
@@ -94,6 +98,11 @@ pub struct RobotTick {
     /// Stage 3: the partner channel's effective variance
     /// (`GoalIntegrator::partner_variance`; infinite when it was not fused).
     pub partner_var: f64,
+    /// The partner delays `[visual, proprioceptive]` (ms) stages 1-2
+    /// assume (NaN: the paper's model, no choice yet, or not identified).
+    pub partner_delay_ms: [f64; 2],
+    /// The delay search's margin of its visual delay (nats; NaN without one).
+    pub partner_delay_margin_nats: f64,
 }
 
 impl RobotTick {
@@ -112,6 +121,8 @@ impl RobotTick {
         e_hat_own_var: f64::NAN,
         e_hat_fused_var: f64::NAN,
         partner_var: f64::NAN,
+        partner_delay_ms: [f64::NAN; 2],
+        partner_delay_margin_nats: f64::NAN,
     };
 }
 
@@ -122,6 +133,8 @@ impl RobotTick {
         self.gains_var = est.gains_var;
         self.tau_h_hat = est.target;
         self.tau_h_var = est.target_var;
+        self.partner_delay_ms = est.delay_ms;
+        self.partner_delay_margin_nats = est.delay_margin_nats;
     }
 }
 
@@ -221,6 +234,12 @@ impl<'a> Robot<'a> {
     /// ([`Identifier::pseudo_gains`]).
     pub fn pseudo_gains(&self) -> [f64; 3] {
         self.identifier.pseudo_gains()
+    }
+
+    /// The partner-delay search's evidence (`robot.partner_delay = "auto"`;
+    /// `None` otherwise or before its first choice).
+    pub fn delay_evidence(&self) -> Option<DelayEvidence> {
+        self.identifier.delay_evidence()
     }
 
     /// One control period: fuse the measurement `(x, v)` of tick `k`,
@@ -370,6 +389,7 @@ impl RobotConfig {
             self.gain_window_s,
             dt_s,
             prior_gains,
-        )
+        )?
+        .with_delay(self.partner_delay)
     }
 }

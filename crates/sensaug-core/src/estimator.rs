@@ -290,6 +290,91 @@ pub fn extended_process(
     extended_transition(&model.step(), u, dtau, dtau_h).apply(z)
 }
 
+/// The delay-aware stage-1 process (docs/model.md, "A partner with a
+/// delay"): the partner's torque acts on the robot's *measured* sample of
+/// `d` ticks ago, `u_h = -(Lhx phi_1 + Lhv phi_2 + Lhh phi_3)` with the
+/// regressor `phi = [y_e[k - d_v], y_v[k - d_p], y_eh[k - d_v]]` (data, not
+/// state), so the process is affine, `z' = F z + b`: `F = I6` but for rows
+/// `e' = [1, dx_v, 0, -dx_f phi]`, `v' = [0, v_v, 0, -v_f phi]`,
+/// `e_h' = [0, dx_v, 1, -dx_f phi]`, and
+/// `b = [dx_f u - dtau, v_f u, dx_f u - dtau_h, 0, 0, 0]`.
+pub fn delayed_transition(
+    step: &Step,
+    phi: [f64; 3],
+    u: f64,
+    dtau: f64,
+    dtau_h: f64,
+) -> (Cov6, Extended) {
+    let Step {
+        dx_v,
+        dx_f,
+        v_v,
+        v_f,
+    } = *step;
+    let mut F = Cov6::identity();
+    F[(0, 1)] = dx_v;
+    F[(1, 1)] = v_v;
+    F[(2, 1)] = dx_v;
+    for (c, p) in phi.iter().enumerate() {
+        F[(0, GAINS + c)] = -dx_f * p;
+        F[(1, GAINS + c)] = -v_f * p;
+        F[(2, GAINS + c)] = -dx_f * p;
+    }
+    let b = Extended::new(dx_f * u - dtau, v_f * u, dx_f * u - dtau_h, 0.0, 0.0, 0.0);
+    (F, b)
+}
+
+/// The partner's control in the delay-aware stage 2, as a bilinear form:
+/// only `Lhh eta` is bilinear (`eta = x - tau_h[k - d_v]`, state entry 2);
+/// the other terms multiply known data and enter the transition's gain
+/// columns ([`delayed_trajectory_transition`]).
+pub const DELAYED_PARTNER_CONTROL: BilinearForm<6, 1> = match BilinearForm::new([(GAINS + 2, E_H)])
+{
+    Some(q) => q,
+    None => panic!("partner control index out of range"),
+};
+
+/// The delay-aware stage-2 process (docs/model.md): the partner acts on
+/// `phi = [y_e[k - d_v], y_v[k - d_p], eta - s]` with
+/// `s = x_m[k] - x_m[k - d_v]`, so
+/// `q = Lhh eta + Lhx phi_1 + Lhv phi_2 - Lhh s`: the bilinear part is
+/// [`DELAYED_PARTNER_CONTROL`], the rest is linear in the gains and sits in
+/// `F`'s gain columns. `dtau_h` is unknown (0). At `d_v = d_p = 0` with
+/// `phi_1 = e`, `phi_2 = v` it is [`extended_transition`] up to the data
+/// standing for the state.
+pub fn delayed_trajectory_transition(
+    step: &Step,
+    known: [f64; 3],
+    u: f64,
+    dtau: f64,
+) -> BilinearProcess<6, 3, 1> {
+    let Step {
+        dx_v,
+        dx_f,
+        v_v,
+        v_f,
+    } = *step;
+    let [phi1, phi2, s] = known;
+    let mut F = SMatrix::<f64, 3, 6>::zeros();
+    F[(0, 0)] = 1.0;
+    F[(0, 1)] = dx_v;
+    F[(1, 1)] = v_v;
+    F[(2, 1)] = dx_v;
+    F[(2, E_H)] = 1.0;
+    let g = [-dx_f, -v_f, -dx_f];
+    for (r, gr) in g.iter().enumerate() {
+        F[(r, GAINS)] = gr * phi1;
+        F[(r, GAINS + 1)] = gr * phi2;
+        F[(r, GAINS + 2)] = -gr * s;
+    }
+    BilinearProcess {
+        F,
+        b: Vector3::new(dx_f * u - dtau, v_f * u, dx_f * u),
+        g: Vector3::new(g[0], g[1], g[2]),
+        q: DELAYED_PARTNER_CONTROL,
+    }
+}
+
 /// `Some(sel)` at compile time, or a compile error naming a bad selection.
 const fn checked<const N: usize, const M: usize>(sel: Option<Selection<N, M>>) -> Selection<N, M> {
     match sel {
@@ -368,6 +453,21 @@ impl GainEstimator {
         // memory cost ~240 instructions more per trial tick (callgrind).
         self.ukf
             .predict_bilinear(&extended_transition(&self.step, u, dtau, dtau_h))
+    }
+
+    /// Per tick, instead of [`GainEstimator::predict`]: the delay-aware
+    /// process ([`delayed_transition`]) with the delayed regressor `phi`;
+    /// affine, so the unscented predict is the Kalman one
+    /// ([`Ukf::predict_linear`]).
+    pub fn predict_delayed(
+        &mut self,
+        phi: [f64; 3],
+        u: f64,
+        dtau: f64,
+        dtau_h: f64,
+    ) -> Result<Status, UkfError> {
+        let (F, b) = delayed_transition(&self.step, phi, u, dtau, dtau_h);
+        self.ukf.predict_linear(&F, &b)
     }
 
     /// The estimated partner gains `[Lhx, Lhv, Lhh]`.
@@ -460,6 +560,19 @@ impl TrajectoryEstimator {
     pub fn predict(&mut self, u: f64, dtau: f64, dtau_h: f64) -> Result<Status, UkfError> {
         self.ukf
             .predict_bilinear(&extended_transition(&self.step, u, dtau, dtau_h))
+    }
+
+    /// Per tick, instead of [`TrajectoryEstimator::predict`]: the
+    /// delay-aware process ([`delayed_trajectory_transition`]) with the
+    /// known `[y_e[k - d_v], y_v[k - d_p], x_m[k] - x_m[k - d_v]]`.
+    pub fn predict_delayed(
+        &mut self,
+        known: [f64; 3],
+        u: f64,
+        dtau: f64,
+    ) -> Result<Status, UkfError> {
+        self.ukf
+            .predict_bilinear(&delayed_trajectory_transition(&self.step, known, u, dtau))
     }
 
     /// `tau_h^ = x - (x - tau_h)^`, given the handle position `x`.

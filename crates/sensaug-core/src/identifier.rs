@@ -13,9 +13,10 @@
 //! picks the stage. Built at set-up; a tick allocates
 //! nothing, and filter trouble is counted ([`FilterTally`]), never a panic.
 
-use crate::agent::mirrored;
+use crate::agent::{delay_ticks, mirrored, History};
+use crate::delay::{DelayEvidence, DelaySearch, SearchSchedule};
 use crate::estimator::{
-    Cov6, ExtendedFilterConfig, GainEstimator, HandleModel, TrajectoryEstimator, GAINS,
+    Cov6, ExtendedFilterConfig, GainEstimator, HandleModel, Step, TrajectoryEstimator, E_H, GAINS,
 };
 use crate::protocol::{PhaseKind, Sample};
 use crate::ukf::{Status, UkfError};
@@ -54,6 +55,13 @@ pub struct PartnerEstimate {
     pub target: f64,
     /// Posterior variance of `(x - target)^`, NaN in stage 1.
     pub target_var: f64,
+    /// The partner delays `[visual, proprioceptive]` (ms) the filters assume
+    /// this tick: NaN with the paper's model or before the search's first
+    /// choice; the proprioceptive one NaN while the search cannot tell it.
+    pub delay_ms: [f64; 2],
+    /// The search's margin (nats) of the chosen visual delay over the best
+    /// other one (NaN without a search choice).
+    pub delay_margin_nats: f64,
 }
 
 impl PartnerEstimate {
@@ -63,6 +71,8 @@ impl PartnerEstimate {
         gains_var: [f64::NAN; 3],
         target: f64::NAN,
         target_var: f64::NAN,
+        delay_ms: [f64::NAN; 2],
+        delay_margin_nats: f64::NAN,
     };
 
     /// The gains (and their variances) in the other agent's `xi` order
@@ -107,6 +117,45 @@ impl GainWindow {
     }
 }
 
+/// Which partner model stages 1 and 2 assume (`robot.partner_delay`).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub enum PartnerDelay {
+    /// The paper's: the partner acts on the current state (bit-identical to
+    /// the model without delays).
+    #[default]
+    Paper,
+    /// The partner acts on the robot's measured sample of these delays ago
+    /// (ms: visual on the target terms, proprioceptive on the velocity).
+    Known {
+        /// Visual delay (ms).
+        visual_ms: f64,
+        /// Proprioceptive delay (ms).
+        proprioceptive_ms: f64,
+    },
+    /// As `Known`, with the delays identified online in every gain phase
+    /// ([`DelaySearch`]); `(0, 0)` until its first choice.
+    Auto,
+}
+
+/// The delayed model's state inside the identifier.
+// One per identifier, built at set-up; without `alloc` there is no box to
+// move the larger variant into, and the size costs nothing per tick.
+#[allow(clippy::large_enum_variant)]
+#[derive(Clone, Debug)]
+enum Delayed {
+    /// The paper's model: no history.
+    Paper,
+    /// Delays in ticks `(visual, proprioceptive)`, the history they read,
+    /// and the search (`Auto`) with the phase it runs in.
+    On {
+        delays: (usize, usize),
+        history: History<4>,
+        search: Option<(DelaySearch, Option<usize>)>,
+        /// Stage-1's predicted partner torque at the last predict.
+        last_c: f64,
+    },
+}
+
 /// Stage 1 and stage 2 of one agent, with the gain window and the hand-off.
 #[derive(Clone, Debug)]
 pub struct Identifier {
@@ -123,6 +172,12 @@ pub struct Identifier {
     /// ([`GainEstimator::resync`] before the next).
     stage1_gap: bool,
     tally: FilterTally,
+    /// The delayed partner model (`robot.partner_delay`).
+    delayed: Delayed,
+    /// The loop period (s) and the model's step, for the delays' units and
+    /// the search's residuals.
+    dt_s: f64,
+    step: Step,
 }
 
 impl Identifier {
@@ -159,7 +214,116 @@ impl Identifier {
             pseudo_gains: None,
             stage1_gap: false,
             tally: FilterTally::default(),
+            delayed: Delayed::Paper,
+            dt_s,
+            step: model.step(),
         })
+    }
+
+    /// Set-up: the partner model stages 1 and 2 assume; errors name
+    /// `robot.partner_delay` (delays 0-300 ms within the history).
+    pub fn with_delay(mut self, delay: PartnerDelay) -> Result<Self, ScenarioError> {
+        let bad = ScenarioError::InvalidSetting("robot.partner_delay");
+        self.delayed = match delay {
+            PartnerDelay::Paper => Delayed::Paper,
+            PartnerDelay::Known {
+                visual_ms,
+                proprioceptive_ms,
+            } => Delayed::On {
+                delays: (
+                    delay_ticks(visual_ms, self.dt_s).ok_or(bad)?,
+                    delay_ticks(proprioceptive_ms, self.dt_s).ok_or(bad)?,
+                ),
+                history: History::default(),
+                search: None,
+                last_c: f64::NAN,
+            },
+            PartnerDelay::Auto => Delayed::On {
+                delays: (0, 0),
+                history: History::default(),
+                search: Some((
+                    DelaySearch::new(SearchSchedule::for_phase(1, self.dt_s)),
+                    None,
+                )),
+                last_c: f64::NAN,
+            },
+        };
+        Ok(self)
+    }
+
+    /// The delay search's current evidence (`robot.partner_delay = "auto"`),
+    /// `None` otherwise or before its first choice.
+    pub fn delay_evidence(&self) -> Option<DelayEvidence> {
+        match &self.delayed {
+            Delayed::On {
+                search: Some((s, _)),
+                ..
+            } => s.choice().copied(),
+            _ => None,
+        }
+    }
+
+    /// The delays the filters assume (ms) and the search's margin, for the
+    /// log line.
+    fn delay_report(&self) -> ([f64; 2], f64) {
+        let ms = |d: usize| d as f64 * self.dt_s * 1e3;
+        match &self.delayed {
+            Delayed::Paper => ([f64::NAN; 2], f64::NAN),
+            Delayed::On {
+                delays,
+                search: None,
+                ..
+            } => ([ms(delays.0), ms(delays.1)], f64::NAN),
+            Delayed::On {
+                search: Some((s, _)),
+                ..
+            } => match s.choice() {
+                None => ([f64::NAN; 2], f64::NAN),
+                Some(c) => (
+                    [
+                        ms(c.visual),
+                        if c.proprioceptive_identified {
+                            ms(c.proprioceptive)
+                        } else {
+                            f64::NAN
+                        },
+                    ],
+                    c.margin_nats,
+                ),
+            },
+        }
+    }
+
+    /// Stores this tick's measured sample `[x - tau, xdot, x - tau_h, x]`
+    /// (the last one again when there is none) and, in a gain phase with a
+    /// search, feeds the search and takes its choice.
+    fn record(&mut self, sample: &Sample<'_>, y: Option<[f64; 4]>) {
+        let step = (self.step.v_v, self.step.v_f);
+        let dt_s = self.dt_s;
+        let Delayed::On {
+            delays,
+            history,
+            search,
+            ..
+        } = &mut self.delayed
+        else {
+            return;
+        };
+        history.push(y.unwrap_or_else(|| history.ago(0)));
+        if sample.phase.kind != PhaseKind::Gains {
+            return;
+        }
+        if let Some((s, phase)) = search.as_mut() {
+            if *phase != Some(sample.index) {
+                let ticks = libm::round(sample.phase.duration_s / dt_s) as u64;
+                *s = DelaySearch::new(SearchSchedule::for_phase(ticks, dt_s));
+                *phase = Some(sample.index);
+            }
+            s.observe(history, y.is_some(), step);
+            if let Some(c) = s.choice() {
+                *delays = (c.visual, c.proprioceptive);
+            }
+        }
     }
 
     /// Per tick, first: fuse the measurement `y = [x - tau_own, xdot,
@@ -175,11 +339,25 @@ impl Identifier {
         x: f64,
         R: Option<&SMatrix<f64, 5, 5>>,
     ) -> PartnerEstimate {
-        match sample.phase.kind {
-            PhaseKind::Gains => self.update_gains(sample, y),
+        let est = match sample.phase.kind {
+            PhaseKind::Gains => {
+                self.record(sample, y.map(|y| [y[0], y[1], y[2], x]));
+                self.update_gains(sample, y)
+            }
             PhaseKind::Trajectory | PhaseKind::Integration => {
+                let first = self.pseudo_gains.is_none();
+                if first {
+                    self.hand_off();
+                }
+                self.record(sample, y.map(|y| [y[0], y[1], f64::NAN, x]));
                 self.update_trajectory(y.map(|y| (y[0], y[1])), x, R)
             }
+        };
+        let (delay_ms, delay_margin_nats) = self.delay_report();
+        PartnerEstimate {
+            delay_ms,
+            delay_margin_nats,
+            ..est
         }
     }
 
@@ -187,9 +365,39 @@ impl Identifier {
     /// and the targets' increments over the coming step (stage 2 does not
     /// know the partner's: 0).
     pub fn predict(&mut self, kind: PhaseKind, u: f64, dtau_own: f64, dtau_partner: f64) {
-        let r = match kind {
-            PhaseKind::Gains => self.stage1.predict(u, dtau_own, dtau_partner),
-            PhaseKind::Trajectory | PhaseKind::Integration => self.stage2.predict(u, dtau_own, 0.0),
+        let r = match (&mut self.delayed, kind) {
+            (Delayed::Paper, PhaseKind::Gains) => self.stage1.predict(u, dtau_own, dtau_partner),
+            (Delayed::Paper, _) => self.stage2.predict(u, dtau_own, 0.0),
+            (
+                Delayed::On {
+                    delays: (dv, dp),
+                    history,
+                    search,
+                    last_c,
+                },
+                PhaseKind::Gains,
+            ) => {
+                let (seen, felt) = (history.ago(*dv), history.ago(*dp));
+                let phi = [seen[0], felt[1], seen[2]];
+                let g = self.stage1.gains();
+                *last_c = -(g[0] * phi[0] + g[1] * phi[1] + g[2] * phi[2]);
+                if let Some((s, _)) = search.as_mut() {
+                    s.commanded(history, u, *last_c);
+                }
+                self.stage1.predict_delayed(phi, u, dtau_own, dtau_partner)
+            }
+            (
+                Delayed::On {
+                    delays: (dv, dp),
+                    history,
+                    ..
+                },
+                _,
+            ) => {
+                let (now, seen, felt) = (history.ago(0), history.ago(*dv), history.ago(*dp));
+                let known = [seen[0], felt[1], now[3] - seen[3]];
+                self.stage2.predict_delayed(known, u, dtau_own)
+            }
         };
         self.tally.note(r);
     }
@@ -241,6 +449,22 @@ impl Identifier {
         let g = self.pseudo_gains();
         let mut x0 = *self.stage1.filter().x();
         x0.fixed_rows_mut::<3>(GAINS).copy_from_slice(&g);
+        // Delayed: stage 2's third entry is the error against the target
+        // the partner perceives, `x - tau_h[k - d_v]`: shift it by the
+        // target's motion over `d_v`, `tau_h = x - e_h` from the history
+        // (its newest sample is the gain phase's last tick).
+        if let Delayed::On {
+            delays: (dv, _),
+            history,
+            ..
+        } = &self.delayed
+        {
+            let tau_h = |y: [f64; 4]| y[3] - y[2];
+            let shift = tau_h(history.ago(0)) - tau_h(history.ago(*dv));
+            if shift.is_finite() {
+                x0[E_H] += shift;
+            }
+        }
         let r = self.stage2.reset(x0, self.stage2_P0);
         self.tally.note(r.map(|()| Status::Nominal));
         self.pseudo_gains = Some(g);
@@ -271,6 +495,7 @@ impl Identifier {
             gains_var: diag3(f.P(), GAINS),
             target: self.stage2.partner_target(x),
             target_var: self.stage2.partner_error_variance(),
+            ..PartnerEstimate::NONE
         }
     }
 

@@ -21,6 +21,7 @@
 
 pub mod agent;
 pub mod controller;
+pub mod delay;
 mod error;
 pub mod estimator;
 pub mod goal;

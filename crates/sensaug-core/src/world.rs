@@ -6,9 +6,9 @@
 //!
 //! Everything is built and validated at set-up; a tick allocates nothing.
 
-use crate::agent::{mirrored, Guard, VirtualHuman};
+use crate::agent::{mirrored, Guard, HumanLike, PartnerLaw};
 use crate::controller::{Robot, RobotConfig, RobotCounters, RobotTick};
-use crate::identifier::Identifier;
+use crate::identifier::{Identifier, PartnerDelay};
 use crate::plant::{Plant, PlantParams, PlantState};
 use crate::protocol::{Phase, PhaseKind, Protocol, Sample, MAX_PHASES};
 use crate::rng::Noise;
@@ -33,6 +33,9 @@ pub struct PartnerConfig {
     pub estimates_robot: bool,
     /// Which handle state the virtual human's torque law reads.
     pub acts_on: StateSource,
+    /// The human-like partner's delays, motor noise and drift
+    /// (`partner.human`); `None`: the paper's virtual human, exactly.
+    pub human: Option<HumanLike>,
     /// The partner's goal integration (the simulation section's "Goal
     /// integration"); `None`: in integration phases the partner tracks its
     /// own target exactly, as a virtual human does.
@@ -260,7 +263,7 @@ enum Partner<'a> {
     /// `acts_on` state, and optionally its identifier of the robot (stages
     /// 1 and 2; not run in integration phases).
     Virtual {
-        law: VirtualHuman,
+        law: PartnerLaw,
         acts_on: StateSource,
         mirror: Option<Identifier>,
     },
@@ -317,7 +320,12 @@ impl<'a> Scenario<'a> {
                 return Err(ScenarioError::InvalidSetting(name));
             }
         }
-        let virtual_human = VirtualHuman::new(partner.gains, partner.torque_limit)?;
+        let virtual_human = PartnerLaw::new(
+            partner.gains,
+            partner.torque_limit,
+            partner.human,
+            world.plant.dt_s,
+        )?;
         let cfg = robot;
         let robot = Robot::new(cfg, protocol)?;
         let partner = match partner.integration {
@@ -326,12 +334,20 @@ impl<'a> Scenario<'a> {
                 acts_on: partner.acts_on,
                 // The partner knows no prior robot gains.
                 mirror: if partner.estimates_robot {
-                    Some(cfg.identifier(protocol.dt_s(), None)?)
+                    // It runs the paper's model (it perceives the robot
+                    // without a delay of its own).
+                    Some(
+                        cfg.identifier(protocol.dt_s(), None)?
+                            .with_delay(PartnerDelay::Paper)?,
+                    )
                 } else {
                     None
                 },
             },
             Some(pi) => {
+                if partner.human.is_some() {
+                    return Err(ScenarioError::InvalidSetting("partner.human"));
+                }
                 if !partner.estimates_robot {
                     return Err(ScenarioError::InvalidSetting("partner.integration"));
                 }
@@ -353,6 +369,7 @@ impl<'a> Scenario<'a> {
                     integrate: pi.integrate,
                     seed: pi.seed,
                     prior_partner_gains: None,
+                    partner_delay: PartnerDelay::Paper,
                     ..cfg
                 };
                 Partner::Mirrored(Robot::new(mirrored_cfg, own)?)
@@ -478,5 +495,6 @@ fn partner_estimate(t: &RobotTick) -> PartnerEstimate {
         gains_var: t.gains_var,
         target: t.tau_h_hat,
         target_var: t.tau_h_var,
+        ..PartnerEstimate::NONE
     }
 }

@@ -137,10 +137,12 @@ pub enum Value {
 
 /// The unit symbols used in [`COLUMNS`]; `u^2` and `(u)^2` are squares of `u`
 /// (variances).
-pub const UNITS: [(&str, &str); 9] = [
+pub const UNITS: [(&str, &str); 11] = [
     ("1", "dimensionless count or code"),
     ("s", "second"),
+    ("ms", "millisecond"),
     ("us", "microsecond"),
+    ("nats", "natural-log units of a log-likelihood"),
     ("pos", "controller position unit: rig.position_unit on the rig (rad_per_unit rad), deg in the Hi5 presets"),
     ("pos/s", "controller position unit per second"),
     ("trq", "model torque unit: the robot's torque in the handle model (on the rig, N m = trq * rad_per_unit)"),
@@ -249,6 +251,9 @@ schema! {
     e_hat_own_var: Float, "pos^2", "posterior variance of e_hat_own";
     e_hat_fused_var: Float, "pos^2", "posterior variance of e_hat_fused";
     partner_var: Float, "pos^2", "stage 3: the partner channel's effective variance (inf when not fused)";
+    partner_delay_visual_ms: Float, "ms", "the partner's visual delay stages 1-2 assume (robot.partner_delay; NaN: the paper's model, or no choice yet)";
+    partner_delay_proprioceptive_ms: Float, "ms", "the partner's proprioceptive delay stages 1-2 assume (NaN as above, or not identifiable: no velocity term)";
+    partner_delay_margin_nats: Float, "nats", "robot.partner_delay = \"auto\": profile log-likelihood of the chosen visual delay over the best other one (NaN otherwise)";
     Lx_hat: Float, "trq/pos", "partner's mirrored estimate of the robot gain Lx (simulation section; NaN otherwise)";
     Lv_hat: Float, "trq s/pos", "partner's mirrored estimate of the robot gain Lv";
     Lh_hat: Float, "trq/pos", "partner's mirrored estimate of the robot gain Lh";
@@ -264,7 +269,7 @@ schema! {
     sleep_latency_us: Float, "us", "rig: the deadline sleep's return after its own target, the deadline less rig.realtime.spin_us: the OS timer's latency; equal to wake_latency_us without a spin (NaN in simulations)";
     compute_us: Float, "us", "rig: wake-up to command sent (NaN in simulations)";
     feedback_age_ticks: Int, "1", "ticks since the last feedback (0 in simulations: a measurement every tick)";
-    drive_state: Int, "1", "rig: drive state 0 boot, 1 disabled, 2 enabled, 3 fault (-1 in simulations)";
+    drive_state: Int, "1", "rig: the drive's status, whatever its profile: 0 booting, 1 disabled, 2 enabled, 3 fault (-1 in simulations)";
     guard: Int, "1", "rig: the drive-torque guard 0 passed, 1 clamped, 2 non-finite (-1 controlled stop and simulations)";
     ramp: Bool, "1", "rig: the controlled stop's ticks, braking after a stop request (false in simulations)";
 }
@@ -302,6 +307,9 @@ impl Row {
             e_hat_own_var: r.e_hat_own_var,
             e_hat_fused_var: r.e_hat_fused_var,
             partner_var: r.partner_var,
+            partner_delay_visual_ms: r.partner_delay_ms[0],
+            partner_delay_proprioceptive_ms: r.partner_delay_ms[1],
+            partner_delay_margin_nats: r.partner_delay_margin_nats,
             ..Row::UNKNOWN
         }
     }

@@ -91,7 +91,8 @@ impl Config {
     }
 
     /// Reads and resolves a file (TOML, or JSON by extension); with
-    /// `check_outputs` also its rig output paths, as `sensaug-rt --check`.
+    /// `check_outputs` also a session plan's conditions and its rig output
+    /// paths, as `sensaug-rt --check` (`sensaug_config::check_file`).
     #[staticmethod]
     #[pyo3(signature = (path, /, *, check_outputs))]
     fn from_file(path: PathBuf, check_outputs: bool) -> PyResult<Self> {

@@ -40,6 +40,9 @@ pub fn load(
             field.clone_from(v);
         }
     }
+    // A revolute joint: the rig refuses a linear position unit before
+    // resolving (the simulation accepts it).
+    sensaug_config::check_rig_unit(&spec)?;
     let resolved = Resolved::new(spec)?;
     if check_outputs {
         sensaug_config::check_rig_outputs(&resolved.spec)?;

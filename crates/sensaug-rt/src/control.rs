@@ -15,12 +15,12 @@ use crate::log::{LogRecord, LogSink};
 use crate::os;
 use crate::stats::{CanCounters, ComputeParts, DriveReport, Histogram, LoopReport, StartGap};
 use crate::wake::{wake_up, Wake};
-use sensaug_bridge::drive_link::{Absorbed, DriveLink, DriveSample};
+use sensaug_bridge::drive_link::{Absorbed, DriveLink, DriveSample, DriveStatus};
 use sensaug_bridge::{Frame, Transport};
 /// The loop's settings: derived once, with the rest of the configuration,
 /// when it is resolved (`sensaug_config::Resolved::rig`).
 pub use sensaug_config::rig::{RigSettings as LoopSettings, StopSettings, QUIET_WATCHDOG_PERIODS};
-use sensaug_core::agent::{guard_torque, Guard, VirtualHuman};
+use sensaug_core::agent::{guard_torque, Guard, PartnerLaw};
 use sensaug_core::controller::{Robot, RobotTick};
 use sensaug_core::plant::{Plant, PlantParams, PlantState};
 use sensaug_core::protocol::{Protocol, Sample};
@@ -189,13 +189,13 @@ struct StartTimes {
 /// What the drive last told us.
 #[derive(Clone, Copy, Debug)]
 struct DriveView {
-    /// The link's sample as of the last sense.
+    /// The link's sample as of the last sense: the position, velocity and
+    /// status the loop acts on.
     sample: DriveSample,
-    x_rad: f64,
-    v_rad_s: f64,
-    /// A feedback has been received.
-    had_feedback: bool,
-    last_feedback_tick: u64,
+    /// The last feedback taken and the tick it came in: the plausibility
+    /// check's previous feedback (several can arrive between two senses)
+    /// and the feedback's age.
+    last_feedback: Option<(Reading, u64)>,
 }
 
 /// What the virtual human acts on: the handle's state, measured when the
@@ -249,7 +249,7 @@ pub struct Rig<'a> {
     link: Box<dyn DriveLink + Send>,
     transport: Box<dyn Transport + Send>,
     robot: Robot<'a>,
-    partner: VirtualHuman,
+    partner: PartnerLaw,
     /// The virtual human's view of the handle.
     handle_view: HandleView,
     protocol: Protocol<'a>,
@@ -290,8 +290,13 @@ impl<'a> Rig<'a> {
         robot: Robot<'a>,
     ) -> Result<Self, StartError> {
         let protocol = *robot.protocol();
-        let partner = VirtualHuman::new(settings.partner_gains, settings.partner_torque_limit)
-            .map_err(StartError::Scenario)?;
+        let partner = PartnerLaw::new(
+            settings.partner_gains,
+            settings.partner_torque_limit,
+            settings.partner_human,
+            settings.dt_s,
+        )
+        .map_err(StartError::Scenario)?;
         let handle_view = HandleView::new(settings.plant)
             .map_err(|e| StartError::Scenario(ScenarioError::Plant(e)))?;
         let mut rig = Rig {
@@ -306,10 +311,7 @@ impl<'a> Rig<'a> {
             protocol,
             drive: DriveView {
                 sample: DriveSample::default(),
-                x_rad: 0.0,
-                v_rad_s: 0.0,
-                had_feedback: false,
-                last_feedback_tick: 0,
+                last_feedback: None,
             },
             wake: Histogram::new(50_000),
             sleep: Histogram::new(50_000),
@@ -356,7 +358,7 @@ impl<'a> Rig<'a> {
         rig.times.first_command_ns = instant_ns(times.first_command);
         // The enable's feedback: the first one, seen by tick 0.
         let first = rig.link.sample(0);
-        rig.check_plausible(
+        rig.take_feedback(
             Reading {
                 x_rad: first.position_rad,
                 v_rad_s: first.velocity_rad_s,
@@ -365,9 +367,6 @@ impl<'a> Rig<'a> {
             0,
         );
         rig.drive.sample = first;
-        rig.drive.x_rad = first.position_rad;
-        rig.drive.v_rad_s = first.velocity_rad_s;
-        rig.drive.had_feedback = true;
         Ok(rig)
     }
 
@@ -396,11 +395,7 @@ impl<'a> Rig<'a> {
                     x_rad: position_rad,
                     v_rad_s: velocity_rad_s,
                 };
-                self.check_plausible(reading, steps, tick);
-                self.drive.x_rad = position_rad;
-                self.drive.v_rad_s = velocity_rad_s;
-                self.drive.had_feedback = true;
-                self.drive.last_feedback_tick = tick;
+                self.take_feedback(reading, steps, tick);
             }
             Absorbed::StaleFeedback => self.can.feedback_discarded += 1,
             Absorbed::ConflictingFeedback { sequence } => {
@@ -412,20 +407,19 @@ impl<'a> Rig<'a> {
         }
     }
 
-    /// Checks a feedback against physics and against the one before it
-    /// (`steps` drive steps earlier, 0: unknown; [`FeedbackLimits::check`]).
-    fn check_plausible(&mut self, reading: Reading, steps: u32, tick: u64) {
-        let prev = self.drive.had_feedback.then(|| Previous {
-            reading: Reading {
-                x_rad: self.drive.x_rad,
-                v_rad_s: self.drive.v_rad_s,
-            },
-            ticks_apart: tick.saturating_sub(self.drive.last_feedback_tick),
+    /// A feedback the link took in tick `tick`: checked against physics
+    /// and against the one before it (`steps` drive steps earlier, 0:
+    /// unknown; [`FeedbackLimits::check`]), then kept as the previous one.
+    fn take_feedback(&mut self, reading: Reading, steps: u32, tick: u64) {
+        let prev = self.drive.last_feedback.map(|(reading, at)| Previous {
+            reading,
+            ticks_apart: tick.saturating_sub(at),
             steps,
         });
         if let Err(why) = self.feedback_limits.check(reading, prev) {
             self.implausible_feedback(why);
         }
+        self.drive.last_feedback = Some((reading, tick));
     }
 
     /// Counts an implausible feedback and keeps the first.
@@ -501,7 +495,7 @@ impl<'a> Rig<'a> {
         };
         self.page_faults = os::thread_page_faults().saturating_sub(faults_before);
         self.ticks_run = k;
-        self.stop.speed_at_end_rad_s = self.drive.v_rad_s.abs();
+        self.stop.speed_at_end_rad_s = self.drive.sample.velocity_rad_s.abs();
         self.shut_down(reason);
         reason
     }
@@ -509,7 +503,7 @@ impl<'a> Rig<'a> {
     /// Keeps how the stop goes for the report ([`StopReport`]): when it was
     /// decided and the speed then, the braking ticks, why braking ended.
     fn note_stop(&mut self, from: Safety, to: Safety, c: &Checks) {
-        let speed_rad_s = self.drive.v_rad_s.abs();
+        let speed_rad_s = self.drive.sample.velocity_rad_s.abs();
         match (from, to) {
             (Safety::Running, Safety::Braking { .. } | Safety::Stopped(_)) => {
                 self.stop.tick = c.tick;
@@ -540,7 +534,7 @@ impl<'a> Rig<'a> {
         let stop = &self.settings.stop;
         let torque_nm = if sensed.fresh {
             brake_torque_nm(
-                self.drive.v_rad_s,
+                self.drive.sample.velocity_rad_s,
                 stop.damping_nm_s_per_rad,
                 stop.torque_limit_nm,
             )
@@ -585,10 +579,10 @@ impl<'a> Rig<'a> {
         let unit = self.settings.rad_per_unit;
         Sensed {
             wake,
-            x: self.drive.x_rad / unit,
-            v: self.drive.v_rad_s / unit,
+            x: self.drive.sample.position_rad / unit,
+            v: self.drive.sample.velocity_rad_s / unit,
             fresh,
-            age_ticks: k.saturating_sub(self.drive.last_feedback_tick),
+            age_ticks: k.saturating_sub(self.drive.last_feedback.map_or(0, |(_, at)| at)),
         }
     }
 
@@ -622,7 +616,7 @@ impl<'a> Rig<'a> {
             },
             protocol_done: k >= self.protocol.total_ticks(),
             at_rest: sensed.fresh
-                && self.drive.v_rad_s.abs() < self.settings.stop.rest_velocity_rad_s,
+                && self.drive.sample.velocity_rad_s.abs() < self.settings.stop.rest_velocity_rad_s,
             stop_ticks: timing.stop_ticks,
         }
     }
@@ -696,7 +690,7 @@ impl<'a> Rig<'a> {
             sleep_latency_us: wake.sleep_latency_ns() as f64 / 1e3,
             compute_us: compute_ns as f64 / 1e3,
             feedback_age_ticks: sensed.age_ticks,
-            drive_state: self.drive.sample.state_code,
+            drive_state: self.drive.sample.status,
             guard: command.guard,
             ramp: matches!(safety, Safety::Braking { .. }),
         });
@@ -717,6 +711,12 @@ impl<'a> Rig<'a> {
         {
             self.can.send_errors += 1;
         }
+    }
+
+    /// The drive's status as the loop last sensed it (the log's end
+    /// status: "fault" after a drive fault stopped the run).
+    pub fn drive_status(&self) -> DriveStatus {
+        self.drive.sample.status
     }
 
     /// The end-of-run report (without the log and real-time fields).

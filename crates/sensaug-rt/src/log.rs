@@ -28,6 +28,7 @@
 
 use crate::feed::Feed;
 use rtrb::{Consumer, Producer, RingBuffer};
+use sensaug_bridge::drive_link::DriveStatus;
 use sensaug_config::outputs::{create_partial, partial_path, replace};
 use sensaug_core::agent::Guard;
 use sensaug_core::controller::RobotTick;
@@ -76,8 +77,8 @@ pub struct LogRecord {
     pub compute_us: f64,
     /// Ticks since the last feedback.
     pub feedback_age_ticks: u64,
-    /// Drive state (raw).
-    pub drive_state: u8,
+    /// The drive's status, whatever its profile.
+    pub drive_state: DriveStatus,
     /// What the drive-torque guard did (`None` during the controlled stop).
     pub guard: Option<Guard>,
     /// The controlled stop's ticks (braking after a stop request).
@@ -113,7 +114,7 @@ impl LogRecord {
             sleep_latency_us: self.sleep_latency_us,
             compute_us: self.compute_us,
             feedback_age_ticks: self.feedback_age_ticks as i64,
-            drive_state: i64::from(self.drive_state),
+            drive_state: i64::from(self.drive_state.code()),
             guard: guard_code(self.guard),
             ramp: self.ramp,
             ..Row::from_robot(self.tick, self.t, &self.robot)
@@ -320,7 +321,7 @@ fn touch_every_slot(producer: &mut Producer<LogRecord>, consumer: &mut Consumer<
         sleep_latency_us: 0.0,
         compute_us: 0.0,
         feedback_age_ticks: 0,
-        drive_state: 0,
+        drive_state: DriveStatus::Booting,
         guard: None,
         ramp: false,
     };
@@ -390,7 +391,7 @@ fn write_loop(
 
 #[cfg(test)]
 mod tests {
-    use super::{partial_path, replace, start, write_loop, LogRecord};
+    use super::{partial_path, replace, start, write_loop, DriveStatus, LogRecord};
     use sensaug_core::agent::Guard;
     use sensaug_core::controller::RobotTick;
     use sensaug_log::Checksum;
@@ -415,7 +416,7 @@ mod tests {
             sleep_latency_us: 112.5,
             compute_us: 30.0,
             feedback_age_ticks: 1,
-            drive_state: 2,
+            drive_state: DriveStatus::Enabled,
             guard: Some(Guard::Clamped),
             ramp: false,
         }

@@ -34,8 +34,9 @@ struct Args {
     /// file plus an optional [rig] table. `sensaug schema` prints
     /// every field.
     config: PathBuf,
-    /// Validate the configuration and its output paths, print "valid" and
-    /// exit (exit 2 and the first bad field on stderr when it is not).
+    /// Validate the configuration (a session plan's every block expanded, as
+    /// `sensaug check` does) and its output paths, print "valid" and exit
+    /// (exit 2 and the first bad field on stderr when it is not).
     #[arg(long)]
     check: bool,
     /// Print the configuration with every default filled in, as JSON, and exit.
@@ -181,14 +182,19 @@ fn write_stats(mut file: std::fs::File, path: &Path, json: &str) -> std::io::Res
 }
 
 /// The file, with the command line's overrides applied, resolved once
-/// ([`load`]); its output paths checked too unless only printing it.
+/// ([`load`]); its output paths checked too unless only printing it, and
+/// with `--check` a session plan's every condition expanded and checked.
 fn load_args(args: &Args) -> Result<Resolved, ConfigError> {
     let overrides = Overrides {
         can: args.can.clone(),
         log: args.log.clone(),
         stats: args.stats.clone(),
     };
-    load(&args.config, &overrides, !args.print_resolved)
+    let resolved = load(&args.config, &overrides, !args.print_resolved)?;
+    if args.check {
+        sensaug_config::person::check_conditions(&resolved.spec)?;
+    }
+    Ok(resolved)
 }
 
 fn run(resolved: &Resolved, feed_to: &[SocketAddr]) -> Result<StopReason, RunError> {
@@ -329,6 +335,7 @@ fn run(resolved: &Resolved, feed_to: &[SocketAddr]) -> Result<StopReason, RunErr
     end.insert("ring_overflows".into(), overflows.into());
     end.insert("realtime".into(), report.realtime.clone().into());
     end.insert("exit_code".into(), reason.exit_code().into());
+    end.insert("drive_status".into(), rig_loop.drive_status().name().into());
     let written = writer.finish(end);
     if let Some(e) = &written.error {
         say(

@@ -2,9 +2,10 @@
 ``sensaug_bridge.resources``), the loopback ``sensaug_udp`` python-can interface, and a virtual Hi5 drive.
 
 See ``docs/virtual_hi5.md``. Importing the package (which python-can does to
-open ``sensaug_udp``) needs neither the DBC nor the Rust extension: the
-protocol names below are loaded on first use, and ``virtual_hi5`` (which needs
-the project's Rust extension ``sensaug``) is not imported here.
+open ``sensaug_udp``) needs no DBC: the protocol names below are loaded on
+first use. The package never imports ``sensaug`` (which depends on it): the
+virtual drives step their own copy of the controller's plant
+(``sensaug_bridge.plant``, checked against the core's bit for bit).
 """
 
 from __future__ import annotations

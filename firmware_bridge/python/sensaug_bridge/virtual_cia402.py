@@ -59,7 +59,12 @@ from sensaug_bridge.virtual_hi5 import (
     serve,
 )
 
-__all__ = ["Cia402Config", "Cia402State", "Fault", "VirtualCia402", "main", "parse_args", "EDS_PATH"]
+__all__ = ["PROFILE_NAME", "Cia402Config", "Cia402State", "Fault", "VirtualCia402", "main", "parse_args", "EDS_PATH"]
+
+#: The drive profile's name for people (this module is the virtual drive of
+#: ``[rig] drive = "cia402"``, registered under the ``sensaug.virtual_drives``
+#: entry points).
+PROFILE_NAME = "CiA 402 (CANopen)"
 
 #: The object dictionary, read from the source tree (editable install), like hi5.dbc.
 EDS_PATH = Path(__file__).resolve().parents[2] / "cia402_drive.eds"

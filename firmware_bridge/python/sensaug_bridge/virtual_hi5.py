@@ -13,7 +13,7 @@ behaviour, the choices and their reasons are in ``docs/virtual_hi5.md``; in shor
 * A TorqueCommand is accepted only with a good CRC-16 (the frame id as data
   id), while ENABLED, with exactly the expected sequence (one more than the
   last accepted) and ``|torque|`` within the torque limit: then step the 1-DoF
-  plant (``sensaug.Plant``) once and reply with one Feedback echoing the
+  plant (``sensaug_bridge.plant.Plant``) once and reply with one Feedback echoing the
   sequence. The plant's clock is the host's command stream (one step per
   command), so a run is deterministic. Commands queued while the process was
   off the CPU are read as one backlog: each steps the plant, only the last
@@ -46,9 +46,15 @@ from typing import Any, Callable, Optional, Sequence
 import can
 
 from sensaug_bridge import protocol as p
+from sensaug_bridge.plant import Plant
 from sensaug_bridge.protocol import FaultFlag, State
 
-__all__ = ["DriveConfig", "VirtualHi5", "encoder_counts", "main", "new_plant", "parse_args"]
+__all__ = ["PROFILE_NAME", "DriveConfig", "VirtualHi5", "encoder_counts", "main", "new_plant", "parse_args"]
+
+#: The drive profile's name for people (this module is the virtual drive of
+#: ``[rig] drive = "hi5"``, registered under the ``sensaug.virtual_drives``
+#: entry points).
+PROFILE_NAME = "Hi5"
 
 _COUNTER_MAX = 255
 #: Most frames handled as one backlog (:meth:`VirtualHi5.run`): bounded so
@@ -111,13 +117,12 @@ def read_backlog(bus: can.BusABC, first: can.Message) -> list[can.Message]:
     return frames
 
 
-def new_plant(config: DriveConfig) -> Any:
-    """The drive's 1-DoF load: ``sensaug.Plant`` with the config's M, C, F_c, dt, x0 (v0 = 0).
+def new_plant(config: DriveConfig) -> Plant:
+    """The drive's 1-DoF load (:class:`sensaug_bridge.plant.Plant`, the
+    controller's model step for step) with the config's M, C, F_c, dt, x0 (v0 = 0).
 
     Shared by every virtual drive profile (Hi5, CiA 402)."""
-    import sensaug  # the project's Rust extension; imported late so protocol users need not build it
-
-    return sensaug.Plant(
+    return Plant(
         mass=config.mass, damping=config.damping, coulomb=config.coulomb, dt_s=config.dt_s, x0=config.x0_rad, v0=0.0
     )
 
@@ -188,7 +193,7 @@ class DriveLog:
         )
 
 
-def coast(plant: Any, since_s: float, now_s: float, dt_s: float, log: Optional[DriveLog], t0_s: float,
+def coast(plant: Plant, since_s: float, now_s: float, dt_s: float, log: Optional[DriveLog], t0_s: float,
           encode: Callable[[float], float]) -> float:
     """The free handle from ``since_s`` to ``now_s``: whole plant steps of
     ``dt_s`` at zero torque (a handle at rest stays at rest and is not

@@ -114,6 +114,11 @@ impl MasterSettings {
     }
 }
 
+/// The shortest drive consumer time (0x1016, ms) a master takes: its own
+/// heartbeat period is at least 1 ms and must be shorter
+/// ([`MasterSettings::drive_consumer_ms`]).
+pub const DRIVE_CONSUMER_MS_MIN: u16 = 2;
+
 /// The drive's heartbeat period (0x1017, ms) for a master that declares it
 /// lost after `timeout`: half of it (at least 1 ms), so one late beat is
 /// not a loss.

@@ -5,20 +5,30 @@
 //! [`open`]`("socketcan:can0")`. Opening allocates; `send` and `recv` do
 //! not, and never busy-spin: `recv` sleeps in `ppoll(2)` until a frame
 //! arrives or the timeout ends.
+//!
+//! The transports themselves (and [`open`]) are the crate's default feature
+//! `transports`; without it this module is the [`Transport`] trait, its
+//! errors and [`BusUrl`] parsing only (what `sensaug-config` needs, so the
+//! Python extension links no socket code).
 
 use std::fmt;
 use std::io;
+#[cfg(feature = "transports")]
 use std::os::fd::RawFd;
-use std::time::{Duration, Instant};
+use std::time::Duration;
+#[cfg(feature = "transports")]
+use std::time::Instant;
 
 use crate::frame::{Frame, WireError};
 
-#[cfg(target_os = "linux")]
+#[cfg(all(feature = "transports", target_os = "linux"))]
 mod socketcan;
+#[cfg(feature = "transports")]
 mod udp;
 
-#[cfg(target_os = "linux")]
+#[cfg(all(feature = "transports", target_os = "linux"))]
 pub use socketcan::SocketCan;
+#[cfg(feature = "transports")]
 pub use udp::{UdpBus, UDP_BUS_ADDR};
 
 /// A CAN bus seen from one node: send frames, receive the other nodes'.
@@ -235,6 +245,7 @@ impl BusUrl {
     }
 }
 
+#[cfg(feature = "transports")]
 /// Open the bus a URL names: `udp:<port>` or `socketcan:<ifname>`.
 ///
 /// Runs at set-up; allocates. Errors name the URL and the fix.
@@ -251,12 +262,14 @@ pub fn open(url: &str) -> Result<Box<dyn Transport + Send>, TransportError> {
 }
 
 /// `Instant::now() + timeout`, or `None` for "forever" if that overflows.
+#[cfg(feature = "transports")]
 fn deadline_after(timeout: Duration) -> Option<Instant> {
     Instant::now().checked_add(timeout)
 }
 
 /// Sleep until `fd` is readable or `deadline` passes; `Ok(false)` on
 /// timeout. `None` waits forever. Interrupted waits are resumed.
+#[cfg(feature = "transports")]
 fn wait_readable(fd: RawFd, deadline: Option<Instant>) -> Result<bool, TransportError> {
     loop {
         let remaining = match deadline {
@@ -293,7 +306,7 @@ fn wait_readable(fd: RawFd, deadline: Option<Instant>) -> Result<bool, Transport
 }
 
 /// `ppoll(2)` on one fd with a nanosecond timeout (`None`: forever).
-#[cfg(target_os = "linux")]
+#[cfg(all(feature = "transports", target_os = "linux"))]
 fn poll_one(pfd: &mut libc::pollfd, timeout: Option<Duration>) -> libc::c_int {
     let ts = timeout.map(|t| libc::timespec {
         tv_sec: libc::time_t::try_from(t.as_secs()).unwrap_or(libc::time_t::MAX),
@@ -309,7 +322,7 @@ fn poll_one(pfd: &mut libc::pollfd, timeout: Option<Duration>) -> libc::c_int {
 }
 
 /// `poll(2)` on one fd, the timeout rounded up to whole milliseconds.
-#[cfg(not(target_os = "linux"))]
+#[cfg(all(feature = "transports", not(target_os = "linux")))]
 fn poll_one(pfd: &mut libc::pollfd, timeout: Option<Duration>) -> libc::c_int {
     let ms = timeout.map_or(-1, |t| {
         libc::c_int::try_from(t.as_nanos().div_ceil(1_000_000)).unwrap_or(libc::c_int::MAX)
@@ -318,7 +331,7 @@ fn poll_one(pfd: &mut libc::pollfd, timeout: Option<Duration>) -> libc::c_int {
     unsafe { libc::poll(pfd, 1, ms) }
 }
 
-#[cfg(test)]
+#[cfg(all(test, feature = "transports"))]
 mod tests {
     use super::*;
 

@@ -10,13 +10,10 @@ mod common;
 
 use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector2, Vector3};
 use sensaug_core::controller::Robot;
-use sensaug_core::estimator::{
-    ExtendedFilterConfig, GainEstimator, HandleModel, TrajectoryEstimator,
-};
+use sensaug_core::estimator::{GainEstimator, TrajectoryEstimator};
 use sensaug_core::goal::{ChannelConfig, GoalIntegrator, GoalIntegratorConfig};
 use sensaug_core::protocol::Protocol;
 use sensaug_core::riccati::{care, dare};
-use sensaug_core::ukf::MerweParams;
 use sensaug_core::world::{Scenario, TickRecord};
 use std::hint::black_box;
 
@@ -27,9 +24,9 @@ pub type Call = Box<dyn FnMut()>;
 pub type Workload = (&'static str, fn() -> Call);
 
 /// Handle mass of the Hi5 experiment (kg m^2), as in `compare_oracles.py`.
-pub const MASS: f64 = 0.0035;
+pub const MASS: f64 = common::M;
 /// Tick (s).
-pub const DT: f64 = 1e-3;
+pub const DT: f64 = common::DT;
 
 /// The 3-state system timed here and in `benches/compare_oracles.py`.
 pub fn system3() -> (Matrix3<f64>, SMatrix<f64, 3, 1>) {
@@ -39,33 +36,10 @@ pub fn system3() -> (Matrix3<f64>, SMatrix<f64, 3, 1>) {
     )
 }
 
-/// The estimators' settings in the oracle script: `P0 = diag(1e-4 x3, 1 x3)`,
-/// `Q = 1e-2 I`, `R = 1e-7 I`, Merwe `(1, 2, 0)`.
-fn extended<const R: usize>() -> ExtendedFilterConfig<R> {
-    let mut P0 = SMatrix::<f64, 6, 6>::identity();
-    for i in 0..3 {
-        P0[(i, i)] = 1e-4;
-    }
-    ExtendedFilterConfig {
-        x0: SVector::zeros(),
-        P0,
-        Q: SMatrix::identity() * 1e-2,
-        R: SMatrix::identity() * 1e-7,
-        sigma: MerweParams {
-            alpha: 1.0,
-            beta: 2.0,
-            kappa: 0.0,
-        },
-    }
-}
-
-fn model() -> HandleModel {
-    HandleModel {
-        mass: MASS,
-        damping: 0.0,
-        dt_s: DT,
-    }
-}
+// The estimators' settings in the oracle script are the tests' Hi5 ones
+// (`tests/common`): `P0 = diag(1e-4 x3, 1 x3)`, `Q = 1e-2 I`, `R = 1e-7 I`,
+// Merwe `(1, 2, 0)`; the handle model `(MASS, C = 0, DT)`.
+use common::{extended, model};
 
 /// Stage 1: `update(y1)` then `predict(u, dtau, dtau_h)`, 6 states, 3
 /// measurements.
@@ -185,18 +159,18 @@ pub const TICK_PHASE_S: f64 = 10.0;
 /// hand-off or restart happens in the timed calls). Until the first wrap the
 /// robot reproduces the simulated trial's estimates exactly.
 fn robot_tick(phase: usize) -> Call {
+    robot_tick_with(phase, common::robot())
+}
+
+/// [`robot_tick`] for the robot `cfg`.
+fn robot_tick_with(phase: usize, cfg: sensaug_core::controller::RobotConfig) -> Call {
     let phases = common::phases(TICK_PHASE_S, 1.0);
-    let mut scenario = Scenario::new(
-        &phases,
-        common::robot(),
-        common::partner(2.0),
-        common::world(3),
-    )
-    .expect("valid scenario");
+    let mut scenario = Scenario::new(&phases, cfg, common::partner(2.0), common::world(3))
+        .expect("valid scenario");
     let mut records = vec![TickRecord::default(); scenario.ticks()];
     scenario.run(&mut records).expect("simulated trial");
     let protocol = Protocol::new(&phases, common::DT).expect("valid protocol");
-    let mut robot = Robot::new(common::robot(), protocol).expect("valid robot");
+    let mut robot = Robot::new(cfg, protocol).expect("valid robot");
     let phase_ticks = (TICK_PHASE_S / common::DT).round() as u64;
     let (start, end) = (phase as u64 * phase_ticks, (phase as u64 + 1) * phase_ticks);
     for (k, r) in records.iter().enumerate().take(start as usize) {
@@ -237,11 +211,40 @@ pub fn robot_tick_integration() -> Call {
     robot_tick(2)
 }
 
-/// The robot-tick workloads, one per phase.
-pub const TICK_WORKLOADS: [Workload; 3] = [
+/// The robot with `robot.partner_delay = "auto"` (docs/model.md, "A partner
+/// with a delay").
+fn delay_aware_robot() -> sensaug_core::controller::RobotConfig {
+    sensaug_core::controller::RobotConfig {
+        partner_delay: sensaug_core::identifier::PartnerDelay::Auto,
+        ..common::robot()
+    }
+}
+
+/// The gain phase's tick with the delay search (its coarse grid for the
+/// first 30% of the phase, the fine one after: the timed ticks wrap round
+/// the whole phase, so both are in the figures) and the delay-aware stage 1.
+pub fn robot_tick_gains_delay_auto() -> Call {
+    robot_tick_with(0, delay_aware_robot())
+}
+
+/// The trajectory phase's tick with the delay-aware stage 2.
+pub fn robot_tick_trajectory_delay_auto() -> Call {
+    robot_tick_with(1, delay_aware_robot())
+}
+
+/// The robot-tick workloads, one per phase, then the delay-aware robot's.
+pub const TICK_WORKLOADS: [Workload; 5] = [
     ("robot_tick/gains_phase", robot_tick_gains),
     ("robot_tick/trajectory_phase", robot_tick_trajectory),
     ("robot_tick/integration_phase", robot_tick_integration),
+    (
+        "robot_tick/gains_phase_delay_auto",
+        robot_tick_gains_delay_auto,
+    ),
+    (
+        "robot_tick/trajectory_phase_delay_auto",
+        robot_tick_trajectory_delay_auto,
+    ),
 ];
 
 /// Phase length of the whole-trial workload (s), as
@@ -277,7 +280,7 @@ pub fn trial() -> (Call, usize) {
 
 /// Every workload by name (the names of the criterion benches and of the
 /// rows of `BENCHMARKS.md`).
-pub fn all() -> [Workload; 10] {
+pub fn all() -> [Workload; 12] {
     [
         ("ukf_step/6_states_3_measurements", ukf_step_3),
         ("ukf_step/6_states_5_measurements", ukf_step_5),
@@ -289,5 +292,7 @@ pub fn all() -> [Workload; 10] {
         TICK_WORKLOADS[0],
         TICK_WORKLOADS[1],
         TICK_WORKLOADS[2],
+        TICK_WORKLOADS[3],
+        TICK_WORKLOADS[4],
     ]
 }

@@ -83,6 +83,7 @@ pub fn robot() -> RobotConfig {
         prior_partner_gains: None,
         torque_limit: 1e3,
         seed: 7,
+        partner_delay: sensaug_core::identifier::PartnerDelay::Paper,
     }
 }
 
@@ -92,6 +93,7 @@ pub fn partner(lhh: f64) -> PartnerConfig {
         torque_limit: 1e3,
         estimates_robot: true,
         acts_on: StateSource::Measured,
+        human: None,
         integration: None,
     }
 }

@@ -147,6 +147,7 @@ pub fn loop_settings(resolved: &Resolved) -> LoopSettings {
         stop_ticks: (0.05 / dt_s).round() as u64,
         partner_gains: resolved.partner.gains,
         partner_torque_limit: 1e3,
+        partner_human: resolved.partner.human,
         max_feedback_velocity_rad_s: 8.0,
         feedback_step_margin_rad: 0.01,
         max_acceleration_rad_s2: 3.0 / PlantParams::HI5.mass,
