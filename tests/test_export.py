@@ -37,9 +37,10 @@ def read_back(path):
 
 def same(expected: np.ndarray, got: list) -> bool:
     """Equal value for value (the JSON is exact: shortest round-trip floats),
-    null where the log has NaN."""
+    null where the log has NaN or an infinity (JSON has neither; the rig's
+    ``partner_var`` is inf while the partner channel is held out)."""
     for e, g in zip(expected.tolist(), got):
-        if isinstance(e, float) and math.isnan(e):
+        if isinstance(e, float) and not math.isfinite(e):
             if g is not None:
                 return False
         elif e != g:
@@ -107,3 +108,13 @@ def test_a_log_without_a_start_time_is_dated_by_its_file(saved, tmp_path):
     first = msgs["/handle"][0][0]
     assert first > 1.6e18, "a timestamp from epoch 0"
     assert meta["sensaug"]["start_time_source"].startswith("file modification time")
+
+
+def test_non_finite_values_are_json_null():
+    """JSON has no NaN or infinity: both export as null (the rig writes inf in
+    ``partner_var`` while the partner channel is held out, so a run whose
+    feedback was late has infinities in its log)."""
+    column = np.array([0.25, np.inf, -np.inf, np.nan, 1e-300])
+    assert topics._json_texts(column) == ["0.25", "null", "null", "null", "1e-300"]
+    assert same(column, [0.25, None, None, None, 1e-300])
+    assert not same(column, [0.25, 0.0, None, None, 1e-300])
