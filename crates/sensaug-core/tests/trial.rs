@@ -10,6 +10,7 @@ use sensaug_core::controller::Robot;
 use sensaug_core::identifier::{Identifier, PartnerEstimate};
 use sensaug_core::plant::{Plant, PlantParams};
 use sensaug_core::protocol::{Phase, PhaseKind, Protocol, Sample};
+use sensaug_core::row::Row;
 use sensaug_core::ScenarioError;
 
 const LHH: f64 = 2.0;
@@ -141,10 +142,21 @@ fn the_robot_runs_the_same_identifier() {
     let mut id = cfg.identifier(common::DT, None).unwrap();
     let mut compared = 0;
     drive(&protocol, |s, (x, v)| {
-        let tick = robot.tick_at(s, Some((x, v)));
+        let mut tick = Row::UNKNOWN;
+        robot.tick_at(s, Some((x, v)), &mut tick);
         let est = id.update(s, Some(Vector3::new(x - s.tau, v, x - s.tau_h)), x, None);
-        assert_eq!(tick.gains, est.gains, "tick {}", s.k);
-        assert_eq!(tick.gains_var, est.gains_var, "tick {}", s.k);
+        assert_eq!(
+            [tick.Lhx_hat, tick.Lhv_hat, tick.Lhh_hat],
+            est.gains,
+            "tick {}",
+            s.k
+        );
+        assert_eq!(
+            [tick.Lhx_var, tick.Lhv_var, tick.Lhh_var],
+            est.gains_var,
+            "tick {}",
+            s.k
+        );
         assert_eq!(
             tick.tau_h_hat.to_bits(),
             est.target.to_bits(),

@@ -21,7 +21,8 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
 }
 
 /// The schema: format line and version, `columns` as `(name, unit, kind,
-/// description)` tuples, phase names, the unknown-integer sentinel, units.
+/// description)` tuples, `sources` (who fills each column: time,
+/// controller, world, rig), phase names, the unknown-integer sentinel, units.
 #[pyfunction]
 fn log_schema(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     let d = PyDict::new(py);
@@ -34,6 +35,11 @@ fn log_schema(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
         .map(|c| (c.name, c.unit, c.kind.name(), c.description))
         .collect();
     d.set_item("columns", cols)?;
+    let sources = PyDict::new(py);
+    for c in COLUMNS {
+        sources.set_item(c.name, c.source.name())?;
+    }
+    d.set_item("sources", sources)?;
     d.set_item("phase_names", sensaug_log::PHASE_NAMES.to_vec())?;
     d.set_item("unknown_int", sensaug_log::UNKNOWN)?;
     d.set_item("units", sensaug_log::UNITS.to_vec())?;
@@ -56,46 +62,6 @@ fn config_sha256(config_json: &str) -> PyResult<String> {
     Ok(sensaug_log::config_sha256(&config))
 }
 
-/// One column's values while converting rows to numpy.
-enum ColumnValues {
-    Int(Vec<i64>),
-    Float(Vec<f64>),
-    Bool(Vec<bool>),
-}
-
-/// Rows as one numpy array per column (float64, int64 or bool), by name.
-pub fn rows_to_columns<'py>(py: Python<'py>, rows: &[Row]) -> PyResult<Bound<'py, PyDict>> {
-    let n = rows.len();
-    let mut cols: Vec<ColumnValues> = COLUMNS
-        .iter()
-        .map(|c| match c.kind {
-            Kind::Int => ColumnValues::Int(Vec::with_capacity(n)),
-            Kind::Float => ColumnValues::Float(Vec::with_capacity(n)),
-            Kind::Bool => ColumnValues::Bool(Vec::with_capacity(n)),
-        })
-        .collect();
-    for r in rows {
-        for (col, v) in cols.iter_mut().zip(r.values()) {
-            // `values()` and `COLUMNS` come from one table: kinds agree.
-            match (col, v) {
-                (ColumnValues::Int(a), Value::Int(x)) => a.push(x),
-                (ColumnValues::Float(a), Value::Float(x)) => a.push(x),
-                (ColumnValues::Bool(a), Value::Bool(x)) => a.push(x),
-                _ => {}
-            }
-        }
-    }
-    let d = PyDict::new(py);
-    for (c, col) in COLUMNS.iter().zip(cols) {
-        match col {
-            ColumnValues::Int(a) => d.set_item(c.name, a.into_pyarray(py))?,
-            ColumnValues::Float(a) => d.set_item(c.name, a.into_pyarray(py))?,
-            ColumnValues::Bool(a) => d.set_item(c.name, a.into_pyarray(py))?,
-        }
-    }
-    Ok(d)
-}
-
 /// Bytes of one packed record ([`PackedRow`]: the columns in schema order,
 /// native-endian int64 / float64, bool as one byte; `sensaug.logs.DTYPE`).
 pub const RECORD_BYTES: usize = std::mem::size_of::<PackedRow>();
@@ -105,6 +71,16 @@ pub const RECORD_BYTES: usize = std::mem::size_of::<PackedRow>();
 /// re-interleave in Python.
 pub fn pack_record(row: &Row, out: &mut Vec<u8>) {
     out.extend_from_slice(row.packed().as_bytes());
+}
+
+/// Rows as the bytes of packed records (every Rust -> numpy path of log
+/// rows returns these; `sensaug.logs.from_records` views them).
+pub fn packed_records<'py>(py: Python<'py>, rows: &[Row]) -> Bound<'py, numpy::PyArray1<u8>> {
+    let mut out = Vec::with_capacity(rows.len() * RECORD_BYTES);
+    for r in rows {
+        pack_record(r, &mut out);
+    }
+    out.into_pyarray(py)
 }
 
 /// Rows from `data[name]` for every column (a numpy structured array or a
@@ -137,8 +113,11 @@ fn columns_to_rows(data: &Bound<'_, PyAny>) -> PyResult<Vec<Row>> {
                 rows.len()
             )));
         }
-        let set =
-            |rows: &mut [Row], k: usize, v: Value| rows[k].set(j, v).map_err(PyValueError::new_err);
+        let set = |rows: &mut [Row], k: usize, v: Value| {
+            rows[k]
+                .set(j, v)
+                .map_err(|e| PyValueError::new_err(format!("data.{e} (row {k})")))
+        };
         match c.kind {
             Kind::Int => {
                 let a: PyReadonlyArray1<i64> = col.extract().map_err(|_| wrong("int64"))?;

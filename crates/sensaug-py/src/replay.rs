@@ -9,7 +9,7 @@ use numpy::PyReadonlyArray1;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use sensaug_core::controller::{Robot, RobotTick};
+use sensaug_core::controller::Robot;
 use sensaug_log::Row;
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -18,9 +18,10 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
 
 /// Re-runs the robot's controller over recorded measurements: tick `k`
 /// fuses `(x_meas[k], xdot_meas[k])` when `fresh[k]`, else only predicts.
-/// Returns `(columns, counters)`: one array per column of the log schema
-/// (the controller's columns, `tick`, `t`, `x_meas`, `xdot_meas`, `fresh`
-/// filled; the rest unknown) and the robot's counters.
+/// Returns `(records, counters)`: the rows as packed records
+/// (`sensaug.logs.from_records`; the controller's columns, `tick`, `t`,
+/// `x_meas`, `xdot_meas`, `fresh` filled, the rest unknown) and the robot's
+/// counters.
 #[pyfunction]
 #[pyo3(signature = (config, x_meas, xdot_meas, fresh, /))]
 fn replay_robot<'py>(
@@ -29,7 +30,7 @@ fn replay_robot<'py>(
     x_meas: PyReadonlyArray1<'py, f64>,
     xdot_meas: PyReadonlyArray1<'py, f64>,
     fresh: PyReadonlyArray1<'py, bool>,
-) -> PyResult<(Bound<'py, PyDict>, Bound<'py, PyDict>)> {
+) -> PyResult<(Bound<'py, numpy::PyArray1<u8>>, Bound<'py, PyDict>)> {
     let resolved = &config.resolved;
     let (x, v) = (slice(&x_meas, "x_meas")?, slice(&xdot_meas, "xdot_meas")?);
     let fresh = fresh.as_slice().map_err(|_| {
@@ -49,27 +50,26 @@ fn replay_robot<'py>(
     let measurements: Vec<Option<(f64, f64)>> = (0..x.len())
         .map(|k| fresh[k].then_some((x[k], v[k])))
         .collect();
-    let mut ticks = vec![RobotTick::NONE; x.len()];
-    let counters = py
-        .detach(|| sensaug_core::replay::replay_robot(&mut robot, &measurements, &mut ticks))
-        .map_err(|e| PyValueError::new_err(e.to_string()))?;
     let dt = resolved.dt_s;
-    let rows: Vec<Row> = ticks
-        .iter()
-        .enumerate()
-        .map(|(k, r)| Row {
+    let mut rows: Vec<Row> = (0..x.len())
+        .map(|k| Row {
+            tick: k as i64,
+            t: k as f64 * dt,
             x_meas: x[k],
             xdot_meas: v[k],
             fresh: fresh[k],
-            ..Row::from_robot(k as u64, k as f64 * dt, r)
+            ..Row::UNKNOWN
         })
         .collect();
+    let counters = py
+        .detach(|| sensaug_core::replay::replay_robot(&mut robot, &measurements, &mut rows))
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
     let d = PyDict::new(py);
-    d.set_item("ticks", ticks.len())?;
+    d.set_item("ticks", rows.len())?;
     d.set_item("robot_clamped", counters.clamped)?;
     d.set_item("robot_non_finite", counters.non_finite)?;
     d.set_item("estimator_errors", counters.estimator_errors)?;
     d.set_item("resymmetrised", counters.resymmetrised)?;
     d.set_item("missing_measurements", counters.missing_measurements)?;
-    Ok((crate::log::rows_to_columns(py, &rows)?, d))
+    Ok((crate::log::packed_records(py, &rows), d))
 }

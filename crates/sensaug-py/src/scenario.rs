@@ -13,7 +13,6 @@ use pythonize::{pythonize, Depythonizer};
 use sensaug_config::{Format, Resolved};
 use sensaug_core::protocol::Protocol;
 use sensaug_core::world::{check_log_memory, log_budget, LogTooLarge, Scenario};
-use sensaug_log::Row;
 use std::path::{Path, PathBuf};
 
 create_exception!(
@@ -294,9 +293,7 @@ fn run_scenario<'py>(
         start_unix_s: sensaug_log::now_unix_s(),
         loop_settings: serde_json::Value::Null,
     });
-    let summary = py.detach(|| {
-        scenario.run_with(|k, rec| pack_record(&Row::from_tick_record(k, rec), &mut records))
-    });
+    let summary = py.detach(|| scenario.run_with(|row| pack_record(row, &mut records)));
     let d = PyDict::new(py);
     d.set_item("ticks", summary.ticks)?;
     d.set_item("robot_clamped", summary.robot.clamped)?;
