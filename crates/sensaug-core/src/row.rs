@@ -430,6 +430,51 @@ mod tests {
         ));
     }
 
+    /// A packed record holds every column at the offset the Python dtype
+    /// gives it (the columns in order, 8 bytes for int64 and float64, 1 for
+    /// bool, no padding), each value's native-endian bytes.
+    #[test]
+    fn packed_row_is_the_dtype_layout() {
+        use zerocopy::IntoBytes;
+        let mut row = Row::UNKNOWN;
+        for (i, c) in COLUMNS.iter().enumerate() {
+            let v = match c.kind {
+                Kind::Int => Value::Int(-1000 - i as i64),
+                Kind::Float => Value::Float(0.5 + i as f64),
+                Kind::Bool => Value::Bool(i % 2 == 0),
+            };
+            // A code column (phase, guard) takes one of its codes.
+            if row.set(i, v).is_err() {
+                row.set(i, Value::Int(1)).expect("kinds agree");
+            }
+        }
+        let packed = row.packed();
+        let bytes = packed.as_bytes();
+        let mut at = 0;
+        for (c, v) in COLUMNS.iter().zip(row.values()) {
+            let width = if c.kind == Kind::Bool { 1 } else { 8 };
+            let field = &bytes[at..at + width];
+            let (int, float, boolean);
+            let expected: &[u8] = match v {
+                Value::Int(x) => {
+                    int = x.to_ne_bytes();
+                    &int
+                }
+                Value::Float(x) => {
+                    float = x.to_ne_bytes();
+                    &float
+                }
+                Value::Bool(x) => {
+                    boolean = [u8::from(x)];
+                    &boolean
+                }
+            };
+            assert_eq!(field, expected, "column {}", c.name);
+            at += width;
+        }
+        assert_eq!(at, bytes.len(), "no padding, nothing after the last column");
+    }
+
     /// `clear` and `copy_columns` touch exactly the columns of their source.
     #[test]
     fn column_sets_follow_the_source_tags() {

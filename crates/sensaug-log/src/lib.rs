@@ -78,6 +78,32 @@ impl Checksum {
 /// Names of the phase codes in the `phase` column (index = code).
 pub const PHASE_NAMES: [&str; 3] = PhaseKind::NAMES;
 
+/// Bytes this process can still take: `MemAvailable` of `/proc/meminfo`,
+/// and under a cgroup (v2) memory limit what is left of it; `None` where
+/// neither can be read (not Linux).
+pub fn available_bytes() -> Option<u64> {
+    let meminfo = std::fs::read_to_string("/proc/meminfo").ok();
+    let available = meminfo.as_deref().and_then(|text| {
+        let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+        let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+        Some(kib.saturating_mul(1024))
+    });
+    let cgroup = std::fs::read_to_string("/proc/self/cgroup")
+        .ok()
+        .and_then(|text| {
+            let path = text.lines().find_map(|l| l.strip_prefix("0::"))?.to_owned();
+            let dir = Path::new("/sys/fs/cgroup").join(path.trim_start_matches('/'));
+            let read = |f: &str| std::fs::read_to_string(dir.join(f)).ok();
+            let max: u64 = read("memory.max")?.trim().parse().ok()?; // "max": no limit
+            let current: u64 = read("memory.current")?.trim().parse().ok()?;
+            Some(max.saturating_sub(current))
+        });
+    match (available, cgroup) {
+        (Some(a), Some(c)) => Some(a.min(c)),
+        (a, c) => a.or(c),
+    }
+}
+
 /// The header row: the column names, then [`CHECKSUM_FIELD`], separated by
 /// commas.
 pub fn header_row() -> String {
@@ -455,41 +481,6 @@ pub fn git_commit(dir: &Path) -> Option<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// A packed record holds every column at the offset the Python dtype
-    /// gives it (the columns in order, 8 bytes for int64 and float64, 1 for
-    /// bool, no padding), each value's native-endian bytes.
-    #[test]
-    fn packed_row_is_the_dtype_layout() {
-        use zerocopy::IntoBytes;
-        let mut row = Row::UNKNOWN;
-        for (i, c) in COLUMNS.iter().enumerate() {
-            let v = match c.kind {
-                Kind::Int => Value::Int(-1000 - i as i64),
-                Kind::Float => Value::Float(0.5 + i as f64),
-                Kind::Bool => Value::Bool(i % 2 == 0),
-            };
-            // A code column (phase, guard) takes one of its codes.
-            if row.set(i, v).is_err() {
-                row.set(i, Value::Int(1)).expect("kinds agree");
-            }
-        }
-        let packed = row.packed();
-        let bytes = packed.as_bytes();
-        let mut at = 0;
-        for (c, v) in COLUMNS.iter().zip(row.values()) {
-            let width = if c.kind == Kind::Bool { 1 } else { 8 };
-            let field = &bytes[at..at + width];
-            let expected: Vec<u8> = match v {
-                Value::Int(x) => x.to_ne_bytes().to_vec(),
-                Value::Float(x) => x.to_ne_bytes().to_vec(),
-                Value::Bool(x) => vec![u8::from(x)],
-            };
-            assert_eq!(field, expected.as_slice(), "column {}", c.name);
-            at += width;
-        }
-        assert_eq!(at, bytes.len(), "no padding, nothing after the last column");
-    }
 
     /// The metadata travels as JSON (Python's `json` <-> serde_json): every
     /// float must come back with the same bits, which serde_json's parser

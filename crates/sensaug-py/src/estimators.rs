@@ -12,6 +12,7 @@ use numpy::{PyUntypedArrayMethods, ToPyArray};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+use sensaug_config::{PlantSpec, SigmaSpec};
 use sensaug_core::estimator::GainEstimator as CoreGain;
 use sensaug_core::estimator::TrajectoryEstimator as CoreTrajectory;
 use sensaug_core::estimator::{EstimatorError, ExtendedFilterConfig, HandleModel};
@@ -80,10 +81,25 @@ pub fn run_batch<'py>(
     Ok((xs, pd))
 }
 
+/// The handle model from the constructors' keywords `mass`, `damping`,
+/// `dt`: the schema's `[plant]` defaults (`sensaug_config::PlantSpec`)
+/// where one is not given, so the binding keeps no defaults of its own.
+fn handle_model(
+    mass: &Bound<'_, PyAny>,
+    damping: Opt<'_, '_>,
+    dt: Opt<'_, '_>,
+) -> PyResult<HandleModel> {
+    let d = PlantSpec::default();
+    Ok(HandleModel {
+        mass: real(mass, "mass")?,
+        damping: real_or(damping, "damping", d.damping)?,
+        dt_s: real_or(dt, "dt", d.dt_s)?,
+    })
+}
+
 /// The keywords every estimator constructor shares, converted with their
-/// names: the handle model (`mass`, `damping`, `dt`) and the sigma points.
-/// The optional ones come as `None` when not given (their defaults are
-/// here, and in the classes' text signatures).
+/// names: the handle model (`mass`, `damping`, `dt`) and the sigma points
+/// (`alpha`, `beta`, `kappa`; the schema's `[robot.sigma]` defaults).
 struct Common {
     model: HandleModel,
     sigma: MerweParams,
@@ -92,16 +108,13 @@ struct Common {
 impl Common {
     fn new(mass: &Bound<'_, PyAny>, optional: [Opt<'_, '_>; 5]) -> PyResult<Self> {
         let [damping, dt, alpha, beta, kappa] = optional;
+        let d = SigmaSpec::default();
         Ok(Common {
-            model: HandleModel {
-                mass: real(mass, "mass")?,
-                damping: real_or(damping, "damping", 0.0)?,
-                dt_s: real_or(dt, "dt", 1e-3)?,
-            },
+            model: handle_model(mass, damping, dt)?,
             sigma: MerweParams {
-                alpha: real_or(alpha, "alpha", 1.0)?,
-                beta: real_or(beta, "beta", 2.0)?,
-                kappa: real_or(kappa, "kappa", 0.0)?,
+                alpha: real_or(alpha, "alpha", d.alpha)?,
+                beta: real_or(beta, "beta", d.beta)?,
+                kappa: real_or(kappa, "kappa", d.kappa)?,
             },
         })
     }
@@ -290,11 +303,7 @@ impl GoalIntegrator {
         window_n0: Opt<'_, '_>,
         hold_max_s: Opt<'_, '_>,
     ) -> PyResult<Self> {
-        let model = HandleModel {
-            mass: real(mass, "mass")?,
-            damping: real_or(damping, "damping", 0.0)?,
-            dt_s: real_or(dt, "dt", 1e-3)?,
-        };
+        let model = handle_model(mass, damping, dt)?;
         let d = ChannelConfig::default();
         let cfg = GoalIntegratorConfig {
             x0: vector(x0, "x0")?,

@@ -4,6 +4,7 @@ use crate::convert::{py_err, real, real_or, slice, Opt};
 use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray1};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+use sensaug_config::{PlantSpec, WorldSpec};
 use sensaug_core::plant::{Plant as CorePlant, PlantParams, PlantState};
 use sensaug_core::replay::simulate;
 
@@ -33,16 +34,18 @@ impl Plant {
         x0: Opt<'_, '_>,
         v0: Opt<'_, '_>,
     ) -> PyResult<Self> {
+        // Defaults: the schema's `[plant]` and `[world]` ones.
+        let (d, w) = (PlantSpec::default(), WorldSpec::default());
         let params = PlantParams {
             mass: real(mass, "mass")?,
-            damping: real_or(damping, "damping", 0.0)?,
-            coulomb: real_or(coulomb, "coulomb", 0.0)?,
-            dt_s: real_or(dt_s, "dt_s", 1e-3)?,
+            damping: real_or(damping, "damping", d.damping)?,
+            coulomb: real_or(coulomb, "coulomb", d.coulomb)?,
+            dt_s: real_or(dt_s, "dt_s", d.dt_s)?,
         };
         let mut inner = CorePlant::new(params).map_err(py_err)?;
         let state = PlantState {
-            x: real_or(x0, "x0", 0.0)?,
-            v: real_or(v0, "v0", 0.0)?,
+            x: real_or(x0, "x0", w.x0)?,
+            v: real_or(v0, "v0", w.v0)?,
         };
         for (value, name) in [(state.x, "x0"), (state.v, "v0")] {
             if !value.is_finite() {

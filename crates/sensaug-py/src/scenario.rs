@@ -218,38 +218,12 @@ fn config_schema() -> String {
     serde_json::to_string_pretty(sensaug_config::json_schema()).expect("a schema is JSON")
 }
 
-/// Bytes this process can still take: `MemAvailable` of `/proc/meminfo`,
-/// and under a cgroup (v2) memory limit what is left of it; `None` where
-/// neither can be read (not Linux).
-fn available_bytes() -> Option<u64> {
-    let meminfo = std::fs::read_to_string("/proc/meminfo").ok();
-    let available = meminfo.as_deref().and_then(|text| {
-        let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
-        let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-        Some(kib.saturating_mul(1024))
-    });
-    let cgroup = std::fs::read_to_string("/proc/self/cgroup")
-        .ok()
-        .and_then(|text| {
-            let path = text.lines().find_map(|l| l.strip_prefix("0::"))?.to_owned();
-            let dir = Path::new("/sys/fs/cgroup").join(path.trim_start_matches('/'));
-            let read = |f: &str| std::fs::read_to_string(dir.join(f)).ok();
-            let max: u64 = read("memory.max")?.trim().parse().ok()?; // "max": no limit
-            let current: u64 = read("memory.current")?.trim().parse().ok()?;
-            Some(max.saturating_sub(current))
-        });
-    match (available, cgroup) {
-        (Some(a), Some(c)) => Some(a.min(c)),
-        (a, c) => a.or(c),
-    }
-}
-
 /// The memory (bytes) a simulated trial's log may take here: half of what
 /// is available (`sensaug_core::world::log_budget`), or `None` (no check)
 /// where that cannot be read.
 #[pyfunction]
 fn available_memory() -> Option<u64> {
-    available_bytes().map(log_budget)
+    sensaug_log::available_bytes().map(log_budget)
 }
 
 /// Runs one trial of a resolved configuration. Returns `(records, summary,
