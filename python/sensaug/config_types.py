@@ -362,6 +362,13 @@ class RigCia402Config:
     Hi5).
     """
 
+    freshness: Literal["auto", "sync_counter_echo", "standard"] = 'auto'
+    """How the master tells a TPDO answering this tick's SYNC from a late or replayed one: "auto"
+    (the SYNC counter echo 0x2000 if the drive's dictionary has it, else standard),
+    "sync_counter_echo" (a drive without 0x2000 is refused) or "standard" (judged from the
+    bus: a TPDO received after SYNC k and before SYNC k+1 answers SYNC k; a replay inside that
+    window goes unseen, docs/safety.md). The statistics' drive.freshness says which ran.
+    """
     heartbeat_timeout_ms: int = 100
     """The master's heartbeat consumer time for the drive (ms): a drive heartbeat missing this
     long stops the run with an emergency stop ("drive fault: the drive's heartbeat lost"). The
@@ -414,7 +421,7 @@ class RigConfig:
 
     can: str = 'udp:47100'
     """CAN link: "udp:<port>" (loopback virtual bus, port 1..65535) or "socketcan:<ifname>"."""
-    cia402: RigCia402Config = field(default_factory=lambda: RigCia402Config.from_dict({'heartbeat_timeout_ms': 100}))
+    cia402: RigCia402Config = field(default_factory=lambda: RigCia402Config.from_dict({'freshness': 'auto', 'heartbeat_timeout_ms': 100}))
     """CiA 402 profile settings."""
     drive: Literal["hi5", "cia402"] = 'hi5'
     """Drive profile: "hi5" or "cia402" (its units are read from the drive over SDO; its
@@ -771,7 +778,7 @@ class ScenarioConfig:
     """The partner: the virtual human (simulation, and inside the rig loop)."""
     plant: PlantConfig = field(default_factory=lambda: PlantConfig.from_dict({'coulomb': 0.0, 'damping': 0.0, 'dt_s': 0.001, 'mass': 0.0035}))
     """The handle as the controller models it."""
-    rig: RigConfig = field(default_factory=lambda: RigConfig.from_dict({'can': 'udp:47100', 'cia402': {'heartbeat_timeout_ms': 100}, 'drive': 'hi5', 'feedback_step_margin_rad': 0.01, 'feedback_timeout_ms': 20.0, 'feedback_velocity_margin_rad_s': 0.05, 'log': 'out/rig_log.csv', 'max_estimator_errors': 10, 'max_feedback_velocity_rad_s': 8.0, 'max_missing_feedback_fraction': 0.5, 'max_stale_feedback_ticks': 100, 'node_id': 1, 'position_unit': 'deg', 'realtime': {'mlockall': True, 'spin_us': 0}, 'ring_capacity': 65536, 'stats': 'out/rig_stats.json', 'stop_rest_velocity_rad_s': 0.01, 'stop_time_constant_s': 0.004, 'stop_time_limit_s': 0.2, 'stop_torque_limit_nm': 3.0, 'torque_limit_nm': 3.0, 'virtual_human': True, 'watchdog_ms': 50}))
+    rig: RigConfig = field(default_factory=lambda: RigConfig.from_dict({'can': 'udp:47100', 'cia402': {'freshness': 'auto', 'heartbeat_timeout_ms': 100}, 'drive': 'hi5', 'feedback_step_margin_rad': 0.01, 'feedback_timeout_ms': 20.0, 'feedback_velocity_margin_rad_s': 0.05, 'log': 'out/rig_log.csv', 'max_estimator_errors': 10, 'max_feedback_velocity_rad_s': 8.0, 'max_missing_feedback_fraction': 0.5, 'max_stale_feedback_ticks': 100, 'node_id': 1, 'position_unit': 'deg', 'realtime': {'mlockall': True, 'spin_us': 0}, 'ring_capacity': 65536, 'stats': 'out/rig_stats.json', 'stop_rest_velocity_rad_s': 0.01, 'stop_time_constant_s': 0.004, 'stop_time_limit_s': 0.2, 'stop_torque_limit_nm': 3.0, 'torque_limit_nm': 3.0, 'virtual_human': True, 'watchdog_ms': 50}))
     """The real-time loop and its CAN link (`sensaug-rt`; the simulation ignores it)."""
     robot: RobotConfig = field(default_factory=lambda: RobotConfig.from_dict({'gain_window_s': 8.0, 'integrate': True, 'q_pos': 1.0, 'q_vel': 0.0, 'seed': 1, 'sigma': {'alpha': 1.0, 'beta': 2.0, 'kappa': 0.0}, 'stage1': {'P0': [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0], 'Q': [0.01, 0.01, 0.01, 0.01, 0.01, 0.01], 'R': [1e-07, 1e-07, 1e-07], 'gains0': [0.0, 0.0, 0.0]}, 'stage2': {'P0': [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0], 'Q': [0.01, 0.01, 0.01, 0.01, 0.01, 0.01], 'R': [1e-07, 1e-07, 1e-07, 1e-07, 1e-07], 'gains0': [0.0, 0.0, 0.0]}, 'stage3': {'P0': [0.01, 0.01], 'Q': [0.01, 0.01], 'R_sensor': [1e-07, 1e-07], 'channel': {'gate': 4.0, 'hold_max_s': 0.25, 'window_n0': 80.0}}, 'torque_limit': 1000.0}))
     """The robot's controller and estimators."""

@@ -30,7 +30,7 @@ import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Optional, Sequence
+from typing import Any, Optional, Sequence
 
 import numpy as np
 
@@ -219,6 +219,14 @@ def drive_profile_name(drive: str) -> str:
     return str(getattr(importlib.import_module(_drive_module(drive)), "PROFILE_NAME", drive))
 
 
+def standard_drive(cfg: Any) -> bool:
+    """Whether the virtual rig simulates a standard CiA 402 drive (no SYNC
+    counter echo 0x2000: ``sensaug-virtual-cia402 --standard``): when the
+    configuration runs the CiA 402 profile with ``rig.cia402.freshness =
+    "standard"`` (docs/cia402.md, "Freshness without 0x2000")."""
+    return cfg.rig.drive == "cia402" and cfg.rig.cia402.freshness == "standard"
+
+
 def start_drive(
     port: int,
     *,
@@ -226,6 +234,7 @@ def start_drive(
     extra: list[str] | None = None,
     drive: str = "hi5",
     fifo_priority: int | None = None,
+    standard: bool = False,
 ) -> subprocess.Popen:
     """The virtual drive of profile ``drive`` ("hi5" or "cia402", registered
     under :data:`VIRTUAL_DRIVE_ENTRY_POINTS`) as a subprocess on the loopback bus at ``port``;
@@ -243,6 +252,7 @@ def start_drive(
         f"{duration_s:g}",
         "-q",
         *([] if fifo_priority is None else ["--fifo-priority", str(fifo_priority)]),
+        *(["--standard"] if standard else []),
         *(extra or []),
     ]
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -324,7 +334,7 @@ def run_virtual_rig(
     watch = None
     try:
         drive = start_drive(port, duration_s=budget + 5.0, drive=cfg.rig.drive,
-                            fifo_priority=cfg.rig.realtime.fifo_priority)
+                            fifo_priority=cfg.rig.realtime.fifo_priority, standard=standard_drive(cfg))
         time.sleep(0.5)
         if display is not None:
             feed = [*feed, _show_trial(display, cfg, out)]

@@ -102,6 +102,8 @@ case("valid_drive_hi5", setting("rig", "drive", '"hi5"'), "valid")
 case("valid_drive_cia402", setting("rig", "drive", '"cia402"'), "valid")
 case("valid_drive_cia402_node_15", full({"rig": 'drive = "cia402"\nnode_id = 15\n'}), "valid")
 case("cia402_node_0", full({"rig": 'drive = "cia402"\nnode_id = 0\n'}), "rig.node_id")
+case("valid_cia402_freshness_standard", full({"rig": 'drive = "cia402"\n', "rig.cia402": 'freshness = "standard"\n'}), "valid")
+case("cia402_freshness_unknown", full({"rig": 'drive = "cia402"\n', "rig.cia402": 'freshness = "counter"\n'}), "rig.cia402.freshness")
 case("valid_harmonics_defaults", BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
      '{ kind = "harmonics", amplitude = 1e-4, omega_rad_s = 1.0 }', 1), "valid")
 case("valid_sampled", BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',

@@ -8,7 +8,7 @@
 //! description), its line in [`RigSettings::new`] here, and its use in
 //! `sensaug-rt` (docs/realtime.md, "Adding a rig setting").
 
-use crate::schema::{DriveProfile, RigSpec, ScenarioSpec};
+use crate::schema::{Cia402Freshness, DriveProfile, RigSpec, ScenarioSpec};
 use sensaug_core::agent::HumanLike;
 use sensaug_core::plant::PlantParams;
 use sensaug_core::world::PartnerConfig;
@@ -57,6 +57,8 @@ pub struct RigSettings {
     pub watchdog_ms: u16,
     /// CiA 402: the drive's heartbeat is lost after this long (ms).
     pub drive_heartbeat_timeout_ms: u32,
+    /// CiA 402: how TPDOs are matched to SYNCs (`rig.cia402.freshness`).
+    pub cia402_freshness: Cia402Freshness,
     /// Feedback timeout (ms).
     pub feedback_timeout_ms: f64,
     /// Feedback older than this many ticks trips the timeout.
@@ -137,6 +139,7 @@ impl RigSettings {
             torque_limit_nm: rig.torque_limit_nm,
             watchdog_ms: rig.watchdog_ms as u16,
             drive_heartbeat_timeout_ms: rig.cia402.heartbeat_timeout_ms,
+            cia402_freshness: rig.cia402.freshness,
             feedback_timeout_ms: rig.feedback_timeout_ms,
             feedback_timeout_ticks: (rig.feedback_timeout_ms * 1e-3 / dt_s).ceil() as u64,
             stop: StopSettings {

@@ -781,12 +781,43 @@ pub struct Cia402Spec {
     /// within a small multiple of it).
     #[schemars(range(min = 10, max = 600))]
     pub heartbeat_timeout_ms: u32,
+    /// How the master tells a TPDO answering this tick's SYNC from a late or
+    /// replayed one: "auto" (the SYNC counter echo 0x2000 if the drive's
+    /// dictionary has it, else standard), "sync_counter_echo" (a drive
+    /// without 0x2000 is refused) or "standard" (judged from the bus: a TPDO
+    /// received after SYNC k and before SYNC k+1 answers SYNC k; a replay
+    /// inside that window goes unseen, docs/safety.md). The statistics'
+    /// drive.freshness says which ran.
+    pub freshness: Cia402Freshness,
 }
 
 impl Default for Cia402Spec {
     fn default() -> Self {
         Cia402Spec {
             heartbeat_timeout_ms: 100,
+            freshness: Cia402Freshness::Auto,
+        }
+    }
+}
+
+/// `rig.cia402.freshness` (docs/cia402.md, "Freshness").
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Cia402Freshness {
+    /// The echo if the drive has 0x2000, else standard (set-up reads it).
+    Auto,
+    /// The SYNC counter echo 0x2000; a drive without it is refused.
+    SyncCounterEcho,
+    /// Judged from the bus, whether or not the drive has 0x2000.
+    Standard,
+}
+
+impl From<Cia402Freshness> for sensaug_bridge::cia402::FreshnessSetting {
+    fn from(f: Cia402Freshness) -> Self {
+        match f {
+            Cia402Freshness::Auto => Self::Auto,
+            Cia402Freshness::SyncCounterEcho => Self::SyncCounterEcho,
+            Cia402Freshness::Standard => Self::Standard,
         }
     }
 }

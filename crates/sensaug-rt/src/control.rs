@@ -21,7 +21,7 @@ use sensaug_bridge::{Frame, Transport};
 /// when it is resolved (`sensaug_config::Resolved::rig`).
 pub use sensaug_config::rig::{RigSettings as LoopSettings, StopSettings, QUIET_WATCHDOG_PERIODS};
 use sensaug_core::agent::{guard_torque, Guard, PartnerLaw};
-use sensaug_core::controller::{Robot, RobotTick};
+use sensaug_core::controller::{applied_torque, Robot, RobotTick};
 use sensaug_core::plant::{Plant, PlantParams, PlantState};
 use sensaug_core::protocol::{Protocol, Sample};
 use sensaug_core::ScenarioError;
@@ -264,6 +264,9 @@ pub struct Rig<'a> {
     can: CanCounters,
     deadline_misses: u64,
     torque_clamped: u64,
+    /// The drive's torque resolution (N m; [`DriveLink::torque_step_nm`],
+    /// known after the enable): commands are rounded to it.
+    torque_step_nm: f64,
     non_finite: u64,
     ticks_run: u64,
     /// The first implausible feedback.
@@ -321,6 +324,7 @@ impl<'a> Rig<'a> {
             can: CanCounters::default(),
             deadline_misses: 0,
             torque_clamped: 0,
+            torque_step_nm: f64::NAN,
             non_finite: 0,
             ticks_run: 0,
             implausible: None,
@@ -354,6 +358,10 @@ impl<'a> Rig<'a> {
             .map_err(|e| StartError::Drive(e.to_string()))?;
         // Commands seen while the link alone read the bus: tick 0 stops on them.
         rig.can.foreign_commands += rig.link.foreign_commands_in_setup() - seen_connecting;
+        // The estimators and the log see the torque as the drive applies it.
+        rig.torque_step_nm = rig.link.torque_step_nm();
+        rig.robot
+            .set_torque_step(Some(rig.torque_step_nm / settings.rad_per_unit));
         rig.times.enable_ns = instant_ns(times.enable);
         rig.times.first_command_ns = instant_ns(times.first_command);
         // The enable's feedback: the first one, seen by tick 0.
@@ -385,7 +393,14 @@ impl<'a> Rig<'a> {
     /// the loop watches (foreign commands, undecodable and discarded
     /// frames) and checks feedback against physics.
     fn absorb(&mut self, frame: &Frame, tick: u64) {
-        match self.link.absorb(frame) {
+        let received = self.transport.last_rx_time();
+        let absorbed = self.link.absorb_received(frame, received);
+        self.absorbed(absorbed, tick);
+    }
+
+    /// What the link made of a frame (or settled after a drain).
+    fn absorbed(&mut self, absorbed: Absorbed, tick: u64) {
+        match absorbed {
             Absorbed::Feedback {
                 position_rad,
                 velocity_rad_s,
@@ -411,10 +426,12 @@ impl<'a> Rig<'a> {
     /// and against the one before it (`steps` drive steps earlier, 0:
     /// unknown; [`FeedbackLimits::check`]), then kept as the previous one.
     fn take_feedback(&mut self, reading: Reading, steps: u32, tick: u64) {
+        let steps_exact = self.link.steps_exact();
         let prev = self.drive.last_feedback.map(|(reading, at)| Previous {
             reading,
             ticks_apart: tick.saturating_sub(at),
             steps,
+            steps_exact,
         });
         if let Err(why) = self.feedback_limits.check(reading, prev) {
             self.implausible_feedback(why);
@@ -430,16 +447,21 @@ impl<'a> Rig<'a> {
 
     /// Drains every frame already received, without waiting
     /// ([`Transport::recv_ready`]: one system call on the UDP bus).
+    /// Then the link's settled feedback, if it holds one back until the
+    /// drain is over ([`DriveLink::settle`]: CiA 402's standard mode).
     fn drain(&mut self, tick: u64) {
         loop {
             match self.transport.recv_ready() {
                 Ok(Some(f)) => self.absorb(&f, tick),
-                Ok(None) => return,
+                Ok(None) => break,
                 Err(_) => {
                     self.can.recv_errors += 1;
-                    return;
+                    break;
                 }
             }
+        }
+        if let Some(settled) = self.link.settle() {
+            self.absorbed(settled, tick);
         }
     }
 
@@ -634,6 +656,11 @@ impl<'a> Rig<'a> {
         // Model torque -> N m: the same factor as position.
         let unit = self.settings.rad_per_unit;
         let (torque_nm, g) = guard_torque((robot.u + u_h) * unit, self.settings.torque_limit_nm);
+        let torque_nm = applied_torque(
+            torque_nm,
+            self.torque_step_nm,
+            self.settings.torque_limit_nm,
+        );
         match g {
             Guard::Passed => {}
             Guard::Clamped => self.torque_clamped += 1,

@@ -329,6 +329,12 @@ pub struct Previous {
     /// Drive steps (commands answered) between the two, from their
     /// sequence numbers; 0 when unknown (then `ticks_apart`, at least 1).
     pub steps: u32,
+    /// `steps` is exact (sequence numbers, the SYNC counter echo); false
+    /// for CiA 402's standard mode, where a TPDO is placed on a SYNC by its
+    /// arrival time and a late answer looks like the next SYNC's: the
+    /// drive steps between two feedbacks are then `steps` or one more or
+    /// fewer ([`DriveLink::steps_exact`](sensaug_bridge::drive_link::DriveLink::steps_exact)).
+    pub steps_exact: bool,
 }
 
 /// What physics allows a feedback (`[rig]` and `[plant]`, docs/safety.md).
@@ -392,18 +398,28 @@ impl FeedbackLimits {
         } else {
             p.ticks_apart.max(1)
         };
-        let interval_s = steps as f64 * self.dt_s;
         let reported_rad_s = 0.5 * (p.reading.v_rad_s + now.v_rad_s);
-        let implied_rad_s = (now.x_rad - p.reading.x_rad) / interval_s;
-        let allowed_rad_s = self.max_velocity_mismatch_rad_s(interval_s);
-        if !within(reported_rad_s - implied_rad_s, allowed_rad_s) {
-            return Err(Implausible::Inconsistent {
-                reported_rad_s,
-                implied_rad_s,
-                allowed_rad_s,
-            });
+        let consistent_over = |steps: u64| {
+            let interval_s = steps as f64 * self.dt_s;
+            let implied_rad_s = (now.x_rad - p.reading.x_rad) / interval_s;
+            let allowed_rad_s = self.max_velocity_mismatch_rad_s(interval_s);
+            within(reported_rad_s - implied_rad_s, allowed_rad_s)
+                .then_some(())
+                .ok_or(Implausible::Inconsistent {
+                    reported_rad_s,
+                    implied_rad_s,
+                    allowed_rad_s,
+                })
+        };
+        let exact = consistent_over(steps);
+        if exact.is_ok() || p.steps_exact {
+            return exact;
         }
-        Ok(())
+        // Standard CiA 402: one step more or fewer (a late answer).
+        if consistent_over(steps + 1).is_ok() || (steps > 1 && consistent_over(steps - 1).is_ok()) {
+            return Ok(());
+        }
+        exact
     }
 }
 
@@ -911,11 +927,42 @@ mod tests {
             reading: Reading { x_rad, v_rad_s },
             ticks_apart,
             steps,
+            steps_exact: true,
         })
     }
 
     fn at(x_rad: f64, v_rad_s: f64) -> Reading {
         Reading { x_rad, v_rad_s }
+    }
+
+    #[test]
+    fn standard_cia402_steps_may_be_one_off_but_a_doubled_velocity_is_still_refused() {
+        // 1 rad/s, 2 ms of motion between two feedbacks placed 1 SYNC apart
+        // (a late answer): refused with exact steps, taken when inexact.
+        let inexact = |p: Option<Previous>| {
+            p.map(|p| Previous {
+                steps_exact: false,
+                ..p
+            })
+        };
+        let late = prev(0.0, 1.0, 1, 1);
+        assert!(LIMITS.check(at(0.002, 1.0), late).is_err());
+        assert!(LIMITS.check(at(0.002, 1.0), inexact(late)).is_ok());
+        // One step fewer (the previous one was the late one).
+        assert!(LIMITS
+            .check(at(0.002, 1.0), inexact(prev(0.0, 1.0, 3, 3)))
+            .is_ok());
+        // A velocity reported twice over, 1 step apart: neither 1 nor 2
+        // steps explain it (0 is not a step).
+        assert!(LIMITS
+            .check(at(0.001, 2.0), inexact(prev(0.0, 2.0, 1, 1)))
+            .is_err());
+        // The price (docs/safety.md): 2 steps apart, a doubled velocity
+        // looks like 1 step; the echo mode refuses it.
+        assert!(LIMITS.check(at(0.004, 4.0), prev(0.0, 4.0, 2, 2)).is_err());
+        assert!(LIMITS
+            .check(at(0.004, 4.0), inexact(prev(0.0, 4.0, 2, 2)))
+            .is_ok());
     }
 
     #[test]
