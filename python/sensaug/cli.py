@@ -566,6 +566,14 @@ def build_parser() -> argparse.ArgumentParser:
     se.add_argument("--simulate", action="store_true",
                     help="simulate every trial (the virtual human; a rehearsal of the plan, minutes not hours)")
     sub.add_parser("display", add_help=False, help="the participant's display alone (sensaug display --help)")
+    dr = sub.add_parser("doctor", help="check this host for a rig run: CAN interface, real-time set-up, drive "
+                                       "(docs/hardware.md; exit 1 when a check fails)")
+    dr.add_argument("config", nargs="?", type=Path, default=None,
+                    help="the rig configuration (default: the hi5-rig preset)")
+    dr.add_argument("--can", default=None, help="the CAN link to check instead of rig.can (socketcan:can0, udp:PORT)")
+    dr.add_argument("--bitrate", type=int, default=1_000_000, help="the bitrate expected, bit/s (default 1000000)")
+    dr.add_argument("--sdo", action="store_true",
+                    help="also ask the drive at rig.node_id (CiA 402: an SDO read of 0x1000; sends one frame)")
     dc = sub.add_parser("docs", help="list the documentation pages, or print one (docs/NAME.md)")
     dc.add_argument("page", nargs="?", default=None, help="a page's name, e.g. logs or docs/logs.md")
     return parser
@@ -587,6 +595,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.command == "docs":
         return docs(args.page)
+    if args.command == "doctor":
+        from sensaug import doctor
+
+        return doctor.main(args.config, args.can, args.bitrate, args.sdo)
     try:
         if args.command == "demo":
             cfg = ScenarioConfig.from_toml(args.config) if args.config else presets.hi5_rig()
