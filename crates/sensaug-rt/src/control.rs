@@ -740,6 +740,13 @@ impl<'a> Rig<'a> {
         }
     }
 
+    /// The step the robot's commands were rounded to (model units; the
+    /// drive's torque step over rad per unit), None before the enable.
+    pub fn robot_torque_step(&self) -> Option<f64> {
+        let step = self.torque_step_nm / self.settings.rad_per_unit;
+        step.is_finite().then_some(step)
+    }
+
     /// The drive's status as the loop last sensed it (the log's end
     /// status: "fault" after a drive fault stopped the run).
     pub fn drive_status(&self) -> DriveStatus {
