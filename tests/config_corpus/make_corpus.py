@@ -407,6 +407,8 @@ case("range_wall_damping_over_half_per_tick", setting("rig.range", "wall_damping
      "rig.range.wall_damping_nm_s_per_deg")
 case("range_speed_damping_nan", setting("rig.range", "speed_damping_nm_s_per_deg", "nan"),
      "rig.range.speed_damping_nm_s_per_deg")
+case("range_wall_stiffness_inf", setting("rig.range", "wall_stiffness_nm_per_deg", "inf"),
+     "rig.range.wall_stiffness_nm_per_deg")
 case("range_unknown_field", setting("rig.range", "soft_max", "30.0"), "rig.range.soft_max")
 case("range_wall_at_10_ms", full({"plant": "dt_s = 0.01\n",
      "rig": "watchdog_ms = 200\nfeedback_timeout_ms = 100.0\nstop_time_constant_s = 0.02\n",

@@ -284,10 +284,17 @@ pub fn wall_spectral_radius(mass: f64, stiffness: f64, damping: f64, dt_s: f64) 
         0.0,
         0.0,
     );
-    a.complex_eigenvalues()
-        .iter()
-        .map(|z| z.re.hypot(z.im))
-        .fold(0.0, f64::max)
+    // A bounded Schur iteration: a matrix it cannot reduce (non-finite
+    // entries) counts as not settling, never as a hang.
+    match nalgebra::linalg::Schur::try_new(a, f64::EPSILON, 10_000) {
+        Some(schur) => schur
+            .complex_eigenvalues()
+            .iter()
+            .map(|z| z.re.hypot(z.im))
+            .map(|r| if r.is_nan() { f64::INFINITY } else { r })
+            .fold(0.0, f64::max),
+        None => f64::INFINITY,
+    }
 }
 
 /// The cross-field rules of `rig.range` (the fields' own bounds are the
@@ -298,6 +305,22 @@ pub fn wall_spectral_radius(mass: f64, stiffness: f64, damping: f64, dt_s: f64) 
 pub(crate) fn check_range(rig: &RigSpec, mass: f64, dt_s: f64) -> Result<(), ConfigError> {
     let r = &rig.range;
     let err = |field: &str, msg: String| Err(ConfigError::new(format!("rig.range.{field}"), msg));
+    // The optional gains: null in the JSON the bounds are checked on, so a
+    // nan or inf reaches here.
+    for (field, value) in [
+        ("wall_stiffness_nm_per_deg", r.wall_stiffness_nm_per_deg),
+        ("wall_damping_nm_s_per_deg", r.wall_damping_nm_s_per_deg),
+        ("speed_damping_nm_s_per_deg", r.speed_damping_nm_s_per_deg),
+    ] {
+        if value.is_some_and(|v| !v.is_finite()) {
+            return err(
+                field,
+                "must be a finite number (nan and inf are not allowed); write a number, or leave \
+                 it out for the plant's default"
+                    .into(),
+            );
+        }
+    }
     if r.soft_min_deg >= r.soft_max_deg {
         return err(
             "soft_max_deg",

@@ -362,6 +362,11 @@ mod tests {
             assert!((alone - 0.941).abs() < 1e-3, "{mass} {dt}: {alone}");
             assert!((both - 0.912).abs() < 1e-3, "{mass} {dt}: {both}");
         }
+        // Non-finite gains never settle, and never hang the check.
+        for bad in [f64::NAN, f64::INFINITY] {
+            assert!(wall_spectral_radius(MASS, bad, 0.4, DT) >= 1.0);
+            assert!(wall_spectral_radius(MASS, 50.0, bad, DT) >= 1.0);
+        }
         // A wall ten times stiffer than the default does not settle.
         let (k, b) = default_wall(MASS, DT);
         assert!(wall_spectral_radius(MASS, 10.0 * k, b, DT) > 1.0);
