@@ -197,11 +197,15 @@ def rig_demo(
     if run.interrupted:
         print(f"INTERRUPTED by the user (Ctrl-C) after {ran_s:.1f} s of {config.duration_s:g} s; "
               f"sensaug-rt stopped the drive: {s['stop_reason']}, {s['ticks']} ticks\n")
+    elif run.stop_key is not None:
+        print(f"STOPPED by the stop key ({run.stop_key['key']}) after {ran_s:.1f} s of {config.duration_s:g} s; "
+              f"sensaug-rt stopped the drive: {s['stop_reason']}, {s['ticks']} ticks\n")
     else:
         print(f"sensaug-rt: {s['ticks']} ticks, stop: {s['stop_reason']}, exit {run.returncode}; "
               f"virtual drive exit {run.drive_returncode}\n")
     done = run.completed_phases()
-    why = "interrupted by the user" if run.interrupted else f"the run stopped: {s['stop_reason']}"
+    why = ("interrupted by the user" if run.interrupted
+           else "stopped by the stop key" if run.stop_key is not None else f"the run stopped: {s['stop_reason']}")
 
     def cut(kind: str) -> str:
         m = run.log["phase"] == run.log.phase_code(kind)

@@ -631,6 +631,12 @@ impl<'a> Rig<'a> {
             foreign_command: self.can.foreign_commands > 0,
             implausible: self.implausible,
             log_failed,
+            out_of_range: crate::range::out_of_range(
+                &self.settings.range,
+                self.drive.sample.position_rad,
+                self.drive.sample.velocity_rad_s,
+                k == 0,
+            ),
             degraded: degradation(&health, &self.degraded_limits),
             signal: match stop.load(Ordering::Relaxed) {
                 0 => None,
@@ -653,9 +659,19 @@ impl<'a> Rig<'a> {
         let (u_h, _) = self
             .partner
             .torque(seen.x, seen.v, sample.tau, sample.tau_h);
-        // Model torque -> N m: the same factor as position.
+        // Model torque -> N m: the same factor as position. The range's
+        // ramp, wall and speed damping act on the handle as the virtual
+        // human sees it (measured, or predicted on a tick without fresh
+        // feedback), before the limit (`crate::range::command_nm`).
         let unit = self.settings.rad_per_unit;
-        let (torque_nm, g) = guard_torque((robot.u + u_h) * unit, self.settings.torque_limit_nm);
+        let (torque_nm, g) = crate::range::command_nm(
+            &self.settings.range,
+            seen.x * unit,
+            seen.v * unit,
+            robot.u * unit,
+            u_h * unit,
+            self.settings.torque_limit_nm,
+        );
         let torque_nm = applied_torque(
             torque_nm,
             self.torque_step_nm,

@@ -7,6 +7,7 @@
 //! `docs/safety.md` lists every fault, its safe state and the measured time
 //! to reach it.
 
+use crate::range::OutOfRange;
 use sensaug_bridge::drive_link::{DriveAlarm, ResetReport};
 use std::fmt;
 
@@ -198,12 +199,16 @@ pub enum StopReason {
     /// The log writer failed (e.g. a full disk): the controlled stop, drive
     /// disabled; the log keeps what was written.
     LogWriteFailed,
+    /// The handle beyond a hard limit or the hard speed, or outside the
+    /// soft window at the start (`rig.range`): the controlled stop.
+    OutOfRange(OutOfRange),
 }
 
 impl StopReason {
     /// The process exit code (docs/realtime.md): 0 completed; 1 signal,
     /// feedback timeout or drive fault; 4 foreign command; 5 implausible
-    /// feedback; 6 degraded; 7 log write failure; 8 drive reset. (2 is a
+    /// feedback; 6 degraded; 7 log write failure; 8 drive reset; 9 out of
+    /// range (a hard limit or the hard speed). (2 is a
     /// configuration or set-up error, 3 another controller seen before
     /// enabling.)
     pub fn exit_code(&self) -> u8 {
@@ -215,6 +220,7 @@ impl StopReason {
             StopReason::Degraded(_) => 6,
             StopReason::LogWriteFailed => 7,
             StopReason::DriveReset(_) => 8,
+            StopReason::OutOfRange(_) => 9,
         }
     }
 
@@ -237,6 +243,7 @@ impl StopReason {
             | StopReason::DriveFault(DriveAlarm::HeartbeatLost { .. }) => StopKind::EmergencyStop,
             StopReason::Signal(_)
             | StopReason::LogWriteFailed
+            | StopReason::OutOfRange(_)
             | StopReason::Degraded(Degradation::Estimator { .. }) => StopKind::Controlled,
             StopReason::DriveFault(_)
             | StopReason::ImplausibleFeedback(_)
@@ -299,6 +306,7 @@ impl fmt::Display for StopReason {
                 f,
                 "log write failed ({safe}; the log keeps what was written)"
             ),
+            StopReason::OutOfRange(why) => write!(f, "range limit: {why} ({safe})"),
         }
     }
 }
@@ -506,6 +514,8 @@ pub struct Checks {
     pub implausible: Option<Implausible>,
     /// The log writer failed.
     pub log_failed: bool,
+    /// The handle out of its range (`rig.range`), if it is.
+    pub out_of_range: Option<OutOfRange>,
     /// The run crossed a degraded-run threshold.
     pub degraded: Option<Degradation>,
     /// The terminating signal received, if any (the stop flag).
@@ -521,10 +531,12 @@ pub struct Checks {
 
 impl Checks {
     /// Why the loop must stop after running, if it must: implausible
-    /// feedback, then a log failure, then a degraded run, then a signal.
+    /// feedback, then the handle out of range, then a log failure, then a
+    /// degraded run, then a signal.
     fn stop_reason(&self) -> Option<StopReason> {
         self.implausible
             .map(StopReason::ImplausibleFeedback)
+            .or(self.out_of_range.map(StopReason::OutOfRange))
             .or(self.log_failed.then_some(StopReason::LogWriteFailed))
             .or(self.degraded.map(StopReason::Degraded))
             .or(self.signal.map(StopReason::Signal))
@@ -612,6 +624,7 @@ mod tests {
             foreign_command: false,
             implausible: None,
             log_failed: false,
+            out_of_range: None,
             degraded: None,
             signal: None,
             protocol_done: false,
