@@ -37,6 +37,7 @@ CLASS = {
     "GainDriftSpec": "GainDriftConfig",
     "RealtimeSpec": "RealtimeConfig",
     "Cia402Spec": "RigCia402Config",
+    "RangeSpec": "RigRangeConfig",
     "RigSpec": "RigConfig",
     "DisplaySpec": "DisplayConfig",
     "SessionSpec": "SessionConfig",

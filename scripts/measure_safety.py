@@ -9,7 +9,8 @@ the same code the tests run, with their assertions) on the drive profiles it
 names, plus SIGTERM, a dead drive and a killed controller, the controlled
 stop requested 10 ms after a target step (8 and 30 deg targets, the virtual
 human on and off, both profiles: the handle's travel and speeds on the
-drive's own record), and STARTS (default 30) consecutive starts of a short
+drive's own record), the experimenter's stop key typed into `sensaug rig`'s
+terminal (a pseudo-terminal), and STARTS (default 30) consecutive starts of a short
 trial against one drive for the gaps between the enable and tick 0 (0: none).
 ``--only WORD`` runs the scenarios whose name contains WORD;
 ``--brake-model`` prints the brake's travel on the model plant instead
@@ -121,6 +122,20 @@ def controlled_stop(drive: str, amplitude_deg: float, virtual_human: bool):
     return run
 
 
+def stop_key(tmp: Path) -> dict:
+    """`sensaug rig` in a pseudo-terminal, SPACE typed 1.5 s into the
+    trial (tests/test_rig_range.py, with its assertions): ms from the key
+    written to the terminal to the drive's disable on the bus, and the
+    controlled stop's braking ticks."""
+    import test_rig_range as r
+
+    run = r.stop_key_run(tmp)
+    assert run["stats"]["stop"]["kind"] == "controlled", run["stats"]["stop_reason"]
+    assert run["disabled_after_ms"] is not None, "no disable on the bus"
+    return {"key_to_disabled_ms": run["disabled_after_ms"],
+            "braking_ticks": run["stats"]["stop"]["braking_ticks"]}
+
+
 def scenarios() -> dict:
     """Every scenario by name: a function of a temporary folder returning
     its figures."""
@@ -130,6 +145,7 @@ def scenarios() -> dict:
         "SIGTERM": sigterm,
         "dead drive": dead_drive,
         "SIGKILL of the controller": killed_controller,
+        "stop key (SPACE in the launcher's terminal)": stop_key,
     }
     for drive in f.PROFILES:
         out |= {

@@ -58,11 +58,12 @@ rm -rf "$OUT"
 mkdir -p "$OUT"
 .venv/bin/python scripts/vcan/check.py --write-fuzz-config "$OUT/fuzz.toml"
 .venv/bin/python scripts/vcan/check.py --write-cia402-config "$OUT/cia402.toml"
+.venv/bin/python scripts/vcan/check.py --write-cia402-standard-config "$OUT/cia402_standard.toml"
 # The drive simulates the configuration's plant, one step of plant.dt_s per command.
 DRIVE_ARGS=$(.venv/bin/python scripts/vcan/check.py --drive-args configs/hi5_vcan.toml)
 
 # -- the VM ---------------------------------------------------------------------
-echo "test-socketcan: booting $KERNEL under QEMU/TCG (about 40 s), then three rig runs (~3-5 min)"
+echo "test-socketcan: booting $KERNEL under QEMU/TCG (about 40 s), then four rig runs and sensaug doctor (~4-7 min)"
 echo "host_start=$(date +%s.%N)" > "$OUT/host.env"
 set +e
 timeout "${SENSAUG_VCAN_TIMEOUT:-900}" vng --disable-kvm --force-9p \

@@ -16,7 +16,7 @@ import pytest
 
 from sensaug import logs, presets, topics
 from sensaug.export import RUN_TOPIC
-from sensaug.live import Client, Decimator, LiveView, layout
+from sensaug.live import Client, Decimator, LiveView, _split, layout
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -51,6 +51,20 @@ def test_each_bin_keeps_its_last_value_min_and_max():
     assert spike["compute_us_max"] == 900.0 and spike["compute_us"] == 20.0
     with pytest.raises(ValueError, match="rate_hz"):
         Decimator(0.0)
+
+
+def test_an_infinity_is_null_and_the_message_is_json():
+    """The rig's partner_var is inf while the partner channel is held out
+    (a person-like partner's run holds it out for whole phases): the bin's
+    value is null, as NaN, and its message serialises (an inf used to stop
+    the live view's thread: JSON has no infinity)."""
+    data = rows(20)
+    data["partner_var"] = np.inf
+    dec = Decimator(100.0)
+    out = dec.push(data) + dec.flush()
+    assert out and all(s["partner_var"] is None and s["partner_var_max"] is None for s in out)
+    for msg in _split(out[0]).values():
+        json.loads(logs.to_json(msg))
 
 
 def test_the_layout_file_is_the_generated_one():

@@ -10,7 +10,9 @@ docs/design/partner_delay.md).
 from __future__ import annotations
 
 import json
+import signal
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -182,13 +184,14 @@ def test_committed_person_config_is_the_preset():
     assert committed.to_dict() == presets.hi5_person().to_dict()
 
 
-def test_person_like_partner_on_the_virtual_rig(procs):
-    """The demo variant end to end: configs/hi5_rig_person.toml's partner
-    (visual 120 ms, proprioceptive 40 ms, 10% motor noise) inside the
-    real-time loop on the virtual Hi5 drive, the robot finding the delay
-    online. The preset's 10 s gain phase (the search's coarse stage needs
-    a few seconds of data: with a 6 s phase one run of three chose a wrong
-    coarse pair before the fine grid started), 1 s others; timing margins as
+def _person_on_the_virtual_rig(procs, stall: tuple[float, float] | None = None) -> dict:
+    """configs/hi5_rig_person.toml's partner on the virtual Hi5 drive, the
+    robot finding the delay online; with ``stall = (stop_s, every_s)`` the
+    drive is frozen (SIGSTOP) for ``stop_s`` every ``every_s`` from the
+    start of the run: feedback gaps of about ``stop_s`` at a known rate. The
+    preset's 10 s gain phase (the search's coarse stage needs a few seconds
+    of data: with a 6 s phase one run of three chose a wrong coarse pair
+    before the fine grid started), 1 s others; timing margins as
     test_rig's stall_tolerant."""
     cfg = presets.hi5_person(phase_s=10.0)
     cfg.rig.realtime.fifo_priority = RIG_TEST_FIFO_PRIORITY
@@ -196,25 +199,62 @@ def test_person_like_partner_on_the_virtual_rig(procs):
     cfg.robot.gain_window_s = 4.0
     pr = procs(stall_tolerant(cfg))
     pr.start_controller()
+    if stall is not None:
+        stop_s, every_s = stall
+        while pr.controller.poll() is None:
+            time.sleep(every_s - stop_s)
+            pr.drive.send_signal(signal.SIGSTOP)
+            try:
+                time.sleep(stop_s)
+            finally:
+                pr.drive.send_signal(signal.SIGCONT)
     assert pr.wait_controller() == 0, pr.controller.stderr.read()
     stats = json.loads(pr.stats.read_text())
     log = load_log(pr.log)
     assert stats["stop_reason"] == "completed" and len(log) == 12000
     gains = log["phase"] == 0
     end = np.flatnonzero(gains)[-1]
+    assert np.isfinite(log["u"][log["phase"] >= 0]).all() and np.isfinite(log["u_h"][log["phase"] >= 0]).all()
     # The partner's delays as the robot found them, at the end of the gain
     # phase, and the ones stages 2-3 then kept.
     dv, dp = log["partner_delay_visual_ms"][end], log["partner_delay_proprioceptive_ms"][end]
-    assert abs(dv - 120.0) <= 10 and abs(dp - 40.0) <= 10, (dv, dp)
     assert (log["partner_delay_visual_ms"][end:][log["phase"][end:] >= 1] == dv).all()
-    # Stage 1's gains (true [0, 0.0837, 1]) within 20% of Lhh: on this loaded
-    # 2-core machine the virtual drive's feedback goes missing on ~10% of the
-    # ticks (1105 of 12000 in one run), and stage 1 predicts without a
-    # measurement there (test_rig.py's RIG_TEST_FIFO_PRIORITY note: 10-30% on
-    # the paper's model); a run with 1105 missing had Lhx -0.046, Lhh 0.963.
-    # Not a safety assertion; the simulation's table holds 5%.
-    est = stats["partner_gains_estimate"]
-    assert abs(est[2] - 1.0) < 0.2 and abs(est[1] - 0.0837) < 0.2 and abs(est[0]) < 0.2, est
-    assert np.isfinite(log["u"][log["phase"] >= 0]).all() and np.isfinite(log["u_h"][log["phase"] >= 0]).all()
-    print(f"\nrig: delays {dv:g} / {dp:g} ms (margin {log['partner_delay_margin_nats'][end]:.0f} nats), gains {est}, "
-          f"missing feedback {stats['can']['missing_feedback']}")
+    out = {"dv": dv, "dp": dp, "gains": stats["partner_gains_estimate"],
+           "missing": stats["can"]["missing_feedback"], "longest_stale_run": stats["longest_stale_run"],
+           "margin": log["partner_delay_margin_nats"][end]}
+    print(f"\nrig: {out}")
+    return out
+
+
+#: The person preset's partner gains [Lhx, Lhv, Lhh].
+PERSON_GAINS = (0.0, 0.08366600265340755, 1.0)
+
+
+def _assert_person_identified(r: dict) -> None:
+    """Delays within 10 ms, gains within 5% of Lhh (the issue's goal).
+    Stage 1 predicts without a measurement in a feedback gap and the delay
+    history holds the predicted sample there (docs/model.md, "Feedback
+    gaps"); with the last measured sample held instead, runs with ~10%
+    missing feedback gave Lhx -0.14, Lhh 0.88 (the tolerance was 20% then).
+    Not a safety assertion."""
+    assert abs(r["dv"] - 120.0) <= 10 and abs(r["dp"] - 40.0) <= 10, r
+    est = r["gains"]
+    for e, t in zip(est, PERSON_GAINS):
+        assert abs(e - t) < 0.05 * PERSON_GAINS[2], r
+
+
+def test_person_like_partner_on_the_virtual_rig(procs):
+    """The demo variant end to end: configs/hi5_rig_person.toml's partner
+    (visual 120 ms, proprioceptive 40 ms, 10% motor noise) inside the
+    real-time loop on the virtual Hi5 drive, the robot finding the delay
+    online; the feedback this loaded machine loses on its own."""
+    _assert_person_identified(_person_on_the_virtual_rig(procs))
+
+
+def test_person_like_partner_through_induced_feedback_gaps_on_the_virtual_rig(procs):
+    """As above with the drive frozen for 25 ms every 200 ms: ~12% of the
+    ticks without fresh feedback in runs of ~25 (the loaded rig's pattern,
+    made certain)."""
+    r = _person_on_the_virtual_rig(procs, stall=(0.025, 0.2))
+    assert r["missing"] > 800 and r["longest_stale_run"] >= 15, r
+    _assert_person_identified(r)

@@ -64,7 +64,8 @@ class Processes:
         self.log, self.stats = tmp / "log.csv", tmp / "stats.json"
         self.monitor = can.Bus(interface="sensaug_udp", channel=self.port)
         self.drive = rig.start_drive(self.port, duration_s=120, extra=drive_args, drive=cfg.rig.drive,
-                                     fifo_priority=cfg.rig.realtime.fifo_priority)
+                                     fifo_priority=cfg.rig.realtime.fifo_priority,
+                                     standard=rig.standard_drive(cfg))
         self.controller: subprocess.Popen | None = None
 
     def start_controller(self) -> subprocess.Popen:

@@ -29,21 +29,30 @@ RPDO1, TPDO1, TPDO2, SYNC = 0x200 + NODE, 0x180 + NODE, 0x280 + NODE, 0x080
 ENABLED = 2
 
 
+#: The CiA 402 runs: the virtual drive with the SYNC counter echo 0x2000
+#: (chosen automatically), and a standard one without it
+#: (``rig.cia402.freshness = "standard"``: ``sensaug-virtual-cia402 --standard``).
+CIA402_RUNS = {"cia402": "sync_counter_echo", "cia402-standard": "standard"}
+
+
 def experiment_config(drive: str):
     """3 s per phase (the 2 s of settling the metrics skip leave 1 s each)."""
     cfg = stall_tolerant(short_config(gain_s=3.0, other_s=3.0))
-    cfg.rig.drive = drive
+    cfg.rig.drive = "hi5" if drive == "hi5" else "cia402"
+    if drive == "cia402-standard":
+        cfg.rig.cia402.freshness = "standard"
     return cfg
 
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     out = tmp_path_factory.mktemp("rig_profiles")
-    return {d: rig.run_virtual_rig(experiment_config(d), out=out / d) for d in ("hi5", "cia402")}
+    return {d: rig.run_virtual_rig(experiment_config(d), out=out / d) for d in ("hi5", *CIA402_RUNS)}
 
 
-def test_the_whole_experiment_runs_on_cia402_and_logs_every_tick(runs):
-    run = runs["cia402"]
+@pytest.mark.parametrize("drive", CIA402_RUNS)
+def test_the_whole_experiment_runs_on_cia402_and_logs_every_tick(runs, drive):
+    run = runs[drive]
     stats, log = run.stats, run.log
     assert run.returncode == 0 and run.drive_returncode == 0, run.stderr
     assert stats["stop_reason"] == "completed"
@@ -67,15 +76,21 @@ def test_the_whole_experiment_runs_on_cia402_and_logs_every_tick(runs):
     assert np.isfinite(log["u"]).all() and np.isfinite(log["e_meas"]).all()
     can = stats["can"]
     assert can["decode_errors"] == 0 and can["foreign_commands"] == 0 and can["implausible_feedback"] == 0
+    # The statistics say how freshness was judged.
+    assert stats["drive"]["freshness"] == CIA402_RUNS[drive]
+    if drive == "cia402-standard":
+        assert stats["drive"]["feedback_discarded"] == 0  # the echo's counter; none in standard mode
+    print(f"\n{drive} {stats['drive']}")
     print(f"\ncia402 loop: wake p50/p99/max {stats['wake_latency']['p50_us']}/{stats['wake_latency']['p99_us']}/"
           f"{stats['wake_latency']['max_us']:.0f} us, missing feedback {can['missing_feedback']}")
 
 
-def test_the_bus_carries_cia402_frames_one_cycle_per_tick(runs):
+@pytest.mark.parametrize("drive", CIA402_RUNS)
+def test_the_bus_carries_cia402_frames_one_cycle_per_tick(runs, drive):
     """The capture works on the CiA 402 bus; its frames are counted by
     COB-ID (no DBC applies): one RPDO1 + SYNC per tick (plus the set-up's
     and shut-down's steps), one TPDO1 + TPDO2 per SYNC, no Hi5 command."""
-    run = runs["cia402"]
+    run = runs[drive]
     assert run.capture is not None and run.capture.error is None
     assert run.capture.dropped_kernel == 0 and run.capture.dropped_malformed == 0
     ids = Counter(f.can_id for f in read_candump(run.capture.path))
@@ -88,11 +103,13 @@ def test_the_bus_carries_cia402_frames_one_cycle_per_tick(runs):
     assert ids[0x200] == 0 and ids[0x300] == 0
 
 
-def test_cia402_gives_the_hi5_outcomes(runs):
+@pytest.mark.parametrize("drive", CIA402_RUNS)
+def test_cia402_gives_the_hi5_outcomes(runs, drive):
     """Gains, trajectory and integration on both profiles, same configuration
     and seeds. The drives differ in resolution (CiA 402: 1 mN m torque steps,
     4096-count encoder; Hi5: the DBC's scales) and their Python processes in
     timing, so the outcomes agree within tolerances, not bit for bit."""
+    runs = {"hi5": runs["hi5"], "cia402": runs[drive]}
     hi5, cia = runs["hi5"], runs["cia402"]
     for run in (hi5, cia):
         assert run.stats["stop_reason"] == "completed", run.stderr

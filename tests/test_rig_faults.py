@@ -52,6 +52,11 @@ COMMAND_IDS = {"cia402": {RPDO1, SDO_RX, SYNC, NMT}}
 
 #: Both profiles, for the scenarios that apply to both.
 PROFILES = ["hi5", "cia402"]
+#: The standard CiA 402 drive (no SYNC counter echo 0x2000: the virtual drive
+#: with --standard, rig.cia402.freshness = "standard"), for the scenarios whose
+#: outcome its freshness rule could change (docs/safety.md, "Standard CiA 402
+#: drives").
+STANDARD = "cia402-standard"
 
 #: Exit codes (docs/realtime.md).
 EXIT_SETUP, EXIT_OTHER_CONTROLLER, EXIT_FOREIGN, EXIT_IMPLAUSIBLE, EXIT_DEGRADED, EXIT_LOG = 2, 3, 4, 5, 6, 7
@@ -59,8 +64,10 @@ EXIT_SETUP, EXIT_OTHER_CONTROLLER, EXIT_FOREIGN, EXIT_IMPLAUSIBLE, EXIT_DEGRADED
 
 def rig_processes(tmp: Path, cfg: ScenarioConfig, drive: str = "hi5") -> Processes:
     """A virtual drive of profile ``drive`` on a free port, booted (its
-    heartbeat runs)."""
-    cfg.rig.drive = drive
+    heartbeat runs); :data:`STANDARD`: the CiA 402 one without 0x2000."""
+    cfg.rig.drive = "cia402" if drive == STANDARD else drive
+    if drive == STANDARD:
+        cfg.rig.cia402.freshness = "standard"
     pr = Processes(tmp, cfg)
     time.sleep(0.5)
     return pr
@@ -160,7 +167,7 @@ def wait_running(pr: Processes, timeout: float = 10.0, drive: str = "hi5") -> p.
     ticks = 0
     while time.monotonic() < end:
         assert pr.controller.poll() is None, pr.controller.stderr.read()
-        if drive == "cia402":
+        if drive in ("cia402", STANDARD):
             # The loop's ticks: enable-operation RPDO1s past the set-up's few steps.
             ticks += sum(cia_controlword(m) == 0x000F for m in cia_frames(pr, 0.05))
             if ticks > 100:
@@ -599,8 +606,15 @@ def scenario_replayed_feedback(tmp: Path, drive: str = "hi5", replay_s: float = 
         assert forger.sent > 100, forger.sent
         assert can_["implausible_feedback"] == 0, can_
         # Every replayed frame the controller received was discarded (the
-        # loopback may drop a few under load: bus_kernel_dropped).
+        # loopback may drop a few under load: bus_kernel_dropped). Standard
+        # mode: a replay after a SYNC's answer is a duplicate (discarded,
+        # and that SYNC's answer not used); one that arrives after the next
+        # SYNC, before its answer, answers it (undetectable; then the real
+        # answer is the duplicate), so the count is the same.
         assert can_["feedback_discarded"] >= forger.sent - can_["bus_kernel_dropped"] - 10, (forger.sent, can_)
+        if drive == STANDARD:
+            assert stats["drive"]["freshness"] == "standard"
+            assert stats["drive"]["feedback_duplicated"] >= forger.sent - can_["bus_kernel_dropped"] - 10
         log = load_log(pr.log)
         assert log.complete
         running = ~log["ramp"]
@@ -671,13 +685,13 @@ def scenario_stalled_drive(tmp: Path, drive: str = "hi5", stall_s: float = 0.25)
         pr.close()
 
 
-@pytest.mark.parametrize("drive", PROFILES)
+@pytest.mark.parametrize("drive", [*PROFILES, STANDARD])
 def test_a_second_controller_refuses_to_start_and_the_first_runs_on(tmp_path, drive):
     figures = scenario_second_controller(tmp_path, drive)
     print(f"\nsecond controller refused after {figures['refused_after_ms']:.0f} ms")
 
 
-@pytest.mark.parametrize("drive", PROFILES)
+@pytest.mark.parametrize("drive", [*PROFILES, STANDARD])
 def test_a_foreign_command_frame_stops_a_running_controller_with_an_emergency_stop(tmp_path, drive):
     figures = scenario_foreign_command(tmp_path, drive)
     print(f"\nforeign command -> emergency stop on the bus after {figures['emergency_stop_after_ms']:.1f} ms")
@@ -705,13 +719,13 @@ def test_a_velocity_inconsistent_with_the_position_is_refused_before_overspeed(t
     print(f"\nvelocity reported x{scale}: {figures}")
 
 
-@pytest.mark.parametrize("drive", PROFILES)
+@pytest.mark.parametrize("drive", [*PROFILES, STANDARD])
 def test_replayed_and_copied_feedback_is_discarded_counted_and_never_used(tmp_path, drive):
     figures = scenario_replayed_feedback(tmp_path, drive)
     print(f"\nreplayed feedback: {figures}")
 
 
-@pytest.mark.parametrize("drive", PROFILES)
+@pytest.mark.parametrize("drive", [*PROFILES, STANDARD])
 def test_a_stalled_drive_ends_the_run_as_degraded_with_the_torque_off(tmp_path, drive):
     figures = scenario_stalled_drive(tmp_path, drive)
     print(f"\nstalled drive: {figures}")

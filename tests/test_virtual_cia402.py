@@ -519,3 +519,58 @@ def test_cli_bad_options_exit_2_naming_the_field(args: list[str], field: str):
     proc = _cli(*args)
     _, err = proc.communicate(timeout=30)
     assert proc.returncode == 2 and field in err, err
+
+
+# -- a standard drive (no 0x2000) -------------------------------------------------------------
+
+
+def test_the_standard_eds_is_the_drives_without_0x2000_in_canopens_local_node():
+    """The standard drive's dictionary: cia402_drive.eds without the SYNC counter
+    echo, loaded by python-canopen's EDS importer into a LocalNode; every other
+    object as in the EDS; the TPDOs map the two objects before it."""
+    import canopen
+
+    from sensaug_bridge.virtual_cia402 import load_od
+
+    echo, standard = load_od(NODE), load_od(NODE, standard=True)
+    assert 0x2000 in echo and 0x2000 not in standard
+    assert set(echo.indices) - set(standard.indices) == {0x2000}
+    node = canopen.LocalNode(NODE, standard)
+    canopen.Network().add_node(node)  # no bus: the PDO maps need a network only to subscribe
+    node.tpdo.read(from_od=True)
+    assert [v.index for v in node.tpdo[1]] == [0x6041, 0x6064]
+    assert [v.index for v in node.tpdo[2]] == [0x606C, 0x6077]
+    assert node.tpdo[1].length == node.tpdo[2].length == 48
+    for index in set(standard.indices) - {0x1A00, 0x1A01}:
+        a, b = echo[index], standard[index]
+        subs = getattr(a, "subindices", {0: a})
+        for sub, var in subs.items():
+            other = getattr(b, "subindices", {0: b})[sub]
+            assert (other.name, other.data_type, other.access_type, other.default) == (
+                var.name, var.data_type, var.access_type, var.default), (hex(index), sub)
+
+
+def test_a_standard_drive_aborts_the_echo_read_and_sends_6_byte_tpdos(start_drive):
+    """What the Rust master's set-up reads to choose the mode: SDO upload of
+    0x2000 aborts "object does not exist"; the TPDOs answer every SYNC without
+    a counter, and the feedback is the plant's as on the echo drive."""
+    drive = start_drive(standard=True)
+    host = drive.host
+    resp = host.sdo_read(0x2000)
+    assert resp[0] == 0x80 and struct.unpack_from("<I", resp, 4)[0] == 0x06020000
+    host.set_up()
+    ref = sensaug.Plant(mass=0.0035, damping=0.0, coulomb=0.0, dt_s=1e-3, x0=0.0, v0=0.0)
+    for cw in (0x06, 0x07, 0x0F):
+        host.send(0x200 + NODE, struct.pack("<Hh", cw, 0))
+        host.send(0x080, bytes([1]))
+        t1, t2 = host.expect(0x180 + NODE), host.expect(0x280 + NODE)
+        assert len(t1) == len(t2) == 6
+    ref.step(0.0)
+    assert state_of(struct.unpack("<Hi", t1)[0]) == Cia402State.OPERATION_ENABLED
+    for k in range(30):
+        host.send(0x200 + NODE, struct.pack("<Hh", 0x0F, 5))
+        host.send(0x080, bytes([k % SYNC_COUNTER_OVERFLOW + 1]))
+        _, pos = struct.unpack("<Hi", host.expect(0x180 + NODE))
+        vel, torque = struct.unpack("<ih", host.expect(0x280 + NODE))
+        x, v = ref.step(5 * RATED_MNM * 1e-6)
+        assert torque == 5 and pos == round(x / RAD_PER_COUNT) and vel == round(v / RAD_PER_COUNT)

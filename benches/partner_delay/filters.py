@@ -128,9 +128,7 @@ class DelayBank:
         self.resets = np.zeros((B, K), int)
         self.from_tick = from_tick
         self.k = -1
-        dt, M, C = h.dt, h.M, h.C
-        self.dx_f, self.v_f = 0.5 * dt * dt / M, dt / M
-        self.dx_v, self.v_v = dt - self.dx_f * C, 1 - self.v_f * C
+        self.dx_v, self.dx_f, self.v_v, self.v_f = h.step
         self.hist: list[np.ndarray] = []  # y_k, (B, 3)
 
     def update(self, y: np.ndarray) -> None:
@@ -263,9 +261,9 @@ class Stage3:
         self.R_own[0, 0] += view_std * view_std
         self.w = min(h.dt / h.partner_window_s, 1.0)
         self.mean_sq = np.full(B, np.nan)
-        dt = h.dt
-        self.F = np.array([[1.0, dt - 0.5 * dt * dt / h.M * h.C], [0.0, 1 - dt / h.M * h.C]])
-        self.g = np.array([0.5 * dt * dt / h.M, dt / h.M])
+        dx_v, dx_f, v_v, v_f = h.step
+        self.F = np.array([[1.0, dx_v], [0.0, v_v]])
+        self.g = np.array([dx_f, v_f])
 
     def start(self, y: np.ndarray) -> None:
         B = y.shape[0]

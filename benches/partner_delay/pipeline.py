@@ -32,9 +32,7 @@ class SwitchingDelayedStage1:
         self.h = h
         self.x = np.zeros((B, 6))
         self.P = np.broadcast_to(h.P01, (B, 6, 6)).copy()
-        dt = h.dt
-        self.dx_f, self.v_f = 0.5 * dt * dt / h.M, dt / h.M
-        self.dx_v, self.v_v = dt - self.dx_f * h.C, 1 - self.v_f * h.C
+        self.dx_v, self.dx_f, self.v_v, self.v_f = h.step
         self.resets = np.zeros(B, int)
 
     def update(self, y):

@@ -5,11 +5,18 @@ LQR gains, Q_k, R, P0, the targets in degrees, the noise levels)."""
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from sensaug import presets
+
+# The handle's step is the oracles' (tests/oracles), one definition for the
+# prototype and the tests.
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests" / "oracles"))
+from delayed_stage1 import step_coefficients  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -45,6 +52,11 @@ class Hi5:
     @property
     def ticks(self) -> int:
         return int(round(self.phase_s / self.dt))
+
+    @property
+    def step(self) -> tuple[float, float, float, float]:
+        """``(dx_v, dx_f, v_v, v_f)``: ``dx = dx_v v + dx_f f``, ``v' = v_v v + v_f f``."""
+        return step_coefficients(self.M, self.C, self.dt)
 
 
 def hi5(phase_s: float = 20.0) -> Hi5:

@@ -13,10 +13,11 @@
 //! per-tick calls never wait and never allocate.
 
 use core::fmt;
-use std::time::{Duration, Instant};
+use std::time::{Duration, Instant, SystemTime};
 
 use crate::cia402::{
-    Cia402Error, DriveState as Cia402State, Emcy, Heard, Master, MasterSettings, NmtState,
+    Cia402Error, DriveState as Cia402State, Emcy, Freshness, Heard, Master, MasterSettings,
+    NmtState,
 };
 use crate::frame::Frame;
 use crate::protocol::{decode, encode, DriveState, FaultFlags, Message, MessageKind, NodeId};
@@ -214,6 +215,17 @@ pub struct DriveEvents {
     /// Feedback frames discarded as older than, or a repeat of, the
     /// feedback already taken (CiA 402: the newest SYNC counter wins).
     pub feedback_discarded: u64,
+    /// CiA 402: how TPDOs were matched to SYNCs (None: the Hi5, or set-up
+    /// did not get that far).
+    pub freshness: Option<Freshness>,
+    /// CiA 402 standard mode: TPDOs received before the last SYNC, read
+    /// after it (kernel receive time; SocketCAN only).
+    pub feedback_late: u64,
+    /// CiA 402 standard mode: second TPDOs of one kind after one SYNC.
+    pub feedback_duplicated: u64,
+    /// CiA 402: SYNCs the next SYNC followed without a TPDO1 and TPDO2
+    /// taken for them.
+    pub syncs_unanswered: u64,
     /// Commands beyond the drive's own limit (0x6072) sent clamped to it.
     pub commands_clamped_at_drive_limit: u64,
     /// Non-finite commands sent as zero torque.
@@ -327,6 +339,28 @@ pub trait DriveLink {
     /// Sense: take one received frame. No wait, no allocation.
     fn absorb(&mut self, frame: &Frame) -> Absorbed;
 
+    /// [`DriveLink::absorb`] with the frame's kernel receive time
+    /// ([`Transport::last_rx_time`]; CiA 402's standard mode uses it).
+    fn absorb_received(&mut self, frame: &Frame, received: Option<SystemTime>) -> Absorbed {
+        let _ = received;
+        self.absorb(frame)
+    }
+
+    /// Whether [`Absorbed::Feedback`]'s `steps` is exact (sequence numbers
+    /// or the SYNC counter echo); false in CiA 402's standard mode, where a
+    /// late answer is placed on the next SYNC, so the steps between two
+    /// feedbacks may be one more or fewer. Default: exact.
+    fn steps_exact(&self) -> bool {
+        true
+    }
+
+    /// After the frames of a drain: a feedback the link held back until
+    /// no more frames were waiting (CiA 402's standard mode takes a SYNC's
+    /// answer only once no second answer came with it). Default: none.
+    fn settle(&mut self) -> Option<Absorbed> {
+        None
+    }
+
     /// Sense tick `k`, after absorbing every frame received so far: `fresh`
     /// when the feedback answers tick `k - 1` (tick 0: the set-up's). No
     /// allocation.
@@ -352,6 +386,12 @@ pub trait DriveLink {
     /// After the last tick `k - 1`: zero torque, then leave the drive
     /// disabled. May wait (bounded).
     fn shut_down(&mut self, bus: &mut dyn Transport, k: u64) -> Result<(), LinkError>;
+
+    /// The drive's torque resolution (N m): it applies a command as
+    /// `round_ties_even(torque / step) * step`. CiA 402: one per-mille of
+    /// its rated torque 0x6076, read by [`DriveLink::enable`]; Hi5: the
+    /// DBC's TorqueCommand scale.
+    fn torque_step_nm(&self) -> f64;
 
     /// Commands to this drive from another sender seen while
     /// [`DriveLink::connect`] and [`DriveLink::enable`] read the bus
@@ -379,8 +419,9 @@ pub trait DriveLink {
     /// then [`DriveLink::sample`]. No wait, no allocation.
     fn drain(&mut self, bus: &mut dyn Transport, k: u64) -> Result<DriveSample, LinkError> {
         while let Some(f) = bus.recv_ready()? {
-            self.absorb(&f);
+            self.absorb_received(&f, bus.last_rx_time());
         }
+        self.settle();
         Ok(self.sample(k))
     }
 }
@@ -761,6 +802,10 @@ impl DriveLink for Hi5Link {
         first.and(second)
     }
 
+    fn torque_step_nm(&self) -> f64 {
+        crate::protocol::TORQUE_SCALE_NM
+    }
+
     fn foreign_commands_in_setup(&self) -> u64 {
         self.foreign_in_setup
     }
@@ -803,6 +848,13 @@ pub struct Cia402Link {
     enabled_once: bool,
     /// When tick 0's command went out (the EMCYs' time origin).
     tick0: Option<Instant>,
+    /// Standard mode: a second TPDO of one kind arrived after the last
+    /// SYNC, so its answer is ambiguous: not fresh.
+    window_duplicated: bool,
+    /// Standard mode: the TPDO1 + TPDO2 answering the last SYNC, held back
+    /// until the drain is over ([`DriveLink::settle`]): (counter, position,
+    /// velocity).
+    candidate: Option<(u8, f64, f64)>,
 }
 
 impl Cia402Link {
@@ -815,6 +867,8 @@ impl Cia402Link {
             pending_tpdo1: None,
             enabled_once: false,
             tick0: None,
+            window_duplicated: false,
+            candidate: None,
         })
     }
 
@@ -842,6 +896,11 @@ impl Cia402Link {
         let fb = self.master.feedback();
         let (counter, v) = (fb.tpdo2_sync_counter, fb.velocity_rad_s);
         match self.pending_tpdo1 {
+            Some((c, x)) if c == counter && self.standard() => {
+                self.pending_tpdo1 = None;
+                self.candidate = Some((counter, x, v));
+                Absorbed::Other
+            }
             Some((c, x)) if c == counter => {
                 self.pending_tpdo1 = None;
                 self.order.absorb(counter, x, v)
@@ -852,6 +911,10 @@ impl Cia402Link {
                 Order::Conflicting => Absorbed::ConflictingFeedback { sequence: counter },
             },
         }
+    }
+
+    fn standard(&self) -> bool {
+        self.master.freshness() == Some(Freshness::Standard)
     }
 
     /// Why the drive cannot be driven on, if it cannot: a reset (boot-up or
@@ -909,6 +972,7 @@ impl DriveLink for Cia402Link {
         let fb = self.master.feedback();
         self.order.reset();
         self.pending_tpdo1 = None;
+        self.window_duplicated = false;
         self.order.sent(counter);
         self.order
             .absorb(counter, fb.position_rad, fb.velocity_rad_s);
@@ -924,7 +988,14 @@ impl DriveLink for Cia402Link {
     }
 
     fn absorb(&mut self, f: &Frame) -> Absorbed {
-        match self.master.absorb(f) {
+        self.absorb_received(f, None)
+    }
+
+    /// Standard mode: a TPDO received before the last SYNC is late
+    /// (discarded), a second one after it duplicated (discarded, and the
+    /// SYNC's answer not fresh: [`DriveLink::sample`]).
+    fn absorb_received(&mut self, f: &Frame, received: Option<SystemTime>) -> Absorbed {
+        match self.master.absorb_received(f, received) {
             Heard::Tpdo2 => self.tpdo2(),
             Heard::Other if f.is_standard_data() && f.id == self.master.settings().node.tpdo1() => {
                 self.tpdo1()
@@ -935,12 +1006,33 @@ impl DriveLink for Cia402Link {
                 sequence: sync_counter,
             },
             Heard::Discarded => Absorbed::StaleFeedback,
+            Heard::Duplicated => {
+                self.window_duplicated = true;
+                Absorbed::StaleFeedback
+            }
             Heard::Other => Absorbed::Other,
         }
     }
 
+    fn steps_exact(&self) -> bool {
+        !self.standard()
+    }
+
+    /// Standard mode: the last SYNC's answer, taken now unless a second
+    /// TPDO of a kind came after that SYNC (then neither is: the answer is
+    /// ambiguous, maybe a late answer to the SYNC before).
+    fn settle(&mut self) -> Option<Absorbed> {
+        let (counter, x, v) = self.candidate.take()?;
+        if self.window_duplicated || counter != self.master.sync_counter() {
+            return None;
+        }
+        Some(self.order.absorb(counter, x, v))
+    }
+
     /// Fresh: the newest feedback taken echoes the counter of tick `k -
-    /// 1`'s SYNC (a replayed or late TPDO arriving after it is not taken).
+    /// 1`'s SYNC (a replayed or late TPDO arriving after it is not taken);
+    /// standard mode: it arrived after that SYNC, and no second TPDO of a
+    /// kind did.
     fn sample(&mut self, k: u64) -> DriveSample {
         self.master.check_drive_heartbeat(Instant::now());
         let fb = self.master.feedback();
@@ -951,7 +1043,7 @@ impl DriveLink for Cia402Link {
         DriveSample {
             position_rad,
             velocity_rad_s,
-            fresh: k == 0 || self.order.up_to_date(),
+            fresh: k == 0 || (self.order.up_to_date() && !self.window_duplicated),
             status: fb.state.into(),
             alarm: self.alarm(),
         }
@@ -968,6 +1060,8 @@ impl DriveLink for Cia402Link {
         }
         let sent = self.master.tick(bus, torque_nm);
         self.order.sent(self.master.sync_counter());
+        self.window_duplicated = false;
+        self.candidate = None;
         sent?;
         Ok(())
     }
@@ -991,6 +1085,10 @@ impl DriveLink for Cia402Link {
                 .map(|r| (r.emcy, seconds(r.at)))
                 .collect(),
             feedback_discarded: fb.tpdos_discarded,
+            freshness: self.master.freshness(),
+            feedback_late: fb.tpdos_late,
+            feedback_duplicated: fb.tpdos_duplicated,
+            syncs_unanswered: fb.syncs_unanswered,
             commands_clamped_at_drive_limit: self.master.commands_clamped(),
             commands_non_finite: self.master.commands_non_finite(),
         }
@@ -1009,6 +1107,10 @@ impl DriveLink for Cia402Link {
             self.master.shut_down(bus, self.step)?;
         }
         Ok(())
+    }
+
+    fn torque_step_nm(&self) -> f64 {
+        self.master.units().torque_step_nm()
     }
 
     /// Every foreign command the master counted (set-up reads the bus

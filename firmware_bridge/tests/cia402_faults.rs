@@ -4,6 +4,9 @@
 //!
 //! - an older TPDO arriving after a newer one, or a repeat, is discarded
 //!   and counted: the newest SYNC counter wins;
+//! - standard mode (no 0x2000): a TPDO answers the SYNC before it; a second
+//!   one in that window is duplicated, one received before the last SYNC
+//!   (kernel time) late, a SYNC without answers unanswered: each counted;
 //! - a torque beyond 0x6072 is sent clamped to it and counted, a
 //!   non-finite one as 0: RPDO1, SYNC and heartbeat go out every tick;
 //! - a boot-up after NMT start, or a heartbeat leaving OPERATIONAL, is a
@@ -13,17 +16,19 @@
 //! - the drive's heartbeat is declared lost after the consumer time
 //!   (measured; bounded by a generous margin on this loaded VM).
 
-use std::time::{Duration, Instant};
+use std::time::{Duration, Instant, SystemTime};
 
 use sensaug_bridge::cia402::frames::{self, NmtState};
-use sensaug_bridge::cia402::{od, CanopenNode, Master, MasterSettings};
+use sensaug_bridge::cia402::{od, CanopenNode, Freshness, Heard, Master, MasterSettings};
 use sensaug_bridge::transport::{Transport, UdpBus};
 use sensaug_bridge::Frame;
 
 mod cia402_common;
 mod common;
 
-use cia402_common::{next_cycle, spawn_eds_drive, tpdo1, tpdo2};
+use cia402_common::{
+    next_cycle, spawn_eds_drive, spawn_standard_drive, standard_tpdo1, standard_tpdo2, tpdo1, tpdo2,
+};
 
 const OPERATION_ENABLED: u16 = 0x0237;
 
@@ -240,4 +245,74 @@ fn the_drives_heartbeat_is_lost_after_the_consumer_time() {
     drain_until(&mut master, &mut host, |m| {
         !m.feedback().drive_heartbeat_lost
     });
+}
+
+#[test]
+fn standard_mode_counts_duplicated_late_and_unanswered_tpdos() {
+    let port = common::free_port();
+    let mut host = UdpBus::open(port).unwrap();
+    let node = CanopenNode::new(1).unwrap();
+    let drive = spawn_standard_drive(UdpBus::open(port).unwrap(), node);
+    let mut master = Master::new(MasterSettings::new(node)).unwrap();
+    master.boot(&mut host).unwrap();
+    let (mut drive, started) = drive.join().unwrap();
+    assert!(started);
+    assert_eq!(master.freshness(), Some(Freshness::Standard));
+
+    // SYNC 1 answered once: taken as its answer.
+    master.tick(&mut host, 0.0).unwrap();
+    let (_, c) = next_cycle(&mut drive, node);
+    drive
+        .send(&standard_tpdo1(node, OPERATION_ENABLED, 100))
+        .unwrap();
+    drive.send(&standard_tpdo2(node, 10, 0)).unwrap();
+    drain_until(&mut master, &mut host, |m| m.feedback().tpdo2_received == 1);
+    assert!(master.last_sync_answered());
+    assert_eq!(master.feedback().tpdo1_sync_counter, c);
+    assert_eq!(
+        master.feedback().position_rad,
+        master.units().increments_to_rad(100)
+    );
+
+    // A second TPDO1 and TPDO2 after the same SYNC: duplicated, not taken.
+    drive
+        .send(&standard_tpdo1(node, OPERATION_ENABLED, 555))
+        .unwrap();
+    drive.send(&standard_tpdo2(node, 55, 0)).unwrap();
+    drain_until(&mut master, &mut host, |m| m.feedback().tpdo2_received == 2);
+    let fb = *master.feedback();
+    assert_eq!(fb.tpdos_duplicated, 2, "{fb:?}");
+    assert_eq!(fb.tpdos_discarded, 0);
+    assert_eq!(fb.position_rad, master.units().increments_to_rad(100));
+
+    // SYNC 2 not answered, then SYNC 3: SYNC 2 counted unanswered.
+    master.tick(&mut host, 0.0).unwrap();
+    master.tick(&mut host, 0.0).unwrap();
+    assert_eq!(master.feedback().syncs_unanswered, 1);
+
+    // A TPDO the kernel received before SYNC 3 went out (read after it):
+    // late, not taken; the same frame received now answers SYNC 3.
+    let before = SystemTime::now() - Duration::from_millis(5);
+    let late = standard_tpdo1(node, OPERATION_ENABLED, 777);
+    assert_eq!(
+        master.absorb_received(&late, Some(before)),
+        Heard::Discarded
+    );
+    assert_eq!(master.feedback().tpdos_late, 1);
+    assert_eq!(
+        master.feedback().position_rad,
+        master.units().increments_to_rad(100)
+    );
+    let now = SystemTime::now();
+    assert_eq!(master.absorb_received(&late, Some(now)), Heard::Other);
+    assert_eq!(
+        master.feedback().position_rad,
+        master.units().increments_to_rad(777)
+    );
+    assert_eq!(master.feedback().tpdo1_sync_counter, master.sync_counter());
+    // An echo-mode (7-byte) TPDO does not decode in standard mode.
+    assert_eq!(
+        master.absorb(&tpdo1(node, OPERATION_ENABLED, 1, master.sync_counter())),
+        Heard::Undecodable
+    );
 }

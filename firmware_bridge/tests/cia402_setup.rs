@@ -1,23 +1,84 @@
 //! [`Master::boot`]'s checks of the drive before it is started, against a
 //! scripted SDO server on the UDP bus (`cia402_common`): a drive without
-//! the SYNC counter echo 0x2000 (an off-the-shelf CiA 402 drive) is refused
-//! with [`Cia402Error::NoSyncCounterEcho`]; a drive whose max torque 0x6072
+//! the SYNC counter echo 0x2000 (an off-the-shelf CiA 402 drive) runs in
+//! standard mode when the mode is chosen from its dictionary (auto), and is
+//! refused with [`Cia402Error::NoSyncCounterEcho`] when the echo is
+//! required; a drive whose max torque 0x6072
 //! is not the configured limit (another node wrote 32767, 11x the limit;
 //! or 50, below it) is refused with [`Cia402Error::MaxTorqueMismatch`]
 //! naming both values; neither is NMT-started.
 
 use std::time::Duration;
 
-use sensaug_bridge::cia402::{CanopenNode, Cia402Error, Master, MasterSettings};
+use sensaug_bridge::cia402::{
+    CanopenNode, Cia402Error, Freshness, FreshnessSetting, Master, MasterSettings,
+};
 use sensaug_bridge::transport::UdpBus;
 
 mod cia402_common;
 mod common;
 
-use cia402_common::{eds_value, serve_set_up, spawn_eds_drive};
+use cia402_common::{eds_value, serve_set_up, spawn_eds_drive, spawn_standard_drive};
 
 #[test]
-fn a_drive_without_the_sync_counter_echo_is_refused_before_it_is_started() {
+fn a_drive_without_the_sync_counter_echo_runs_in_standard_mode_when_chosen_automatically() {
+    let port = common::free_port();
+    let mut host = UdpBus::open(port).unwrap();
+    let node = CanopenNode::new(1).unwrap();
+    let drive = spawn_standard_drive(UdpBus::open(port).unwrap(), node);
+    let mut master = Master::new(MasterSettings::new(node)).unwrap();
+    assert_eq!(master.freshness(), None);
+    master.boot(&mut host).unwrap();
+    assert_eq!(master.freshness(), Some(Freshness::Standard));
+    // Its TPDOs already had the standard mapping: nothing rewritten.
+    assert_eq!(master.pdos_rewritten(), 0);
+    assert!(
+        drive.join().unwrap().1,
+        "the master did not start the drive"
+    );
+}
+
+#[test]
+fn a_drive_with_the_echo_runs_with_it_unless_standard_is_forced() {
+    for (setting, mode) in [
+        (FreshnessSetting::Auto, Freshness::SyncCounterEcho),
+        (
+            FreshnessSetting::SyncCounterEcho,
+            Freshness::SyncCounterEcho,
+        ),
+    ] {
+        let port = common::free_port();
+        let mut host = UdpBus::open(port).unwrap();
+        let node = CanopenNode::new(1).unwrap();
+        let drive = spawn_eds_drive(UdpBus::open(port).unwrap(), node, 3000);
+        let mut s = MasterSettings::new(node);
+        s.freshness = setting;
+        let mut master = Master::new(s).unwrap();
+        master.boot(&mut host).unwrap();
+        assert_eq!(master.freshness(), Some(mode), "{setting:?}");
+        assert!(drive.join().unwrap().1);
+    }
+    // Forced standard on the echo drive: its TPDOs must be remapped without
+    // 0x2000; the scripted drive does not store writes, so the read-back
+    // refuses it, naming the mapping (a real drive takes the writes).
+    let port = common::free_port();
+    let mut host = UdpBus::open(port).unwrap();
+    let node = CanopenNode::new(1).unwrap();
+    let drive = spawn_eds_drive(UdpBus::open(port).unwrap(), node, 3000);
+    let mut s = MasterSettings::new(node);
+    s.freshness = FreshnessSetting::Standard;
+    let mut master = Master::new(s).unwrap();
+    let err = master.boot(&mut host).unwrap_err();
+    assert!(
+        matches!(err, Cia402Error::Mismatch { index: 0x1A00, .. }),
+        "{err:?}"
+    );
+    assert_eq!(master.freshness(), Some(Freshness::Standard));
+    assert!(!drive.join().unwrap().1);
+}
+
+#[test]
+fn a_drive_without_the_sync_counter_echo_is_refused_when_the_echo_is_required() {
     let port = common::free_port();
     let mut host = UdpBus::open(port).unwrap();
     let drive_bus = UdpBus::open(port).unwrap();
@@ -29,12 +90,16 @@ fn a_drive_without_the_sync_counter_echo_is_refused_before_it_is_started() {
         };
         serve_set_up(drive_bus, node, value, Duration::from_secs(2)).1
     });
-    let mut master = Master::new(MasterSettings::new(node)).unwrap();
+    let mut s = MasterSettings::new(node);
+    s.freshness = FreshnessSetting::SyncCounterEcho;
+    let mut master = Master::new(s).unwrap();
     let err = master.boot(&mut host).unwrap_err();
     assert!(matches!(err, Cia402Error::NoSyncCounterEcho), "{err:?}");
     let msg = err.to_string();
     assert!(
-        msg.contains("0x2000") && msg.contains("SYNC counter echo"),
+        msg.contains("0x2000")
+            && msg.contains("SYNC counter echo")
+            && msg.contains("rig.cia402.freshness"),
         "{msg}"
     );
     assert!(

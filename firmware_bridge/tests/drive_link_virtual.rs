@@ -22,7 +22,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use sensaug_bridge::cia402::od::{self, Pdo, PdoMapping};
-use sensaug_bridge::cia402::{CanopenNode, Master, MasterSettings};
+use sensaug_bridge::cia402::{CanopenNode, Freshness, Master, MasterSettings};
 use sensaug_bridge::drive_link::{Cia402Link, DriveLink, DriveStatus, Hi5Link};
 use sensaug_bridge::protocol::NodeId;
 use sensaug_bridge::transport::UdpBus;
@@ -82,6 +82,8 @@ fn stop(mut child: Child) -> String {
 
 struct Profile {
     module: &'static str,
+    /// The drive's extra arguments (`--standard`: no 0x2000).
+    args: &'static [&'static str],
     torque_step_nm: f64,
     /// Half a count of the encoder plus half the field's step.
     position_tol_rad: f64,
@@ -89,7 +91,7 @@ struct Profile {
 }
 
 /// Opens the bus on a fresh port and starts the drive `module` on it.
-fn spawn_drive(module: &str, log: bool) -> (UdpBus, Child) {
+fn spawn_drive(module: &str, extra: &[&str], log: bool) -> (UdpBus, Child) {
     let port = common::free_port();
     let bus = UdpBus::open(port).unwrap();
     let mut args = vec![
@@ -100,6 +102,7 @@ fn spawn_drive(module: &str, log: bool) -> (UdpBus, Child) {
         "--duration".to_string(),
         "600".to_string(),
     ];
+    args.extend(extra.iter().map(|a| a.to_string()));
     if let (true, Some(dir)) = (log, std::env::var_os("SENSAUG_DRIVE_LOG_DIR")) {
         let log = PathBuf::from(dir).join(format!("{module}.npz"));
         args.extend(["--log".to_string(), log.display().to_string()]);
@@ -115,8 +118,8 @@ fn spawn_drive(module: &str, log: bool) -> (UdpBus, Child) {
 
 /// Opens the bus on a fresh port, starts the drive on it, enables it
 /// through `link`.
-fn start(module: &str, link: &mut dyn DriveLink, log: bool) -> (UdpBus, Child) {
-    let (mut bus, child) = spawn_drive(module, log);
+fn start(module: &str, extra: &[&str], link: &mut dyn DriveLink, log: bool) -> (UdpBus, Child) {
+    let (mut bus, child) = spawn_drive(module, extra, log);
     let started = Instant::now();
     if let Err(e) = link.bring_up(&mut bus) {
         let err = stop(child);
@@ -148,7 +151,7 @@ fn idle_ticks(module: &str, link: &mut dyn DriveLink, bus: &mut UdpBus, k0: u64,
 /// periods (a stalled loop), then ticks once; the link must report the
 /// fault (Hi5: FAULT(WATCHDOG); CiA 402: the heartbeat consumer's Fault).
 fn trip_watchdog(module: &str, link: &mut dyn DriveLink, watchdog: Duration) -> (UdpBus, Child) {
-    let (mut bus, child) = start(module, link, false);
+    let (mut bus, child) = start(module, &[], link, false);
     idle_ticks(module, link, &mut bus, 0, 50);
     std::thread::sleep(3 * watchdog);
     link.send_torque(&mut bus, 50, 0.0).unwrap();
@@ -182,7 +185,7 @@ fn reenable(module: &str, link: &mut dyn DriveLink, mut bus: UdpBus, child: Chil
 }
 
 fn run(profile: &Profile, link: &mut dyn DriveLink) {
-    let (mut bus, child) = start(profile.module, link, true);
+    let (mut bus, child) = start(profile.module, profile.args, link, true);
     let ticks = ticks();
 
     // The set-up's zero-torque command (Hi5) / enabling SYNC (CiA 402) stepped once.
@@ -253,23 +256,51 @@ fn run(profile: &Profile, link: &mut dyn DriveLink) {
     println!("{}: {err}", profile.module);
 }
 
-#[test]
-fn cia402_link_runs_the_virtual_cia402_drive() {
+/// A link for the virtual CiA 402 drive (its watchdog 200 ms, set-up
+/// steps bounded by 15 s on this loaded machine) and the drive's profile,
+/// started with `args`.
+fn cia402_link(args: &'static [&'static str]) -> (Cia402Link, Profile) {
     let count = std::f64::consts::TAU / COUNTS_PER_REV;
     let mut settings = MasterSettings::new(CanopenNode::new(1).unwrap());
     settings.drive_consumer_ms = 200;
     settings.response_timeout = Duration::from_secs(15);
-    let mut link = Cia402Link::new(settings, Duration::from_millis(1)).unwrap();
+    let link = Cia402Link::new(settings, Duration::from_millis(1)).unwrap();
     let profile = Profile {
         module: "sensaug_bridge.virtual_cia402",
+        args,
         torque_step_nm: link.master().units().torque_step_nm(),
         position_tol_rad: 0.5 * count + 1e-12,
         velocity_tol_rad_s: 0.5 * count + 1e-12,
     };
+    (link, profile)
+}
+
+#[test]
+fn cia402_link_runs_the_virtual_cia402_drive() {
+    let (mut link, profile) = cia402_link(&[]);
     run(&profile, &mut link);
     let fb = link.master().feedback();
     assert_eq!(fb.decode_errors, 0);
     assert!(!fb.drive_heartbeat_lost);
+    assert_eq!(link.master().freshness(), Some(Freshness::SyncCounterEcho));
+}
+
+/// The virtual drive as a standard one (`--standard`: its dictionary from
+/// the EDS without 0x2000): set-up finds no 0x2000 and runs it in standard
+/// mode (auto), the last feedback is the reference plant's as with the echo.
+#[test]
+fn cia402_link_runs_a_standard_drive_chosen_from_its_dictionary() {
+    let (mut link, profile) = cia402_link(&["--standard"]);
+    run(&profile, &mut link);
+    assert_eq!(link.master().freshness(), Some(Freshness::Standard));
+    assert_eq!(link.master().pdos_rewritten(), 0);
+    let fb = link.master().feedback();
+    assert_eq!(fb.decode_errors, 0);
+    let events = link.events();
+    println!(
+        "standard: duplicated {}, late {}, unanswered SYNCs {}",
+        events.feedback_duplicated, events.feedback_late, events.syncs_unanswered
+    );
 }
 
 #[test]
@@ -278,6 +309,7 @@ fn hi5_link_runs_the_virtual_hi5_drive() {
     let mut link = Hi5Link::new(NodeId::new(1).unwrap(), 200, Duration::from_secs(15));
     let profile = Profile {
         module: "sensaug_bridge.virtual_hi5",
+        args: &[],
         torque_step_nm: 1e-6,
         position_tol_rad: 0.5 * count + 0.5e-6 + 1e-12,
         velocity_tol_rad_s: 0.5e-6 + 1e-12,
@@ -317,7 +349,7 @@ fn cia402_set_up_rewrites_a_tpdo_mapping_that_is_not_the_edss() {
     let mut settings = MasterSettings::new(node);
     settings.drive_consumer_ms = 200;
     settings.response_timeout = Duration::from_secs(15);
-    let (mut bus, child) = spawn_drive(CIA402, false);
+    let (mut bus, child) = spawn_drive(CIA402, &[], false);
     let mut tool = Master::new(settings).unwrap();
     tool.wait_for_drive(&mut bus).unwrap();
     const SWAPPED: [u32; 2] = [

@@ -317,3 +317,21 @@ fn recv_ready_drains_every_waiting_frame_and_sees_later_ones() {
     assert!(drain_ready(&mut b).is_empty());
     assert_eq!(b.stats().received, 42);
 }
+
+#[test]
+fn every_received_frame_carries_the_kernels_receive_time() {
+    let port = common::free_port();
+    let mut a = UdpBus::open(port).unwrap();
+    let mut b = UdpBus::open(port).unwrap();
+    assert_eq!(b.last_rx_time(), None);
+    let before = std::time::SystemTime::now();
+    a.send(&Frame::new(0x123, &[1, 2]).unwrap()).unwrap();
+    let got = b.recv(Duration::from_secs(1)).unwrap().expect("no frame");
+    let after = std::time::SystemTime::now();
+    assert_eq!(got.id, 0x123);
+    let t = b.last_rx_time().expect("no SO_TIMESTAMPNS time");
+    assert!(
+        before <= t && t <= after,
+        "{before:?} <= {t:?} <= {after:?}"
+    );
+}

@@ -394,6 +394,7 @@ def replay_robot(
     xdot_meas: NDArray[np.float64],
     fresh: NDArray[np.bool_],
     /,
+    torque_step: float | None = None,
 ) -> tuple[NDArray[np.uint8], dict[str, int]]:
     """Re-runs the robot's controller over recorded measurements: tick ``k``
     fuses ``(x_meas[k], xdot_meas[k])`` when ``fresh[k]``, else only

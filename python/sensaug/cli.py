@@ -197,11 +197,15 @@ def rig_demo(
     if run.interrupted:
         print(f"INTERRUPTED by the user (Ctrl-C) after {ran_s:.1f} s of {config.duration_s:g} s; "
               f"sensaug-rt stopped the drive: {s['stop_reason']}, {s['ticks']} ticks\n")
+    elif run.stop_key is not None:
+        print(f"STOPPED by the stop key ({run.stop_key['key']}) after {ran_s:.1f} s of {config.duration_s:g} s; "
+              f"sensaug-rt stopped the drive: {s['stop_reason']}, {s['ticks']} ticks\n")
     else:
         print(f"sensaug-rt: {s['ticks']} ticks, stop: {s['stop_reason']}, exit {run.returncode}; "
               f"virtual drive exit {run.drive_returncode}\n")
     done = run.completed_phases()
-    why = "interrupted by the user" if run.interrupted else f"the run stopped: {s['stop_reason']}"
+    why = ("interrupted by the user" if run.interrupted
+           else "stopped by the stop key" if run.stop_key is not None else f"the run stopped: {s['stop_reason']}")
 
     def cut(kind: str) -> str:
         m = run.log["phase"] == run.log.phase_code(kind)
@@ -566,6 +570,14 @@ def build_parser() -> argparse.ArgumentParser:
     se.add_argument("--simulate", action="store_true",
                     help="simulate every trial (the virtual human; a rehearsal of the plan, minutes not hours)")
     sub.add_parser("display", add_help=False, help="the participant's display alone (sensaug display --help)")
+    dr = sub.add_parser("doctor", help="check this host for a rig run: CAN interface, real-time set-up, drive "
+                                       "(docs/hardware.md; exit 1 when a check fails)")
+    dr.add_argument("config", nargs="?", type=Path, default=None,
+                    help="the rig configuration (default: the hi5-rig preset)")
+    dr.add_argument("--can", default=None, help="the CAN link to check instead of rig.can (socketcan:can0, udp:PORT)")
+    dr.add_argument("--bitrate", type=int, default=1_000_000, help="the bitrate expected, bit/s (default 1000000)")
+    dr.add_argument("--sdo", action="store_true",
+                    help="also ask the drive at rig.node_id (CiA 402: an SDO read of 0x1000; sends one frame)")
     dc = sub.add_parser("docs", help="list the documentation pages, or print one (docs/NAME.md)")
     dc.add_argument("page", nargs="?", default=None, help="a page's name, e.g. logs or docs/logs.md")
     return parser
@@ -587,6 +599,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.command == "docs":
         return docs(args.page)
+    if args.command == "doctor":
+        from sensaug import doctor
+
+        return doctor.main(args.config, args.can, args.bitrate, args.sdo)
     try:
         if args.command == "demo":
             cfg = ScenarioConfig.from_toml(args.config) if args.config else presets.hi5_rig()

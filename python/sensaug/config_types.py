@@ -362,6 +362,13 @@ class RigCia402Config:
     Hi5).
     """
 
+    freshness: Literal["auto", "sync_counter_echo", "standard"] = 'auto'
+    """How the master tells a TPDO answering this tick's SYNC from a late or replayed one: "auto"
+    (the SYNC counter echo 0x2000 if the drive's dictionary has it, else standard),
+    "sync_counter_echo" (a drive without 0x2000 is refused) or "standard" (judged from the
+    bus: a TPDO received after SYNC k and before SYNC k+1 answers SYNC k; a replay inside that
+    window goes unseen, docs/safety.md). The statistics' drive.freshness says which ran.
+    """
     heartbeat_timeout_ms: int = 100
     """The master's heartbeat consumer time for the drive (ms): a drive heartbeat missing this
     long stops the run with an emergency stop ("drive fault: the drive's heartbeat lost"). The
@@ -372,6 +379,62 @@ class RigCia402Config:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> RigCia402Config:
+        """From a plain dict as the schema describes it (already validated)."""
+        kw = dict(d)
+        return cls(**kw)
+
+
+@dataclass
+class RigRangeConfig:
+    """`[rig.range]`: the handle's range of motion and speed, in degrees whatever
+    `rig.position_unit` (like every `[rig]` field, the unit is in the name), enforced by
+    `sensaug-rt` every tick (docs/safety.md, "Range of motion"; the defaults and their
+    sources: docs/person.md). The simulation ignores it.
+    """
+
+    hard_max_deg: float = 50.0
+    """Hard limit, high side (deg). Above `soft_max_deg`."""
+    hard_min_deg: float = -50.0
+    """Hard limit, low side (deg): a measured position below it stops the run with the controlled
+    stop ("range limit"). Below `soft_min_deg`.
+    """
+    hard_speed_deg_s: float = 400.0
+    """Hard speed limit (deg/s): a measured speed above it stops the run with the controlled stop
+    ("range limit"). Above `soft_speed_deg_s`, below `rig.max_feedback_velocity_rad_s`.
+    """
+    ramp_width_deg: float = 5.0
+    """Width of the ramp-down inside each soft end stop (deg): the controller's torque toward a
+    soft end stop is scaled from 1, at `ramp_width_deg` from it, down to 0 at it (the
+    partner's is not).
+    """
+    soft_max_deg: float = 40.0
+    """Soft end stop, high side (deg)."""
+    soft_min_deg: float = -40.0
+    """Soft end stop, low side (deg): below it a virtual wall (a spring-damper,
+    `wall_stiffness_nm_per_deg`, `wall_damping_nm_s_per_deg`) pushes the handle back.
+    """
+    soft_speed_deg_s: float = 200.0
+    """Soft speed limit (deg/s): above it a damping torque on the excess speed
+    (`speed_damping_nm_s_per_deg`) slows the handle.
+    """
+    speed_damping_nm_s_per_deg: float | None = None
+    """Damping on the speed above `soft_speed_deg_s` (N m s/deg). Absent: `plant.mass / (8
+    plant.dt_s)`, as the wall's (the two together critically damped with one tick of feedback
+    delay).
+    """
+    wall_damping_nm_s_per_deg: float | None = None
+    """The wall's damping beyond a soft end stop (N m s/deg); the wall only ever pushes back into
+    the window. Absent: `plant.mass / (8 plant.dt_s)` (0.00764 N m s/deg for the Hi5 at 1 kHz:
+    1/8 of the speed per tick).
+    """
+    wall_stiffness_nm_per_deg: float | None = None
+    """The wall's stiffness beyond a soft end stop (N m/deg). Absent: `plant.mass / (8
+    plant.dt_s)^2` (0.955 N m/deg for the Hi5 at 1 kHz; the wall's natural frequency is 1/8
+    rad per tick).
+    """
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> RigRangeConfig:
         """From a plain dict as the schema describes it (already validated)."""
         kw = dict(d)
         return cls(**kw)
@@ -414,7 +477,7 @@ class RigConfig:
 
     can: str = 'udp:47100'
     """CAN link: "udp:<port>" (loopback virtual bus, port 1..65535) or "socketcan:<ifname>"."""
-    cia402: RigCia402Config = field(default_factory=lambda: RigCia402Config.from_dict({'heartbeat_timeout_ms': 100}))
+    cia402: RigCia402Config = field(default_factory=lambda: RigCia402Config.from_dict({'freshness': 'auto', 'heartbeat_timeout_ms': 100}))
     """CiA 402 profile settings."""
     drive: Literal["hi5", "cia402"] = 'hi5'
     """Drive profile: "hi5" or "cia402" (its units are read from the drive over SDO; its
@@ -460,6 +523,10 @@ class RigConfig:
     m, and torque is scaled by the same factor), "m" for a simulated linear handle (force in
     N; the rig refuses it; docs/model.md, Units).
     """
+    range: RigRangeConfig = field(default_factory=lambda: RigRangeConfig.from_dict({'hard_max_deg': 50.0, 'hard_min_deg': -50.0, 'hard_speed_deg_s': 400.0, 'ramp_width_deg': 5.0, 'soft_max_deg': 40.0, 'soft_min_deg': -40.0, 'soft_speed_deg_s': 200.0}))
+    """The handle's range of motion and speed for the wrist in it (deg): soft end stops with a
+    virtual wall, hard limits, a speed limit (docs/safety.md, "Range of motion").
+    """
     realtime: RealtimeConfig = field(default_factory=lambda: RealtimeConfig.from_dict({'mlockall': True, 'spin_us': 0}))
     """Thread settings."""
     ring_capacity: int = 65536
@@ -500,6 +567,8 @@ class RigConfig:
         kw = dict(d)
         if 'cia402' in kw:
             kw['cia402'] = RigCia402Config.from_dict(kw['cia402'])
+        if 'range' in kw:
+            kw['range'] = RigRangeConfig.from_dict(kw['range'])
         if 'realtime' in kw:
             kw['realtime'] = RealtimeConfig.from_dict(kw['realtime'])
         return cls(**kw)
@@ -771,7 +840,7 @@ class ScenarioConfig:
     """The partner: the virtual human (simulation, and inside the rig loop)."""
     plant: PlantConfig = field(default_factory=lambda: PlantConfig.from_dict({'coulomb': 0.0, 'damping': 0.0, 'dt_s': 0.001, 'mass': 0.0035}))
     """The handle as the controller models it."""
-    rig: RigConfig = field(default_factory=lambda: RigConfig.from_dict({'can': 'udp:47100', 'cia402': {'heartbeat_timeout_ms': 100}, 'drive': 'hi5', 'feedback_step_margin_rad': 0.01, 'feedback_timeout_ms': 20.0, 'feedback_velocity_margin_rad_s': 0.05, 'log': 'out/rig_log.csv', 'max_estimator_errors': 10, 'max_feedback_velocity_rad_s': 8.0, 'max_missing_feedback_fraction': 0.5, 'max_stale_feedback_ticks': 100, 'node_id': 1, 'position_unit': 'deg', 'realtime': {'mlockall': True, 'spin_us': 0}, 'ring_capacity': 65536, 'stats': 'out/rig_stats.json', 'stop_rest_velocity_rad_s': 0.01, 'stop_time_constant_s': 0.004, 'stop_time_limit_s': 0.2, 'stop_torque_limit_nm': 3.0, 'torque_limit_nm': 3.0, 'virtual_human': True, 'watchdog_ms': 50}))
+    rig: RigConfig = field(default_factory=lambda: RigConfig.from_dict({'can': 'udp:47100', 'cia402': {'freshness': 'auto', 'heartbeat_timeout_ms': 100}, 'drive': 'hi5', 'feedback_step_margin_rad': 0.01, 'feedback_timeout_ms': 20.0, 'feedback_velocity_margin_rad_s': 0.05, 'log': 'out/rig_log.csv', 'max_estimator_errors': 10, 'max_feedback_velocity_rad_s': 8.0, 'max_missing_feedback_fraction': 0.5, 'max_stale_feedback_ticks': 100, 'node_id': 1, 'position_unit': 'deg', 'range': {'hard_max_deg': 50.0, 'hard_min_deg': -50.0, 'hard_speed_deg_s': 400.0, 'ramp_width_deg': 5.0, 'soft_max_deg': 40.0, 'soft_min_deg': -40.0, 'soft_speed_deg_s': 200.0}, 'realtime': {'mlockall': True, 'spin_us': 0}, 'ring_capacity': 65536, 'stats': 'out/rig_stats.json', 'stop_rest_velocity_rad_s': 0.01, 'stop_time_constant_s': 0.004, 'stop_time_limit_s': 0.2, 'stop_torque_limit_nm': 3.0, 'torque_limit_nm': 3.0, 'virtual_human': True, 'watchdog_ms': 50}))
     """The real-time loop and its CAN link (`sensaug-rt`; the simulation ignores it)."""
     robot: RobotConfig = field(default_factory=lambda: RobotConfig.from_dict({'gain_window_s': 8.0, 'integrate': True, 'q_pos': 1.0, 'q_vel': 0.0, 'seed': 1, 'sigma': {'alpha': 1.0, 'beta': 2.0, 'kappa': 0.0}, 'stage1': {'P0': [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0], 'Q': [0.01, 0.01, 0.01, 0.01, 0.01, 0.01], 'R': [1e-07, 1e-07, 1e-07], 'gains0': [0.0, 0.0, 0.0]}, 'stage2': {'P0': [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0], 'Q': [0.01, 0.01, 0.01, 0.01, 0.01, 0.01], 'R': [1e-07, 1e-07, 1e-07, 1e-07, 1e-07], 'gains0': [0.0, 0.0, 0.0]}, 'stage3': {'P0': [0.01, 0.01], 'Q': [0.01, 0.01], 'R_sensor': [1e-07, 1e-07], 'channel': {'gate': 4.0, 'hold_max_s': 0.25, 'window_n0': 80.0}}, 'torque_limit': 1000.0}))
     """The robot's controller and estimators."""

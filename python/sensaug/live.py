@@ -67,7 +67,9 @@ _BOOL = {name for name in _COLUMNS if logs.DTYPE[name].kind == "b"}
 
 
 def _json_value(name: str, v: float):
-    if math.isnan(v):
+    # JSON has neither NaN nor infinity: both are null, as in the export
+    # (the rig's partner_var is inf while the partner channel is held out).
+    if not math.isfinite(v):
         return None
     if name in _BOOL:
         return bool(v)

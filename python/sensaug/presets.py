@@ -116,6 +116,13 @@ def hi5_rig(lhh: float = 2.0, *, seed: int = 0, phase_s: float = 10.0) -> Scenar
     return cfg
 
 
+#: The rig's torque limit with a person's wrist in the handle (N m;
+#: docs/person.md, "The torque limit for a person"): 5x the paper's task
+#: peak (0.19 N m, robot and partner), under half the weakest wrist
+#: extension strength expected of a healthy adult (about 2.2 N m).
+PERSON_TORQUE_LIMIT_NM = 1.0
+
+
 def hi5_person(
     lhh: float = 1.0,
     *,
@@ -133,7 +140,8 @@ def hi5_person(
     ``robot.partner_delay = "auto"`` with stage 1's gain process noise at
     1e-6 per step (the paper's 1e-2 is biased by a person's motor noise), and
     does not integrate goals (a delayed partner channel hurts today's stage
-    3). ``configs/hi5_rig_person.toml`` is this preset as a file."""
+    3); the rig's torque limit is a person's, :data:`PERSON_TORQUE_LIMIT_NM`.
+    ``configs/hi5_rig_person.toml`` is this preset as a file."""
     from sensaug.config_types import HumanConfig
 
     cfg = hi5_rig(lhh, seed=seed, phase_s=phase_s)
@@ -147,6 +155,9 @@ def hi5_person(
     cfg.robot.partner_delay = "auto"
     cfg.robot.stage1.Q = list(cfg.robot.stage1.Q[:3]) + [1e-6] * 3
     cfg.robot.integrate = False
+    # A person's wrist may be in the handle: the torque limit for a person
+    # (docs/person.md, "The torque limit for a person"), the brake's too.
+    cfg.rig.torque_limit_nm = cfg.rig.stop_torque_limit_nm = PERSON_TORQUE_LIMIT_NM
     return cfg
 
 

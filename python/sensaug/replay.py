@@ -167,6 +167,8 @@ def replay(log: str | Path | Log, config: ScenarioConfig | None = None, *, allow
         np.ascontiguousarray(d["x_meas"], dtype=np.float64),
         np.ascontiguousarray(d["xdot_meas"], dtype=np.float64),
         np.ascontiguousarray(d["fresh"], dtype=np.bool_),
+        # A rig run's robot rounded its commands to the drive's torque step.
+        torque_step=(log.meta.get("end") or {}).get("robot_torque_step"),
     )
     columns = from_records(records)
     beyond = np.flatnonzero(columns["phase"] == UNKNOWN_INT)

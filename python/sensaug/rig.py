@@ -22,15 +22,18 @@ import errno
 import importlib
 import importlib.metadata
 import json
+import os
+import select
 import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Optional, Sequence
+from typing import Any, Optional, Sequence
 
 import numpy as np
 
@@ -40,8 +43,8 @@ from sensaug.config import ScenarioConfig
 from sensaug.logs import Log, load_log
 
 __all__ = [
-    "RigRun", "bus_port", "capture_format", "check_outputs", "find_binary", "run_virtual_rig", "stop_process",
-    "write_readme",
+    "STOP_KEYS", "RigRun", "StopKey", "bus_port", "capture_format", "check_outputs", "find_binary", "run_virtual_rig",
+    "stop_process", "write_readme",
 ]  # fmt: skip
 
 
@@ -73,6 +76,9 @@ class RigRun:
     #: latency (ms) and the display's event ("escape", "display frozen",
     #: "display exited"; None) (``sensaug.display``).
     display: Optional[dict] = None
+    #: The experimenter's stop key, when it was pressed (:class:`StopKey`):
+    #: the key, ``pressed_monotonic_ns`` and whether it stopped the loop.
+    stop_key: Optional[dict] = None
 
     def write_readme(self, out: str | Path, extra: dict[str, str] | None = None) -> Path:
         """``out/README.txt``: this run's files (and ``extra`` ones, e.g. plots)."""
@@ -219,6 +225,14 @@ def drive_profile_name(drive: str) -> str:
     return str(getattr(importlib.import_module(_drive_module(drive)), "PROFILE_NAME", drive))
 
 
+def standard_drive(cfg: Any) -> bool:
+    """Whether the virtual rig simulates a standard CiA 402 drive (no SYNC
+    counter echo 0x2000: ``sensaug-virtual-cia402 --standard``): when the
+    configuration runs the CiA 402 profile with ``rig.cia402.freshness =
+    "standard"`` (docs/cia402.md, "Freshness without 0x2000")."""
+    return cfg.rig.drive == "cia402" and cfg.rig.cia402.freshness == "standard"
+
+
 def start_drive(
     port: int,
     *,
@@ -226,6 +240,7 @@ def start_drive(
     extra: list[str] | None = None,
     drive: str = "hi5",
     fifo_priority: int | None = None,
+    standard: bool = False,
 ) -> subprocess.Popen:
     """The virtual drive of profile ``drive`` ("hi5" or "cia402", registered
     under :data:`VIRTUAL_DRIVE_ENTRY_POINTS`) as a subprocess on the loopback bus at ``port``;
@@ -243,6 +258,7 @@ def start_drive(
         f"{duration_s:g}",
         "-q",
         *([] if fifo_priority is None else ["--fifo-priority", str(fifo_priority)]),
+        *(["--standard"] if standard else []),
         *(extra or []),
     ]
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -260,6 +276,101 @@ def stop_process(proc: subprocess.Popen, timeout_s: float = 10.0) -> int:
     return proc.returncode
 
 
+#: The experimenter's stop keys in the launcher's terminal (docs/safety.md,
+#: "The stop key"): the space bar, the largest key, and ``s``. Each sends
+#: the loop SIGTERM: its controlled stop, then the drive disabled.
+STOP_KEYS = {b" ": "SPACE", b"s": "s", b"S": "S"}
+
+#: The hint printed when a trial starts with the stop key armed.
+STOP_KEY_HINT = "press SPACE or s in this terminal to stop the trial (controlled stop, drive disabled)"
+
+
+class StopKey:
+    """The experimenter's stop key: a thread of the launcher reads its
+    terminal while a trial runs and sends the loop SIGTERM (its controlled
+    stop) on any of :data:`STOP_KEYS`. The loop is another process and
+    never waits on it.
+
+    The terminal is switched to cbreak mode for the trial (a key arrives
+    without Enter; Ctrl-C stays a signal) and restored after; keys typed
+    before the trial are discarded, so a key pressed between trials does not
+    stop the next one. Armed only when ``stream`` is a terminal and this
+    process is its foreground (:meth:`arm`); otherwise (a pipe, CI, a
+    background job) there is nothing to read.
+
+    After :meth:`stop`: ``key`` (None if no stop key was pressed),
+    ``pressed_ns`` (CLOCK_MONOTONIC, when the launcher read it) and
+    ``stopped_loop``."""
+
+    def __init__(self, fd: int, rt: subprocess.Popen) -> None:
+        import termios
+
+        self.fd, self.rt = fd, rt
+        self.key: Optional[str] = None
+        self.pressed_ns = 0
+        self.stopped_loop = False
+        self._saved = termios.tcgetattr(fd)
+        self._wake_r, self._wake_w = os.pipe()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    @classmethod
+    def arm(cls, rt: subprocess.Popen, stream=None) -> Optional["StopKey"]:
+        """A started watch of ``stream`` (default: stdin) for ``rt``, or None
+        when ``stream`` is not this process's foreground terminal."""
+        import termios
+        import tty
+
+        stream = sys.stdin if stream is None else stream
+        try:
+            fd = stream.fileno()
+            if not os.isatty(fd) or os.tcgetpgrp(fd) != os.getpgrp():
+                return None
+            watch = cls(fd, rt)
+            tty.setcbreak(fd, termios.TCSANOW)
+            termios.tcflush(fd, termios.TCIFLUSH)
+        except (AttributeError, ValueError, OSError, termios.error):
+            return None
+        watch._thread.start()
+        return watch
+
+    def _run(self) -> None:
+        while self.rt.poll() is None:
+            ready, _, _ = select.select([self.fd, self._wake_r], [], [], 0.5)
+            if self._wake_r in ready:
+                return
+            if self.fd not in ready:
+                continue
+            try:
+                typed = os.read(self.fd, 64)
+            except OSError:
+                return
+            if not typed:
+                return
+            hit = next((name for key, name in STOP_KEYS.items() if key in typed), None)
+            if hit is not None and self.key is None:
+                self.key, self.pressed_ns = hit, time.monotonic_ns()
+                if self.rt.poll() is None:
+                    self.rt.send_signal(signal.SIGTERM)
+                    self.stopped_loop = True
+
+    def stop(self) -> Optional[dict]:
+        """Ends the watch and restores the terminal; what happened (None if
+        no stop key was pressed)."""
+        import termios
+
+        os.write(self._wake_w, b"x")
+        self._thread.join()
+        os.close(self._wake_r)
+        os.close(self._wake_w)
+        try:
+            termios.tcsetattr(self.fd, termios.TCSADRAIN, self._saved)
+        except termios.error:
+            pass
+        if self.key is None:
+            return None
+        return {"key": self.key, "pressed_monotonic_ns": self.pressed_ns, "stopped_loop": self.stopped_loop}
+
+
 def run_virtual_rig(
     config: ScenarioConfig | str | Path,
     *,
@@ -271,6 +382,7 @@ def run_virtual_rig(
     also_written: dict[str, Path] | None = None,
     feed: Sequence[str] = (),
     display=None,
+    stop_key: bool | None = None,
 ) -> RigRun:
     """Runs one trial on the virtual rig and returns its log and statistics.
 
@@ -298,6 +410,10 @@ def run_virtual_rig(
     ``out/display_log.csv``) and is watched
     (:class:`sensaug.display.DisplayWatch`: Esc, a frozen or dead display).
 
+    ``stop_key``: watch this process's terminal for the experimenter's stop
+    key (:class:`StopKey`, :data:`STOP_KEYS`; the hint is printed on stderr
+    when the trial starts); None: when stdin is the foreground terminal.
+
     Raises:
         ConfigError: an output path is refused (named).
         RuntimeError: ``sensaug-rt`` ended before reporting (set-up error).
@@ -322,9 +438,11 @@ def run_virtual_rig(
     drive: Optional[subprocess.Popen] = None
     interrupted = False
     watch = None
+    key_watch: Optional[StopKey] = None
+    key_event: Optional[dict] = None
     try:
         drive = start_drive(port, duration_s=budget + 5.0, drive=cfg.rig.drive,
-                            fifo_priority=cfg.rig.realtime.fifo_priority)
+                            fifo_priority=cfg.rig.realtime.fifo_priority, standard=standard_drive(cfg))
         time.sleep(0.5)
         if display is not None:
             feed = [*feed, _show_trial(display, cfg, out)]
@@ -337,6 +455,10 @@ def run_virtual_rig(
                 text=True,
             )
             watch = None if display is None else _watch_display(display, out, proc)
+            if stop_key is not False:
+                key_watch = StopKey.arm(proc)
+                if key_watch is not None:
+                    print(f"sensaug: {STOP_KEY_HINT}", file=sys.stderr, flush=True)
             try:
                 rt_stdout, rt_stderr = proc.communicate(timeout=budget)
             except KeyboardInterrupt:
@@ -353,6 +475,8 @@ def run_virtual_rig(
             finally:
                 if watch is not None:
                     watch.stop()
+                if key_watch is not None:
+                    key_event = key_watch.stop()
     finally:
         if drive is not None:
             stop_process(drive)
@@ -391,6 +515,7 @@ def run_virtual_rig(
         interrupted=interrupted,
         capture=captured,
         files=files,
+        stop_key=key_event,
     )
     if watch is not None:
         from sensaug.display import watch_summary

@@ -454,8 +454,11 @@ def _run_trial(s: Session, t: SessionTrial, rnd: int, attempt: int, screen, prog
             _record_prompt(s.folder, f"(trial {rel})")
         run = run_virtual_rig(t.config, out=folder, display=screen)
         stopped_by_display = bool((run.display or {}).get("stopped_loop"))
-        reason = run.display["event"] if stopped_by_display else run.stats["stop_reason"]
-        row.update(stop_reason=reason, finished=int(run.stats["stop_reason"] in FINISHED and not stopped_by_display))
+        stopped_by_key = bool((run.stop_key or {}).get("stopped_loop"))
+        reason = (run.display["event"] if stopped_by_display
+                  else "stop key" if stopped_by_key else run.stats["stop_reason"])
+        row.update(stop_reason=reason, finished=int(run.stats["stop_reason"] in FINISHED
+                                                    and not stopped_by_display and not stopped_by_key))
         row.update(_metrics_rig(run))
         if run.display:
             row.update(display_frames=run.display.get("frames"), display_dropped=run.display.get("dropped"),

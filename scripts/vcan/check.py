@@ -84,6 +84,39 @@ def write_cia402_config(path: Path) -> None:
     cfg.to_toml(path)
 
 
+def write_cia402_standard_config(path: Path) -> None:
+    """The CiA 402 run's configuration with ``rig.cia402.freshness =
+    "standard"``: the virtual drive runs without 0x2000 (``--standard``) and
+    the master judges freshness from the bus (docs/cia402.md)."""
+    write_cia402_config(path)
+    cfg = ScenarioConfig.from_toml(path)
+    cfg.rig.cia402.freshness = "standard"
+    cfg.to_toml(path)
+
+
+def check_cia402_standard_run(name: str, out: Path, env: dict[str, str], cfg: ScenarioConfig,
+                              c: Checks) -> dict[str, Any]:
+    """The clean run on the standard virtual CiA 402 drive: the run's
+    outcomes, every frame a CiA 402 frame of the node or the master, TPDOs of
+    6 bytes (no SYNC counter echo), one RPDO1 + SYNC per tick, and the
+    statistics naming standard mode."""
+    run = check_loop(name, out, env, cfg, c, fuzz=False)
+    if run is None:
+        return {}
+    summary, stats, node = run.summary, run.stats, cfg.rig.node_id
+    by_kind, unknown = decode_cia402(run.frames, node)
+    summary["capture"] = {"frames": len(run.frames), **{k: len(v) for k, v in by_kind.items()}, "unknown": unknown}
+    summary["drive_report"] = stats.get("drive")
+    c.expect(unknown == 0, f"every data frame is a CiA 402 frame of node {node} or the master ({unknown} others)")
+    check_outcomes(name, cfg, stats, run.log, by_kind["master"], by_kind["drive"], summary, c)
+    c.expect(stats.get("drive", {}).get("freshness") == "standard", "the statistics say standard mode")
+    c.expect(all(len(f.data) == 6 for f in by_kind["TPDO1"] + by_kind["TPDO2"]) and bool(by_kind["TPDO1"]),
+             "every TPDO has 6 bytes (no 0x2000)")
+    c.expect(len(by_kind["RPDO1"]) == len(by_kind["SYNC"]) >= run.ticks,
+             f"one RPDO1 + SYNC per tick ({len(by_kind['RPDO1'])} RPDO1, {len(by_kind['SYNC'])} SYNC)")
+    return summary
+
+
 def drive_args(cfg: ScenarioConfig) -> str:
     """The virtual drive's options for the configuration's plant and rig."""
     p = cfg.plant
@@ -456,16 +489,22 @@ def main(out: Path) -> int:
     clean_cfg = ScenarioConfig.from_toml(CONFIG)
     fuzz_cfg = ScenarioConfig.from_toml(out / "fuzz.toml")
     cia402_cfg = ScenarioConfig.from_toml(out / "cia402.toml")
+    standard_cfg = ScenarioConfig.from_toml(out / "cia402_standard.toml")
     runs = {
         "clean": lambda: check_hi5_run("clean", out, env, clean_cfg, db, c, fuzz=False),
         "fuzz": lambda: check_hi5_run("fuzz", out, env, fuzz_cfg, db, c, fuzz=True),
         "cia402": lambda: check_cia402_run("cia402", out, env, cia402_cfg, c),
+        "cia402_standard": lambda: check_cia402_standard_run("cia402_standard", out, env, standard_cfg, c),
     }
     for name, check in runs.items():
         if f"{name}_loop_start" not in env:
             c.expect(False, f"{name} run happened (see {out / 'inner.log'})")
             continue
         summary[name] = check()
+    doctor = (out / "doctor.txt").read_text() if (out / "doctor.txt").exists() else ""
+    summary["doctor"] = doctor.splitlines()
+    c.expect(env.get("doctor_rc") == "0" and "[ok  ] CAN interface: vcan0 (virtual, vcan) is up" in doctor,
+             f"sensaug doctor in the VM: vcan0 found and up, nothing failed (exit {env.get('doctor_rc')})")
     c.expect(env.get("done") == "1", "the guest script ran to the end")
     summary["failed"] = c.failed
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
@@ -489,6 +528,9 @@ if __name__ == "__main__":
         sys.exit(0)
     if len(sys.argv) == 3 and sys.argv[1] == "--write-cia402-config":
         write_cia402_config(Path(sys.argv[2]))
+        sys.exit(0)
+    if len(sys.argv) == 3 and sys.argv[1] == "--write-cia402-standard-config":
+        write_cia402_standard_config(Path(sys.argv[2]))
         sys.exit(0)
     if len(sys.argv) != 2:
         sys.exit(__doc__)

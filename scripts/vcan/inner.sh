@@ -5,7 +5,9 @@
 # sensaug-rt against a virtual drive on python-can's socketcan interface,
 # each recorded with candump: a clean three-phase run and a short run under a
 # cangen fuzz on the Hi5 drive, and the clean run on the CiA 402 drive
-# (OUT/cia402.toml: the same configuration with [rig] drive = "cia402").
+# (OUT/cia402.toml: the same configuration with [rig] drive = "cia402"), and
+# on the standard CiA 402 drive (no 0x2000: --standard; OUT/cia402_standard.toml,
+# rig.cia402.freshness = "standard"); then `sensaug doctor` with vcan0 up.
 # Only collects; every check is made on the host (check.py).
 # Usage: inner.sh REPO OUT RUST_TEST_BINARY 'DRIVE_ARGS' (the virtual drive's
 # plant options from the configuration: --dt, --mass, ...)
@@ -34,9 +36,9 @@ note rust_tests_rc $?
 note rust_tests_done "$(stamp)"
 
 # -- 2. rig runs -----------------------------------------------------------------
-# run NAME CONFIG FUZZ(0|1) PROFILE(hi5|cia402)
+# run NAME CONFIG FUZZ(0|1) PROFILE(hi5|cia402) [EXTRA DRIVE ARGS]
 run() {
-    local name=$1 config=$2 fuzz=$3 profile=$4
+    local name=$1 config=$2 fuzz=$3 profile=$4 extra=${5:-}
     # The controller's first frame to node 1 once its socket is open: the Hi5
     # SetState, the CiA 402 master's first SDO request.
     local first_cmd
@@ -51,7 +53,7 @@ run() {
     local dump=$!
     # The drive starts well before the loop: under emulation importing numpy,
     # python-can and cantools takes ~15 s.
-    "$PY" -m "sensaug_bridge.virtual_$profile" -i socketcan -c vcan0 $DRIVE_ARGS --duration 600 \
+    "$PY" -m "sensaug_bridge.virtual_$profile" -i socketcan -c vcan0 $DRIVE_ARGS $extra --duration 600 \
         --log "$dir/drive.npz" 2> "$dir/drive.stderr" &
     local drive=$!
     note "${name}_drive_started" "$(stamp)"
@@ -93,5 +95,10 @@ run() {
 run clean "$REPO/configs/hi5_vcan.toml" 0 hi5
 run fuzz "$OUT/fuzz.toml" 1 hi5
 run cia402 "$OUT/cia402.toml" 0 cia402
+run cia402_standard "$OUT/cia402_standard.toml" 0 cia402 --standard
+# The host check with a CAN interface present (exit code and report kept).
+SENSAUG_RT="$RT" timeout 120 "$PY" -m sensaug doctor "$OUT/cia402.toml" --can socketcan:vcan0 \
+    > "$OUT/doctor.txt" 2>&1
+note doctor_rc $?
 note guest_end "$(stamp)"
 note done 1

@@ -43,6 +43,7 @@ TABLES = {
     'stop_torque_limit_nm = 3.0\nstop_rest_velocity_rad_s = 0.01\nvirtual_human = true\nlog = "out/rig_log.csv"\n'
     'stats = "out/rig_stats.json"\nring_capacity = 65536\n',
     "rig.realtime": "mlockall = true\n",
+    "rig.range": "soft_min_deg = -40.0\nsoft_max_deg = 40.0\nhard_min_deg = -50.0\nhard_max_deg = 50.0\n",
 }
 
 
@@ -102,6 +103,8 @@ case("valid_drive_hi5", setting("rig", "drive", '"hi5"'), "valid")
 case("valid_drive_cia402", setting("rig", "drive", '"cia402"'), "valid")
 case("valid_drive_cia402_node_15", full({"rig": 'drive = "cia402"\nnode_id = 15\n'}), "valid")
 case("cia402_node_0", full({"rig": 'drive = "cia402"\nnode_id = 0\n'}), "rig.node_id")
+case("valid_cia402_freshness_standard", full({"rig": 'drive = "cia402"\n', "rig.cia402": 'freshness = "standard"\n'}), "valid")
+case("cia402_freshness_unknown", full({"rig": 'drive = "cia402"\n', "rig.cia402": 'freshness = "counter"\n'}), "rig.cia402.freshness")
 case("valid_harmonics_defaults", BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
      '{ kind = "harmonics", amplitude = 1e-4, omega_rad_s = 1.0 }', 1), "valid")
 case("valid_sampled", BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
@@ -384,6 +387,34 @@ case("partner_integration_trajectory_first",
            "robot": TABLES["robot"] + "prior_partner_gains = [0.0, 2.0, 141.4]\n"},
           head=phases("trajectory", "integration")),
      "partner.integration")
+
+# --- the range of motion (rig.range, docs/safety.md) ------------------------------
+case("valid_range_stated_wall", full({"rig.range": "wall_stiffness_nm_per_deg = 1.0\n"
+     "wall_damping_nm_s_per_deg = 0.015\nspeed_damping_nm_s_per_deg = 0.0\n"}), "valid")
+case("valid_range_asymmetric", full({"rig.range": "soft_min_deg = -60.0\nsoft_max_deg = 30.0\n"
+     "hard_min_deg = -70.0\nhard_max_deg = 35.0\n"}), "valid")
+case("range_soft_window_empty", setting("rig.range", "soft_min_deg", "40.0"), "rig.range.soft_max_deg")
+case("range_hard_max_inside_window", setting("rig.range", "hard_max_deg", "35.0"), "rig.range.hard_max_deg")
+case("range_hard_min_inside_window", setting("rig.range", "hard_min_deg", "-40.0"), "rig.range.hard_min_deg")
+case("range_beyond_half_turn", setting("rig.range", "hard_max_deg", "181.0"), "rig.range.hard_max_deg")
+case("range_ramp_zero", setting("rig.range", "ramp_width_deg", "0.0"), "rig.range.ramp_width_deg")
+case("range_ramp_negative", setting("rig.range", "ramp_width_deg", "-1.0"), "rig.range.ramp_width_deg")
+case("range_ramps_overlap", setting("rig.range", "ramp_width_deg", "41.0"), "rig.range.ramp_width_deg")
+case("range_hard_speed_below_soft", setting("rig.range", "hard_speed_deg_s", "150.0"), "rig.range.hard_speed_deg_s")
+case("range_hard_speed_over_feedback_bound", setting("rig.range", "hard_speed_deg_s", "500.0"),
+     "rig.range.hard_speed_deg_s")
+case("range_wall_too_stiff", setting("rig.range", "wall_stiffness_nm_per_deg", "20.0"),
+     "rig.range.wall_stiffness_nm_per_deg")
+case("range_wall_damping_over_half_per_tick", setting("rig.range", "wall_damping_nm_s_per_deg", "0.05"),
+     "rig.range.wall_damping_nm_s_per_deg")
+case("range_speed_damping_nan", setting("rig.range", "speed_damping_nm_s_per_deg", "nan"),
+     "rig.range.speed_damping_nm_s_per_deg")
+case("range_wall_stiffness_inf", setting("rig.range", "wall_stiffness_nm_per_deg", "inf"),
+     "rig.range.wall_stiffness_nm_per_deg")
+case("range_unknown_field", setting("rig.range", "soft_max", "30.0"), "rig.range.soft_max")
+case("range_wall_at_10_ms", full({"plant": "dt_s = 0.01\n",
+     "rig": "watchdog_ms = 200\nfeedback_timeout_ms = 100.0\nstop_time_constant_s = 0.02\n",
+     "rig.range": "wall_stiffness_nm_per_deg = 1.0\n"}), "rig.range.wall_stiffness_nm_per_deg")
 
 # --- sizes ------------------------------------------------------------------------
 big = ", ".join(["0.0"] * 250_000)

@@ -8,7 +8,8 @@
 //! description), its line in [`RigSettings::new`] here, and its use in
 //! `sensaug-rt` (docs/realtime.md, "Adding a rig setting").
 
-use crate::schema::{DriveProfile, RigSpec, ScenarioSpec};
+use crate::error::{num, ConfigError};
+use crate::schema::{Cia402Freshness, DriveProfile, RangeSpec, RigSpec, ScenarioSpec};
 use sensaug_core::agent::HumanLike;
 use sensaug_core::plant::PlantParams;
 use sensaug_core::world::PartnerConfig;
@@ -37,6 +38,81 @@ pub struct StopSettings {
     pub rest_velocity_rad_s: f64,
 }
 
+/// The handle's range of motion and speed in the loop's units (`rig.range`
+/// from degrees: rad, rad/s, N m/rad, N m s/rad; docs/safety.md, "Range of
+/// motion"). Serialised flat, `range_*` keys.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct RangeSettings {
+    /// Soft end stop, low side (rad): the virtual wall below it.
+    #[serde(rename = "range_soft_min_rad")]
+    pub soft_min_rad: f64,
+    /// Soft end stop, high side (rad).
+    #[serde(rename = "range_soft_max_rad")]
+    pub soft_max_rad: f64,
+    /// Hard limit, low side (rad): the controlled stop below it.
+    #[serde(rename = "range_hard_min_rad")]
+    pub hard_min_rad: f64,
+    /// Hard limit, high side (rad).
+    #[serde(rename = "range_hard_max_rad")]
+    pub hard_max_rad: f64,
+    /// The controller's torque ramps down over this width inside each
+    /// soft end stop (rad).
+    #[serde(rename = "range_ramp_width_rad")]
+    pub ramp_width_rad: f64,
+    /// The wall's stiffness (N m/rad).
+    #[serde(rename = "range_wall_stiffness_nm_per_rad")]
+    pub wall_stiffness_nm_per_rad: f64,
+    /// The wall's damping (N m s/rad).
+    #[serde(rename = "range_wall_damping_nm_s_per_rad")]
+    pub wall_damping_nm_s_per_rad: f64,
+    /// Damping above this speed (rad/s).
+    #[serde(rename = "range_soft_speed_rad_s")]
+    pub soft_speed_rad_s: f64,
+    /// The controlled stop above this speed (rad/s).
+    #[serde(rename = "range_hard_speed_rad_s")]
+    pub hard_speed_rad_s: f64,
+    /// Damping on the speed above the soft speed (N m s/rad).
+    #[serde(rename = "range_speed_damping_nm_s_per_rad")]
+    pub speed_damping_nm_s_per_rad: f64,
+}
+
+/// rad per degree.
+const RAD_PER_DEG: f64 = core::f64::consts::PI / 180.0;
+
+impl RangeSettings {
+    /// `rig.range` (degrees) in rad; the wall's stiffness and the dampings
+    /// the configuration leaves out from the handle (`mass`, kg m^2) and
+    /// the period `dt_s` ([`default_wall`]).
+    pub fn new(r: &RangeSpec, mass: f64, dt_s: f64) -> Self {
+        let (stiffness, damping) = default_wall(mass, dt_s);
+        let nm_per_rad =
+            |given: Option<f64>, default: f64| given.map_or(default, |v| v / RAD_PER_DEG);
+        RangeSettings {
+            soft_min_rad: r.soft_min_deg * RAD_PER_DEG,
+            soft_max_rad: r.soft_max_deg * RAD_PER_DEG,
+            hard_min_rad: r.hard_min_deg * RAD_PER_DEG,
+            hard_max_rad: r.hard_max_deg * RAD_PER_DEG,
+            ramp_width_rad: r.ramp_width_deg * RAD_PER_DEG,
+            wall_stiffness_nm_per_rad: nm_per_rad(r.wall_stiffness_nm_per_deg, stiffness),
+            wall_damping_nm_s_per_rad: nm_per_rad(r.wall_damping_nm_s_per_deg, damping),
+            soft_speed_rad_s: r.soft_speed_deg_s * RAD_PER_DEG,
+            hard_speed_rad_s: r.hard_speed_deg_s * RAD_PER_DEG,
+            speed_damping_nm_s_per_rad: nm_per_rad(r.speed_damping_nm_s_per_deg, damping),
+        }
+    }
+}
+
+/// The wall's stiffness (N m/rad) and the wall's and the speed limit's
+/// damping (N m s/rad) when `rig.range` leaves them out: `mass / (8 dt)^2`
+/// and `mass / (8 dt)`. On the handle with one tick of feedback delay the
+/// behaviour depends only on `K dt^2 / M` and `B dt / M`, so these settle
+/// alike on every plant: spectral radius 0.941 with the wall's damping
+/// alone, 0.912 with the speed damping too ([`wall_spectral_radius`]).
+pub fn default_wall(mass: f64, dt_s: f64) -> (f64, f64) {
+    let per_tick = mass / (8.0 * dt_s);
+    (per_tick / (8.0 * dt_s), per_tick)
+}
+
 /// Settings of the loop (from `[rig]` and the controller's configuration).
 /// Serialised flat, one key per setting: the rig log's `loop` metadata.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -57,6 +133,8 @@ pub struct RigSettings {
     pub watchdog_ms: u16,
     /// CiA 402: the drive's heartbeat is lost after this long (ms).
     pub drive_heartbeat_timeout_ms: u32,
+    /// CiA 402: how TPDOs are matched to SYNCs (`rig.cia402.freshness`).
+    pub cia402_freshness: Cia402Freshness,
     /// Feedback timeout (ms).
     pub feedback_timeout_ms: f64,
     /// Feedback older than this many ticks trips the timeout.
@@ -66,6 +144,9 @@ pub struct RigSettings {
     pub stop: StopSettings,
     /// The controlled stop's time limit (ticks).
     pub stop_ticks: u64,
+    /// The handle's range of motion and speed.
+    #[serde(flatten)]
+    pub range: RangeSettings,
     /// Virtual human gains over `xi` (zeros: no virtual human).
     pub partner_gains: [f64; 3],
     /// Virtual human torque limit (model units).
@@ -137,6 +218,7 @@ impl RigSettings {
             torque_limit_nm: rig.torque_limit_nm,
             watchdog_ms: rig.watchdog_ms as u16,
             drive_heartbeat_timeout_ms: rig.cia402.heartbeat_timeout_ms,
+            cia402_freshness: rig.cia402.freshness,
             feedback_timeout_ms: rig.feedback_timeout_ms,
             feedback_timeout_ticks: (rig.feedback_timeout_ms * 1e-3 / dt_s).ceil() as u64,
             stop: StopSettings {
@@ -146,6 +228,7 @@ impl RigSettings {
                 rest_velocity_rad_s: rig.stop_rest_velocity_rad_s,
             },
             stop_ticks: (rig.stop_time_limit_s / dt_s).round() as u64,
+            range: RangeSettings::new(&rig.range, mass, dt_s),
             partner_gains: if rig.virtual_human {
                 partner.gains
             } else {
@@ -175,4 +258,193 @@ impl RigSettings {
     pub fn quiet_period(&self) -> std::time::Duration {
         std::time::Duration::from_millis(self.quiet_period_ms)
     }
+}
+
+/// The largest eigenvalue modulus of the handle (inertia `mass`, kg m^2)
+/// under a spring-damper `stiffness` (N m/rad), `damping` (N m s/rad)
+/// acting one tick of `dt_s` late (a feedback delay of one period, as on the
+/// bus): state `[x_k, v_k, x_(k-1), v_(k-1)]`, exact zero-order hold of
+/// `a_k = -(stiffness x_(k-1) + damping v_(k-1)) / mass`. Below 1: the
+/// wall settles; the smaller, the faster.
+pub fn wall_spectral_radius(mass: f64, stiffness: f64, damping: f64, dt_s: f64) -> f64 {
+    let (k, b) = (stiffness / mass, damping / mass);
+    let h = 0.5 * dt_s * dt_s;
+    let a = nalgebra::Matrix4::new(
+        1.0,
+        dt_s,
+        -h * k,
+        -h * b,
+        0.0,
+        1.0,
+        -dt_s * k,
+        -dt_s * b,
+        1.0,
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+        1.0,
+        0.0,
+        0.0,
+    );
+    // A bounded Schur iteration: a matrix it cannot reduce (non-finite
+    // entries) counts as not settling, never as a hang.
+    match nalgebra::linalg::Schur::try_new(a, f64::EPSILON, 10_000) {
+        Some(schur) => schur
+            .complex_eigenvalues()
+            .iter()
+            .map(|z| z.re.hypot(z.im))
+            .map(|r| if r.is_nan() { f64::INFINITY } else { r })
+            .fold(0.0, f64::max),
+        None => f64::INFINITY,
+    }
+}
+
+/// The cross-field rules of `rig.range` (the fields' own bounds are the
+/// schema's): the soft window inside the hard limits, ramps that do not
+/// overlap, the hard speed between the soft one and the feedback's
+/// plausibility bound, and a wall and speed damping that settle on the
+/// handle (`plant.mass`, kg m^2) with one tick of feedback delay.
+pub(crate) fn check_range(rig: &RigSpec, mass: f64, dt_s: f64) -> Result<(), ConfigError> {
+    let r = &rig.range;
+    let err = |field: &str, msg: String| Err(ConfigError::new(format!("rig.range.{field}"), msg));
+    // The optional gains: null in the JSON the bounds are checked on, so a
+    // nan or inf reaches here.
+    for (field, value) in [
+        ("wall_stiffness_nm_per_deg", r.wall_stiffness_nm_per_deg),
+        ("wall_damping_nm_s_per_deg", r.wall_damping_nm_s_per_deg),
+        ("speed_damping_nm_s_per_deg", r.speed_damping_nm_s_per_deg),
+    ] {
+        if value.is_some_and(|v| !v.is_finite()) {
+            return err(
+                field,
+                "must be a finite number (nan and inf are not allowed); write a number, or leave \
+                 it out for the plant's default"
+                    .into(),
+            );
+        }
+    }
+    if r.soft_min_deg >= r.soft_max_deg {
+        return err(
+            "soft_max_deg",
+            format!(
+                "{} deg is not above rig.range.soft_min_deg ({} deg); the soft window needs \
+                 soft_min_deg < soft_max_deg",
+                num(r.soft_max_deg),
+                num(r.soft_min_deg)
+            ),
+        );
+    }
+    if r.hard_min_deg >= r.soft_min_deg {
+        return err(
+            "hard_min_deg",
+            format!(
+                "{} deg is not below rig.range.soft_min_deg ({} deg); the soft window must lie \
+                 inside the hard limits: lower hard_min_deg or raise soft_min_deg",
+                num(r.hard_min_deg),
+                num(r.soft_min_deg)
+            ),
+        );
+    }
+    if r.hard_max_deg <= r.soft_max_deg {
+        return err(
+            "hard_max_deg",
+            format!(
+                "{} deg is not above rig.range.soft_max_deg ({} deg); the soft window must lie \
+                 inside the hard limits: raise hard_max_deg or lower soft_max_deg",
+                num(r.hard_max_deg),
+                num(r.soft_max_deg)
+            ),
+        );
+    }
+    let half_window = 0.5 * (r.soft_max_deg - r.soft_min_deg);
+    if r.ramp_width_deg > half_window {
+        return err(
+            "ramp_width_deg",
+            format!(
+                "{} deg is more than half the soft window ({} deg): the two ramps would \
+                 overlap; use at most {} deg",
+                num(r.ramp_width_deg),
+                num(r.soft_max_deg - r.soft_min_deg),
+                num(half_window)
+            ),
+        );
+    }
+    if r.hard_speed_deg_s <= r.soft_speed_deg_s {
+        return err(
+            "hard_speed_deg_s",
+            format!(
+                "{} deg/s is not above rig.range.soft_speed_deg_s ({} deg/s); raise \
+                 hard_speed_deg_s or lower soft_speed_deg_s",
+                num(r.hard_speed_deg_s),
+                num(r.soft_speed_deg_s)
+            ),
+        );
+    }
+    let hard_speed_rad_s = r.hard_speed_deg_s * RAD_PER_DEG;
+    if hard_speed_rad_s >= rig.max_feedback_velocity_rad_s {
+        return err(
+            "hard_speed_deg_s",
+            format!(
+                "{} deg/s ({} rad/s) is not below rig.max_feedback_velocity_rad_s ({} rad/s): \
+                 a faster feedback is refused as implausible (torque off) before the speed \
+                 limit's controlled stop; use less than {} deg/s",
+                num(r.hard_speed_deg_s),
+                num(hard_speed_rad_s),
+                num(rig.max_feedback_velocity_rad_s),
+                num(rig.max_feedback_velocity_rad_s / RAD_PER_DEG)
+            ),
+        );
+    }
+    // Damping gains per tick, b dt / M: each at most 1/2 (the brake's
+    // rule, docs/safety.md); both act on a fast handle in the wall, checked
+    // with the stiffness below.
+    let s = RangeSettings::new(r, mass, dt_s);
+    for (field, b) in [
+        ("wall_damping_nm_s_per_deg", s.wall_damping_nm_s_per_rad),
+        ("speed_damping_nm_s_per_deg", s.speed_damping_nm_s_per_rad),
+    ] {
+        let gain = b * dt_s / mass;
+        if gain > 0.5 {
+            return err(
+                field,
+                format!(
+                    "{} N m s/deg takes {} of the speed per tick off the handle (plant.mass = {} \
+                     kg m^2, plant.dt_s = {} s), more than 1/2: it would oscillate with one tick \
+                     of feedback delay; use at most {} N m s/deg, or leave it out (plant.mass / \
+                     (8 plant.dt_s))",
+                    num(b * RAD_PER_DEG),
+                    num(gain),
+                    num(mass),
+                    num(dt_s),
+                    num(0.5 * mass / dt_s * RAD_PER_DEG)
+                ),
+            );
+        }
+    }
+    for (what, b) in [
+        ("", s.wall_damping_nm_s_per_rad),
+        (
+            " and rig.range.speed_damping_nm_s_per_deg",
+            s.wall_damping_nm_s_per_rad + s.speed_damping_nm_s_per_rad,
+        ),
+    ] {
+        let rho = wall_spectral_radius(mass, s.wall_stiffness_nm_per_rad, b, dt_s);
+        if rho >= 1.0 {
+            return err(
+                "wall_stiffness_nm_per_deg",
+                format!(
+                    "{} N m/deg with rig.range.wall_damping_nm_s_per_deg{what} does not settle \
+                     on the handle (plant.mass = {} kg m^2, plant.dt_s = {} s) with one tick \
+                     of feedback delay (spectral radius {:.3} >= 1); lower the stiffness, bring \
+                     the damping toward plant.mass / (8 plant.dt_s), or leave both out",
+                    num(s.wall_stiffness_nm_per_rad * RAD_PER_DEG),
+                    num(mass),
+                    num(dt_s),
+                    rho
+                ),
+            );
+        }
+    }
+    Ok(())
 }

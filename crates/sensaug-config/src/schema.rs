@@ -781,12 +781,43 @@ pub struct Cia402Spec {
     /// within a small multiple of it).
     #[schemars(range(min = 10, max = 600))]
     pub heartbeat_timeout_ms: u32,
+    /// How the master tells a TPDO answering this tick's SYNC from a late or
+    /// replayed one: "auto" (the SYNC counter echo 0x2000 if the drive's
+    /// dictionary has it, else standard), "sync_counter_echo" (a drive
+    /// without 0x2000 is refused) or "standard" (judged from the bus: a TPDO
+    /// received after SYNC k and before SYNC k+1 answers SYNC k; a replay
+    /// inside that window goes unseen, docs/safety.md). The statistics'
+    /// drive.freshness says which ran.
+    pub freshness: Cia402Freshness,
 }
 
 impl Default for Cia402Spec {
     fn default() -> Self {
         Cia402Spec {
             heartbeat_timeout_ms: 100,
+            freshness: Cia402Freshness::Auto,
+        }
+    }
+}
+
+/// `rig.cia402.freshness` (docs/cia402.md, "Freshness").
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Cia402Freshness {
+    /// The echo if the drive has 0x2000, else standard (set-up reads it).
+    Auto,
+    /// The SYNC counter echo 0x2000; a drive without it is refused.
+    SyncCounterEcho,
+    /// Judged from the bus, whether or not the drive has 0x2000.
+    Standard,
+}
+
+impl From<Cia402Freshness> for sensaug_bridge::cia402::FreshnessSetting {
+    fn from(f: Cia402Freshness) -> Self {
+        match f {
+            Cia402Freshness::Auto => Self::Auto,
+            Cia402Freshness::SyncCounterEcho => Self::SyncCounterEcho,
+            Cia402Freshness::Standard => Self::Standard,
         }
     }
 }
@@ -885,6 +916,10 @@ pub struct RigSpec {
     pub realtime: RealtimeSpec,
     /// CiA 402 profile settings.
     pub cia402: Cia402Spec,
+    /// The handle's range of motion and speed for the wrist in it (deg):
+    /// soft end stops with a virtual wall, hard limits, a speed limit
+    /// (docs/safety.md, "Range of motion").
+    pub range: RangeSpec,
 }
 
 impl Default for RigSpec {
@@ -913,6 +948,87 @@ impl Default for RigSpec {
             max_estimator_errors: 10,
             realtime: RealtimeSpec::default(),
             cia402: Cia402Spec::default(),
+            range: RangeSpec::default(),
+        }
+    }
+}
+
+/// `[rig.range]`: the handle's range of motion and speed, in degrees
+/// whatever `rig.position_unit` (like every `[rig]` field, the unit is in
+/// the name), enforced by `sensaug-rt` every tick (docs/safety.md, "Range
+/// of motion"; the defaults and their sources: docs/person.md). The
+/// simulation ignores it.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct RangeSpec {
+    /// Soft end stop, low side (deg): below it a virtual wall (a
+    /// spring-damper, `wall_stiffness_nm_per_deg`,
+    /// `wall_damping_nm_s_per_deg`) pushes the handle back.
+    #[schemars(range(min = -180.0, max = 180.0))]
+    pub soft_min_deg: f64,
+    /// Soft end stop, high side (deg).
+    #[schemars(range(min = -180.0, max = 180.0))]
+    pub soft_max_deg: f64,
+    /// Hard limit, low side (deg): a measured position below it stops the
+    /// run with the controlled stop ("range limit"). Below `soft_min_deg`.
+    #[schemars(range(min = -180.0, max = 180.0))]
+    pub hard_min_deg: f64,
+    /// Hard limit, high side (deg). Above `soft_max_deg`.
+    #[schemars(range(min = -180.0, max = 180.0))]
+    pub hard_max_deg: f64,
+    /// Width of the ramp-down inside each soft end stop (deg): the
+    /// controller's torque toward a soft end stop is scaled from 1, at
+    /// `ramp_width_deg` from it, down to 0 at it (the partner's is not).
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = 180.0))]
+    pub ramp_width_deg: f64,
+    /// The wall's stiffness beyond a soft end stop (N m/deg). Absent:
+    /// `plant.mass / (8 plant.dt_s)^2` (0.955 N m/deg for the Hi5 at 1 kHz;
+    /// the wall's natural frequency is 1/8 rad per tick).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schemars(range(min = 0.0, max = 100.0))]
+    pub wall_stiffness_nm_per_deg: Option<f64>,
+    /// The wall's damping beyond a soft end stop (N m s/deg); the wall only
+    /// ever pushes back into the window. Absent: `plant.mass / (8
+    /// plant.dt_s)` (0.00764 N m s/deg for the Hi5 at 1 kHz: 1/8 of the
+    /// speed per tick).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schemars(range(min = 0.0, max = 10.0))]
+    pub wall_damping_nm_s_per_deg: Option<f64>,
+    /// Soft speed limit (deg/s): above it a damping torque on the excess
+    /// speed (`speed_damping_nm_s_per_deg`) slows the handle.
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = 1e5))]
+    pub soft_speed_deg_s: f64,
+    /// Hard speed limit (deg/s): a measured speed above it stops the run
+    /// with the controlled stop ("range limit"). Above `soft_speed_deg_s`,
+    /// below `rig.max_feedback_velocity_rad_s`.
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = 1e5))]
+    pub hard_speed_deg_s: f64,
+    /// Damping on the speed above `soft_speed_deg_s` (N m s/deg). Absent:
+    /// `plant.mass / (8 plant.dt_s)`, as the wall's (the two together
+    /// critically damped with one tick of feedback delay).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schemars(range(min = 0.0, max = 10.0))]
+    pub speed_damping_nm_s_per_deg: Option<f64>,
+}
+
+impl Default for RangeSpec {
+    /// The Hi5 wrist (docs/person.md, "Range of motion"): soft end stops at
+    /// +-40 deg (the wrist's functional range in flexion and extension),
+    /// hard limits at +-50 deg (inside the average maximum extension of
+    /// 60 deg), a 5 deg ramp; the wall and the speed damping from the plant
+    /// ([`crate::rig::RangeSettings::new`]); speed limits 200 and 400 deg/s.
+    fn default() -> Self {
+        RangeSpec {
+            soft_min_deg: -40.0,
+            soft_max_deg: 40.0,
+            hard_min_deg: -50.0,
+            hard_max_deg: 50.0,
+            ramp_width_deg: 5.0,
+            wall_stiffness_nm_per_deg: None,
+            wall_damping_nm_s_per_deg: None,
+            soft_speed_deg_s: 200.0,
+            hard_speed_deg_s: 400.0,
+            speed_damping_nm_s_per_deg: None,
         }
     }
 }

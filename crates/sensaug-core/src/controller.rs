@@ -88,6 +88,10 @@ pub struct Robot<'a> {
     counters: RobotCounters,
     stage3_tally: FilterTally,
     last_measurement: (f64, f64),
+    /// The drive's torque resolution (model units; None: exact, as in
+    /// simulation): the command is the torque as the drive applies it
+    /// ([`Robot::set_torque_step`]).
+    torque_step: Option<f64>,
     /// Stage 2's measurement covariance with the integration phase's
     /// target-view noise added, set when that phase starts.
     stage2_R_noisy: SMatrix<f64, 5, 5>,
@@ -144,8 +148,19 @@ impl<'a> Robot<'a> {
             counters: RobotCounters::default(),
             stage3_tally: FilterTally::default(),
             last_measurement: (0.0, 0.0),
+            torque_step: None,
             stage2_R_noisy: cfg.stage2.R,
         })
+    }
+
+    /// The drive applies torque in steps of `step` (model units; a rig's
+    /// drive profile: CiA 402 one per-mille of its rated torque, the Hi5 the
+    /// DBC's scale): from now on each command is rounded to it
+    /// ([`applied_torque`]), so the estimators predict with, and the log
+    /// records, the torque the drive applies. None, or a step that is not
+    /// finite and positive: exact (simulation).
+    pub fn set_torque_step(&mut self, step: Option<f64>) {
+        self.torque_step = step.filter(|s| s.is_finite() && *s > 0.0);
     }
 
     /// The protocol this robot follows.
@@ -306,7 +321,28 @@ impl<'a> Robot<'a> {
             Guard::Clamped => self.counters.clamped += 1,
             Guard::NonFinite => self.counters.non_finite += 1,
         }
-        u
+        match self.torque_step {
+            Some(step) => applied_torque(u, step, self.cfg.torque_limit),
+            None => u,
+        }
+    }
+}
+
+/// The torque a drive applies for command `u` (already within `limit`):
+/// `round_ties_even(u / step) * step` (CiA 402's per-mille and the Hi5 DBC's
+/// raw value both round so), one step towards zero if that passes `limit`.
+/// A step that is not finite and positive leaves `u` as it is.
+pub fn applied_torque(u: f64, step: f64, limit: f64) -> f64 {
+    if !(step.is_finite() && step > 0.0) {
+        return u;
+    }
+    // rint: round half to even (the default rounding mode), no_std.
+    let steps = libm::rint(u / step);
+    let applied = steps * step;
+    if applied.abs() > limit {
+        (steps - steps.signum()) * step
+    } else {
+        applied
     }
 }
 

@@ -16,7 +16,7 @@
 //!
 //! Fixed-size running sums: `A11, A13, A33, b1, b3` depend on `d_v` only,
 //! `A22, b2` on `d_p` only, `A12, A23` on the pair. A coarse grid (10 ms
-//! steps over 0-300 ms, both delays) accumulates first; then a fine grid
+//! steps over 0-300 ms, both delays; every second residual) accumulates first; then a fine grid
 //! (1 ms steps, +-10 ms around the coarse choice) accumulates, its residuals
 //! weighted by a fitted signal-dependent noise model. A few pairs are
 //! evaluated per tick (round robin); the choice is the best of the last
@@ -25,8 +25,15 @@
 
 use crate::agent::History;
 
-/// Pairs evaluated per tick (round robin over the active grid).
-const PAIRS_PER_TICK: usize = 8;
+/// Pairs evaluated per tick (round robin over the active grid): a coarse
+/// sweep takes 241 ticks, a fine one 111, far below the 5% and 10% of the
+/// phase before the choices count.
+const PAIRS_PER_TICK: usize = 4;
+/// The coarse grid accumulates every `COARSE_EVERY`-th residual: it only
+/// picks the fine grid's neighbourhood, where neighbouring 10 ms delays
+/// differ by hundreds of nats (docs/design/partner_delay.md, section 10),
+/// and its 31 x 31 cross sums are most of the search's cost.
+const COARSE_EVERY: u64 = 2;
 /// Coarse grid points per delay (0, 10, ..., 300 ms).
 const COARSE: usize = 31;
 /// Fine grid points per delay (+-10 ticks).
@@ -259,7 +266,8 @@ pub struct SearchSchedule {
     pub max_delay: usize,
     /// Coarse grid step (ticks).
     pub coarse_step: usize,
-    /// Residuals on the coarse grid before its first choice.
+    /// Residuals on the coarse grid before its first choice (it takes
+    /// every `COARSE_EVERY`-th).
     pub min_coarse: u64,
     /// Gain-phase tick at which the fine grid starts.
     pub fine_start: u64,
@@ -277,7 +285,7 @@ impl SearchSchedule {
         SearchSchedule {
             max_delay,
             coarse_step: (max_delay / (COARSE - 1)).max(1),
-            min_coarse: ticks / 20,
+            min_coarse: ticks / 20 / COARSE_EVERY,
             fine_start: (max_delay as u64 + 1).max(ticks * 3 / 10),
             min_fine: ticks / 10,
         }
@@ -367,6 +375,8 @@ pub struct DelaySearch {
     k: u64,
     /// Ticks since a missing measurement.
     fresh_run: usize,
+    /// Residuals offered to the coarse grid.
+    coarse_offered: u64,
 }
 
 impl DelaySearch {
@@ -383,6 +393,7 @@ impl DelaySearch {
             choice: None,
             k: 0,
             fresh_run: 0,
+            coarse_offered: 0,
         }
     }
 
@@ -406,9 +417,10 @@ impl DelaySearch {
         self.fresh_run += 1;
         let v_m = ring.ago(0)[1];
         // The residual needs two fresh velocities in a row (`prev` is reset
-        // by a missing one); a regressor may be a held sample (one tick
-        // old), a small error next to dropping every residual for 300 ms
-        // after each gap on a loaded rig. No residual before the history
+        // by a missing one); a regressor may be a gap's predicted sample
+        // (the identifier's, docs/model.md "Feedback gaps"), a small error
+        // next to dropping every residual for 300 ms after each gap on a
+        // loaded rig. No residual before the history
         // holds the longest delay.
         let started = ring.len() > self.schedule.max_delay + 1;
         if let (Some((v_prev, u_prev, c_prev)), true) = (self.prev, started) {
@@ -432,7 +444,12 @@ impl DelaySearch {
             }
         }
         match self.fine.as_mut() {
-            None => self.coarse.add(ring, r, 1.0),
+            None => {
+                self.coarse_offered += 1;
+                if self.coarse_offered % COARSE_EVERY == 0 {
+                    self.coarse.add(ring, r, 1.0);
+                }
+            }
             Some(fine) => {
                 // Feasible weighted least squares under var = s0 + k2 c^2.
                 let w = match self.noise.model() {

@@ -259,6 +259,28 @@ pub fn extended_transition(
     dtau: f64,
     dtau_h: f64,
 ) -> BilinearProcess<6, 3, 3> {
+    let (F, b, g) = motion_rows(step, u, dtau, dtau_h);
+    BilinearProcess {
+        F,
+        b,
+        g,
+        q: PARTNER_CONTROL,
+    }
+}
+
+/// The moving rows `[e', v', e_h'] = F z + b + g q` shared by the extended
+/// processes ([`extended_transition`], [`delayed_trajectory_transition`]):
+/// `F = [[1, dx_v, 0, 0, 0, 0], [0, v_v, 0, 0, 0, 0], [0, dx_v, 1, 0, 0, 0]]`,
+/// `b = [dx_f u - dtau, v_f u, dx_f u - dtau_h]`, `g = [-dx_f, -v_f, -dx_f]`
+/// (the partner's torque is `-q`). Inlined, so a constant step still folds
+/// into the predict's arithmetic ([`GainEstimator::predict`]).
+#[inline(always)]
+fn motion_rows(
+    step: &Step,
+    u: f64,
+    dtau: f64,
+    dtau_h: f64,
+) -> (SMatrix<f64, 3, 6>, Vector3<f64>, Vector3<f64>) {
     let Step {
         dx_v,
         dx_f,
@@ -271,12 +293,11 @@ pub fn extended_transition(
     F[(1, 1)] = v_v;
     F[(2, 1)] = dx_v;
     F[(2, E_H)] = 1.0;
-    BilinearProcess {
+    (
         F,
-        b: Vector3::new(dx_f * u - dtau, v_f * u, dx_f * u - dtau_h),
-        g: Vector3::new(-dx_f, -v_f, -dx_f),
-        q: PARTNER_CONTROL,
-    }
+        Vector3::new(dx_f * u - dtau, v_f * u, dx_f * u - dtau_h),
+        Vector3::new(-dx_f, -v_f, -dx_f),
+    )
 }
 
 /// [`extended_transition`] applied to `z`: the next extended state.
@@ -305,22 +326,15 @@ pub fn delayed_transition(
     dtau: f64,
     dtau_h: f64,
 ) -> (Cov6, Extended) {
-    let Step {
-        dx_v,
-        dx_f,
-        v_v,
-        v_f,
-    } = *step;
+    let (rows, b3, g) = motion_rows(step, u, dtau, dtau_h);
     let mut F = Cov6::identity();
-    F[(0, 1)] = dx_v;
-    F[(1, 1)] = v_v;
-    F[(2, 1)] = dx_v;
-    for (c, p) in phi.iter().enumerate() {
-        F[(0, GAINS + c)] = -dx_f * p;
-        F[(1, GAINS + c)] = -v_f * p;
-        F[(2, GAINS + c)] = -dx_f * p;
+    F.fixed_rows_mut::<3>(0).copy_from(&rows);
+    for (r, gr) in g.iter().enumerate() {
+        for (c, p) in phi.iter().enumerate() {
+            F[(r, GAINS + c)] = gr * p;
+        }
     }
-    let b = Extended::new(dx_f * u - dtau, v_f * u, dx_f * u - dtau_h, 0.0, 0.0, 0.0);
+    let b = Extended::new(b3[0], b3[1], b3[2], 0.0, 0.0, 0.0);
     (F, b)
 }
 
@@ -348,20 +362,8 @@ pub fn delayed_trajectory_transition(
     u: f64,
     dtau: f64,
 ) -> BilinearProcess<6, 3, 1> {
-    let Step {
-        dx_v,
-        dx_f,
-        v_v,
-        v_f,
-    } = *step;
     let [phi1, phi2, s] = known;
-    let mut F = SMatrix::<f64, 3, 6>::zeros();
-    F[(0, 0)] = 1.0;
-    F[(0, 1)] = dx_v;
-    F[(1, 1)] = v_v;
-    F[(2, 1)] = dx_v;
-    F[(2, E_H)] = 1.0;
-    let g = [-dx_f, -v_f, -dx_f];
+    let (mut F, b, g) = motion_rows(step, u, dtau, 0.0);
     for (r, gr) in g.iter().enumerate() {
         F[(r, GAINS)] = gr * phi1;
         F[(r, GAINS + 1)] = gr * phi2;
@@ -369,8 +371,8 @@ pub fn delayed_trajectory_transition(
     }
     BilinearProcess {
         F,
-        b: Vector3::new(dx_f * u - dtau, v_f * u, dx_f * u),
-        g: Vector3::new(g[0], g[1], g[2]),
+        b,
+        g,
         q: DELAYED_PARTNER_CONTROL,
     }
 }

@@ -156,6 +156,16 @@ enum Delayed {
     },
 }
 
+/// The handle as the identifier last saw it: the position `x` it stood on
+/// (measured, or carried through a gap), its stage's posterior `e = x - tau`
+/// there, and the own target's increment given to the predict since.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct GapView {
+    x: f64,
+    e: f64,
+    dtau: f64,
+}
+
 /// Stage 1 and stage 2 of one agent, with the gain window and the hand-off.
 #[derive(Clone, Debug)]
 pub struct Identifier {
@@ -171,6 +181,8 @@ pub struct Identifier {
     /// Stage 1 has predicted without a measurement since its last one
     /// ([`GainEstimator::resync`] before the next).
     stage1_gap: bool,
+    /// Where the last tick left the handle, for a gap's prediction.
+    view: GapView,
     tally: FilterTally,
     /// The delayed partner model (`robot.partner_delay`).
     delayed: Delayed,
@@ -213,6 +225,7 @@ impl Identifier {
             prior_gains,
             pseudo_gains: None,
             stage1_gap: false,
+            view: GapView::default(),
             tally: FilterTally::default(),
             delayed: Delayed::Paper,
             dt_s,
@@ -294,10 +307,12 @@ impl Identifier {
         }
     }
 
-    /// Stores this tick's measured sample `[x - tau, xdot, x - tau_h, x]`
-    /// (the last one again when there is none) and, in a gain phase with a
-    /// search, feeds the search and takes its choice.
-    fn record(&mut self, sample: &Sample<'_>, y: Option<[f64; 4]>) {
+    /// Stores this tick's sample `[x - tau, xdot, x - tau_h, x]`: the
+    /// measured one (`fresh`), else the active stage's prediction of it
+    /// (docs/model.md, "Feedback gaps"), and, in a gain phase with a
+    /// search, feeds the search (which uses only fresh residuals) and takes
+    /// its choice.
+    fn record(&mut self, sample: &Sample<'_>, y: [f64; 4], fresh: bool) {
         let step = (self.step.v_v, self.step.v_f);
         let dt_s = self.dt_s;
         let Delayed::On {
@@ -309,7 +324,7 @@ impl Identifier {
         else {
             return;
         };
-        history.push(y.unwrap_or_else(|| history.ago(0)));
+        history.push(y);
         if sample.phase.kind != PhaseKind::Gains {
             return;
         }
@@ -319,16 +334,37 @@ impl Identifier {
                 *s = DelaySearch::new(SearchSchedule::for_phase(ticks, dt_s));
                 *phase = Some(sample.index);
             }
-            s.observe(history, y.is_some(), step);
+            s.observe(history, fresh, step);
             if let Some(c) = s.choice() {
                 *delays = (c.visual, c.proprioceptive);
             }
         }
     }
 
+    /// In a gap (no measurement this tick): the active stage's prior
+    /// `[e, v, e_h]` (`e_h` NaN in stage 2, whose entry is another
+    /// quantity) and the handle position it implies,
+    /// `x = x_prev + (e - e_prev) + dtau_prev` (`e = x - tau`): the sample
+    /// the partner acted on, as well as the robot can tell.
+    fn predicted_sample(&self, kind: PhaseKind) -> [f64; 4] {
+        let z = match kind {
+            PhaseKind::Gains => self.stage1.filter().x(),
+            PhaseKind::Trajectory | PhaseKind::Integration => self.stage2.filter().x(),
+        };
+        let e_h = if kind == PhaseKind::Gains {
+            z[E_H]
+        } else {
+            f64::NAN
+        };
+        let v = &self.view;
+        [z[0], z[1], e_h, v.x + (z[0] - v.e) + v.dtau]
+    }
+
     /// Per tick, first: fuse the measurement `y = [x - tau_own, xdot,
     /// x - tau_partner]` when there is one (its third entry is only used in
-    /// gain phases) and return the estimate at the handle position `x`.
+    /// gain phases) and return the estimate at the handle position `x`, the
+    /// measured one; without a measurement `x` is not read: the stage's
+    /// predicted position stands in for it ([`Identifier::predicted_sample`]).
     /// Gain phases run stage 1 and its window; later phases run stage 2
     /// (after the hand-off at its first tick), with this tick's measurement
     /// covariance `R` if given, else the configured one.
@@ -339,20 +375,35 @@ impl Identifier {
         x: f64,
         R: Option<&SMatrix<f64, 5, 5>>,
     ) -> PartnerEstimate {
-        let est = match sample.phase.kind {
-            PhaseKind::Gains => {
-                self.record(sample, y.map(|y| [y[0], y[1], y[2], x]));
-                self.update_gains(sample, y)
-            }
+        let kind = sample.phase.kind;
+        if kind != PhaseKind::Gains && self.pseudo_gains.is_none() {
+            self.hand_off();
+        }
+        let (fresh, y4) = match y {
+            Some(y) => (true, [y[0], y[1], y[2], x]),
+            None => (false, self.predicted_sample(kind)),
+        };
+        let x = y4[3];
+        let y4 = match kind {
+            PhaseKind::Gains => y4,
+            // Stage 2's third entry is not `x - tau_h` (unknown there).
+            PhaseKind::Trajectory | PhaseKind::Integration => [y4[0], y4[1], f64::NAN, y4[3]],
+        };
+        self.record(sample, y4, fresh);
+        let est = match kind {
+            PhaseKind::Gains => self.update_gains(sample, y),
             PhaseKind::Trajectory | PhaseKind::Integration => {
-                let first = self.pseudo_gains.is_none();
-                if first {
-                    self.hand_off();
-                }
-                self.record(sample, y.map(|y| [y[0], y[1], f64::NAN, x]));
                 self.update_trajectory(y.map(|y| (y[0], y[1])), x, R)
             }
         };
+        // The stage's posterior `e` and the position it stands on, for the
+        // next gap's prediction.
+        let z = match kind {
+            PhaseKind::Gains => self.stage1.filter().x(),
+            PhaseKind::Trajectory | PhaseKind::Integration => self.stage2.filter().x(),
+        };
+        self.view.x = x;
+        self.view.e = z[0];
         let (delay_ms, delay_margin_nats) = self.delay_report();
         PartnerEstimate {
             delay_ms,
@@ -365,6 +416,7 @@ impl Identifier {
     /// and the targets' increments over the coming step (stage 2 does not
     /// know the partner's: 0).
     pub fn predict(&mut self, kind: PhaseKind, u: f64, dtau_own: f64, dtau_partner: f64) {
+        self.view.dtau = dtau_own;
         let r = match (&mut self.delayed, kind) {
             (Delayed::Paper, PhaseKind::Gains) => self.stage1.predict(u, dtau_own, dtau_partner),
             (Delayed::Paper, _) => self.stage2.predict(u, dtau_own, 0.0),

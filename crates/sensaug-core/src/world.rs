@@ -105,6 +105,20 @@ fn mirror_tick(
     est.mirrored()
 }
 
+/// The partner model of the partner's identification of the robot
+/// (`docs/model.md`, "The partner in simulation"): the paper's when the
+/// robot runs the paper's (`robot.partner_delay` absent: bit-identical);
+/// otherwise the delay-aware model with the delay identified online, as the
+/// robot's `"auto"`. Not the robot's configured number: that is the
+/// partner's delay, and the robot's own is what the search finds (0 here:
+/// the robot acts on the sample it measures, the one the mirror sees).
+fn mirror_delay(robot: PartnerDelay) -> PartnerDelay {
+    match robot {
+        PartnerDelay::Paper => PartnerDelay::Paper,
+        PartnerDelay::Known { .. } | PartnerDelay::Auto => PartnerDelay::Auto,
+    }
+}
+
 /// What a finished trial reports besides its records.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct RunSummary {
@@ -281,11 +295,9 @@ impl<'a> Scenario<'a> {
                 acts_on: partner.acts_on,
                 // The partner knows no prior robot gains.
                 mirror: if partner.estimates_robot {
-                    // It runs the paper's model (it perceives the robot
-                    // without a delay of its own).
                     Some(
                         cfg.identifier(protocol.dt_s(), None)?
-                            .with_delay(PartnerDelay::Paper)?,
+                            .with_delay(mirror_delay(cfg.partner_delay))?,
                     )
                 } else {
                     None
@@ -316,7 +328,7 @@ impl<'a> Scenario<'a> {
                     integrate: pi.integrate,
                     seed: pi.seed,
                     prior_partner_gains: None,
-                    partner_delay: PartnerDelay::Paper,
+                    partner_delay: mirror_delay(cfg.partner_delay),
                     ..cfg
                 };
                 Partner::Mirrored(Robot::new(mirrored_cfg, own)?)

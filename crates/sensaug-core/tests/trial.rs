@@ -238,3 +238,51 @@ fn identifier_errors_name_the_field() {
         "{got:?}"
     );
 }
+
+/// The simulation section's mirror with `robot.partner_delay = "auto"`: the
+/// partner identifies the robot with the delay-aware model, the delay
+/// found online. The robot acts on the sample it measures this tick (the
+/// one the mirror sees), so the mirror finds 0 ms while the robot finds the
+/// human-like partner's 100 ms; both gain sets come back.
+#[test]
+fn the_mirror_finds_the_robot_acts_without_a_delay() {
+    use sensaug_core::agent::HumanLike;
+    use sensaug_core::identifier::PartnerDelay;
+    use sensaug_core::world::{Scenario, TickRecord};
+    let phases = two_phases(10.0);
+    let robot = sensaug_core::controller::RobotConfig {
+        partner_delay: PartnerDelay::Auto,
+        ..common::robot()
+    };
+    let partner = sensaug_core::world::PartnerConfig {
+        gains: [0.0, 0.0, 1.0],
+        human: Some(HumanLike {
+            visual_delay_ms: 100.0,
+            proprioceptive_delay_ms: 0.0,
+            motor_noise_gain: 0.0,
+            drift_std: 0.0,
+            drift_time_constant_s: 1.0,
+            seed: 3,
+        }),
+        ..common::partner(1.0)
+    };
+    let mut sc = Scenario::new(&phases, robot, partner, common::world(11)).unwrap();
+    let mut out = vec![TickRecord::default(); sc.ticks()];
+    sc.run(&mut out).unwrap();
+    let end = &out[9_999];
+    assert_eq!(end.robot.partner_delay_ms[0], 100.0, "{:?}", end.robot);
+    assert_eq!(end.mirror.delay_ms[0], 0.0, "{:?}", end.mirror);
+    let truth = robot.gains;
+    for (g, t) in end.mirror.gains.iter().zip(truth) {
+        assert!(
+            (g - t).abs() < 0.05 * truth[0],
+            "{:?} vs {truth:?}",
+            end.mirror.gains
+        );
+    }
+    assert!(
+        (end.robot.gains[2] - 1.0).abs() < 0.05,
+        "{:?}",
+        end.robot.gains
+    );
+}

@@ -23,13 +23,14 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
 /// `x_meas`, `xdot_meas`, `fresh` filled, the rest unknown) and the robot's
 /// counters.
 #[pyfunction]
-#[pyo3(signature = (config, x_meas, xdot_meas, fresh, /))]
+#[pyo3(signature = (config, x_meas, xdot_meas, fresh, /, torque_step=None))]
 fn replay_robot<'py>(
     py: Python<'py>,
     config: &Config,
     x_meas: PyReadonlyArray1<'py, f64>,
     xdot_meas: PyReadonlyArray1<'py, f64>,
     fresh: PyReadonlyArray1<'py, bool>,
+    torque_step: Option<f64>,
 ) -> PyResult<(Bound<'py, numpy::PyArray1<u8>>, Bound<'py, PyDict>)> {
     let resolved = &config.resolved;
     let (x, v) = (slice(&x_meas, "x_meas")?, slice(&xdot_meas, "xdot_meas")?);
@@ -47,6 +48,7 @@ fn replay_robot<'py>(
     let phases = resolved.phases();
     let mut robot =
         Robot::new(resolved.robot, protocol(resolved, &phases)?).map_err(|_| rejected())?;
+    robot.set_torque_step(torque_step);
     let measurements: Vec<Option<(f64, f64)>> = (0..x.len())
         .map(|k| fresh[k].then_some((x[k], v[k])))
         .collect();

@@ -78,6 +78,7 @@ pub fn drive_link(s: &LoopSettings) -> Result<Box<dyn DriveLink + Send>, ConfigE
                 Duration::from_millis(u64::from(s.drive_heartbeat_timeout_ms)),
             );
             m.max_torque_nm = s.torque_limit_nm;
+            m.freshness = s.cia402_freshness.into();
             m.drive_consumer_ms = s.watchdog_ms;
             m.heartbeat_period =
                 Duration::from_millis((u64::from(s.watchdog_ms) / HEARTBEATS_PER_WATCHDOG).max(1));

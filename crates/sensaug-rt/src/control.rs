@@ -21,7 +21,7 @@ use sensaug_bridge::{Frame, Transport};
 /// when it is resolved (`sensaug_config::Resolved::rig`).
 pub use sensaug_config::rig::{RigSettings as LoopSettings, StopSettings, QUIET_WATCHDOG_PERIODS};
 use sensaug_core::agent::{guard_torque, Guard, PartnerLaw};
-use sensaug_core::controller::Robot;
+use sensaug_core::controller::{applied_torque, Robot};
 use sensaug_core::plant::{Plant, PlantParams, PlantState};
 use sensaug_core::protocol::{Protocol, Sample};
 use sensaug_core::row::Row;
@@ -258,6 +258,9 @@ pub struct Rig<'a> {
     can: CanCounters,
     deadline_misses: u64,
     torque_clamped: u64,
+    /// The drive's torque resolution (N m; [`DriveLink::torque_step_nm`],
+    /// known after the enable): commands are rounded to it.
+    torque_step_nm: f64,
     non_finite: u64,
     ticks_run: u64,
     /// The first implausible feedback.
@@ -315,6 +318,7 @@ impl<'a> Rig<'a> {
             can: CanCounters::default(),
             deadline_misses: 0,
             torque_clamped: 0,
+            torque_step_nm: f64::NAN,
             non_finite: 0,
             ticks_run: 0,
             implausible: None,
@@ -348,6 +352,10 @@ impl<'a> Rig<'a> {
             .map_err(|e| StartError::Drive(e.to_string()))?;
         // Commands seen while the link alone read the bus: tick 0 stops on them.
         rig.can.foreign_commands += rig.link.foreign_commands_in_setup() - seen_connecting;
+        // The estimators and the log see the torque as the drive applies it.
+        rig.torque_step_nm = rig.link.torque_step_nm();
+        rig.robot
+            .set_torque_step(Some(rig.torque_step_nm / settings.rad_per_unit));
         rig.times.enable_ns = instant_ns(times.enable);
         rig.times.first_command_ns = instant_ns(times.first_command);
         // The enable's feedback: the first one, seen by tick 0.
@@ -379,7 +387,14 @@ impl<'a> Rig<'a> {
     /// the loop watches (foreign commands, undecodable and discarded
     /// frames) and checks feedback against physics.
     fn absorb(&mut self, frame: &Frame, tick: u64) {
-        match self.link.absorb(frame) {
+        let received = self.transport.last_rx_time();
+        let absorbed = self.link.absorb_received(frame, received);
+        self.absorbed(absorbed, tick);
+    }
+
+    /// What the link made of a frame (or settled after a drain).
+    fn absorbed(&mut self, absorbed: Absorbed, tick: u64) {
+        match absorbed {
             Absorbed::Feedback {
                 position_rad,
                 velocity_rad_s,
@@ -405,10 +420,12 @@ impl<'a> Rig<'a> {
     /// and against the one before it (`steps` drive steps earlier, 0:
     /// unknown; [`FeedbackLimits::check`]), then kept as the previous one.
     fn take_feedback(&mut self, reading: Reading, steps: u32, tick: u64) {
+        let steps_exact = self.link.steps_exact();
         let prev = self.drive.last_feedback.map(|(reading, at)| Previous {
             reading,
             ticks_apart: tick.saturating_sub(at),
             steps,
+            steps_exact,
         });
         if let Err(why) = self.feedback_limits.check(reading, prev) {
             self.implausible_feedback(why);
@@ -424,16 +441,21 @@ impl<'a> Rig<'a> {
 
     /// Drains every frame already received, without waiting
     /// ([`Transport::recv_ready`]: one system call on the UDP bus).
+    /// Then the link's settled feedback, if it holds one back until the
+    /// drain is over ([`DriveLink::settle`]: CiA 402's standard mode).
     fn drain(&mut self, tick: u64) {
         loop {
             match self.transport.recv_ready() {
                 Ok(Some(f)) => self.absorb(&f, tick),
-                Ok(None) => return,
+                Ok(None) => break,
                 Err(_) => {
                     self.can.recv_errors += 1;
-                    return;
+                    break;
                 }
             }
+        }
+        if let Some(settled) = self.link.settle() {
+            self.absorbed(settled, tick);
         }
     }
 
@@ -603,6 +625,12 @@ impl<'a> Rig<'a> {
             foreign_command: self.can.foreign_commands > 0,
             implausible: self.implausible,
             log_failed,
+            out_of_range: crate::range::out_of_range(
+                &self.settings.range,
+                self.drive.sample.position_rad,
+                self.drive.sample.velocity_rad_s,
+                k == 0,
+            ),
             degraded: degradation(&health, &self.degraded_limits),
             signal: match stop.load(Ordering::Relaxed) {
                 0 => None,
@@ -627,9 +655,24 @@ impl<'a> Rig<'a> {
         let (u_h, _) = self
             .partner
             .torque(seen.x, seen.v, sample.tau, sample.tau_h);
-        // Model torque -> N m: the same factor as position.
+        // Model torque -> N m: the same factor as position. The range's
+        // ramp, wall and speed damping act on the handle as the virtual
+        // human sees it (measured, or predicted on a tick without fresh
+        // feedback), before the limit (`crate::range::command_nm`).
         let unit = self.settings.rad_per_unit;
-        let (torque_nm, g) = guard_torque((row.u + u_h) * unit, self.settings.torque_limit_nm);
+        let (torque_nm, g) = crate::range::command_nm(
+            &self.settings.range,
+            seen.x * unit,
+            seen.v * unit,
+            row.u * unit,
+            u_h * unit,
+            self.settings.torque_limit_nm,
+        );
+        let torque_nm = applied_torque(
+            torque_nm,
+            self.torque_step_nm,
+            self.settings.torque_limit_nm,
+        );
         match g {
             Guard::Passed => {}
             Guard::Clamped => self.torque_clamped += 1,
@@ -695,6 +738,13 @@ impl<'a> Rig<'a> {
         {
             self.can.send_errors += 1;
         }
+    }
+
+    /// The step the robot's commands were rounded to (model units; the
+    /// drive's torque step over rad per unit), None before the enable.
+    pub fn robot_torque_step(&self) -> Option<f64> {
+        let step = self.torque_step_nm / self.settings.rad_per_unit;
+        step.is_finite().then_some(step)
     }
 
     /// The drive's status as the loop last sensed it (the log's end

@@ -8,6 +8,7 @@ pub mod control;
 pub mod feed;
 pub mod log;
 pub mod os;
+pub mod range;
 pub mod safety;
 pub mod stats;
 pub mod wake;

@@ -336,6 +336,12 @@ fn run(resolved: &Resolved, feed_to: &[SocketAddr]) -> Result<StopReason, RunErr
     end.insert("realtime".into(), report.realtime.clone().into());
     end.insert("exit_code".into(), reason.exit_code().into());
     end.insert("drive_status".into(), rig_loop.drive_status().name().into());
+    // The robot's commands were rounded to the drive's torque step (model
+    // units; null: not set up): a replay rounds the same way.
+    end.insert(
+        "robot_torque_step".into(),
+        rig_loop.robot_torque_step().into(),
+    );
     let written = writer.finish(end);
     if let Some(e) = &written.error {
         say(

@@ -7,6 +7,7 @@
 //! `docs/safety.md` lists every fault, its safe state and the measured time
 //! to reach it.
 
+use crate::range::OutOfRange;
 use sensaug_bridge::drive_link::{DriveAlarm, ResetReport};
 use std::fmt;
 
@@ -198,12 +199,16 @@ pub enum StopReason {
     /// The log writer failed (e.g. a full disk): the controlled stop, drive
     /// disabled; the log keeps what was written.
     LogWriteFailed,
+    /// The handle beyond a hard limit or the hard speed, or outside the
+    /// soft window at the start (`rig.range`): the controlled stop.
+    OutOfRange(OutOfRange),
 }
 
 impl StopReason {
     /// The process exit code (docs/realtime.md): 0 completed; 1 signal,
     /// feedback timeout or drive fault; 4 foreign command; 5 implausible
-    /// feedback; 6 degraded; 7 log write failure; 8 drive reset. (2 is a
+    /// feedback; 6 degraded; 7 log write failure; 8 drive reset; 9 out of
+    /// range (a hard limit or the hard speed). (2 is a
     /// configuration or set-up error, 3 another controller seen before
     /// enabling.)
     pub fn exit_code(&self) -> u8 {
@@ -215,6 +220,7 @@ impl StopReason {
             StopReason::Degraded(_) => 6,
             StopReason::LogWriteFailed => 7,
             StopReason::DriveReset(_) => 8,
+            StopReason::OutOfRange(_) => 9,
         }
     }
 
@@ -237,6 +243,7 @@ impl StopReason {
             | StopReason::DriveFault(DriveAlarm::HeartbeatLost { .. }) => StopKind::EmergencyStop,
             StopReason::Signal(_)
             | StopReason::LogWriteFailed
+            | StopReason::OutOfRange(_)
             | StopReason::Degraded(Degradation::Estimator { .. }) => StopKind::Controlled,
             StopReason::DriveFault(_)
             | StopReason::ImplausibleFeedback(_)
@@ -299,6 +306,7 @@ impl fmt::Display for StopReason {
                 f,
                 "log write failed ({safe}; the log keeps what was written)"
             ),
+            StopReason::OutOfRange(why) => write!(f, "range limit: {why} ({safe})"),
         }
     }
 }
@@ -329,6 +337,12 @@ pub struct Previous {
     /// Drive steps (commands answered) between the two, from their
     /// sequence numbers; 0 when unknown (then `ticks_apart`, at least 1).
     pub steps: u32,
+    /// `steps` is exact (sequence numbers, the SYNC counter echo); false
+    /// for CiA 402's standard mode, where a TPDO is placed on a SYNC by its
+    /// arrival time and a late answer looks like the next SYNC's: the
+    /// drive steps between two feedbacks are then `steps` or one more or
+    /// fewer ([`DriveLink::steps_exact`](sensaug_bridge::drive_link::DriveLink::steps_exact)).
+    pub steps_exact: bool,
 }
 
 /// What physics allows a feedback (`[rig]` and `[plant]`, docs/safety.md).
@@ -392,18 +406,28 @@ impl FeedbackLimits {
         } else {
             p.ticks_apart.max(1)
         };
-        let interval_s = steps as f64 * self.dt_s;
         let reported_rad_s = 0.5 * (p.reading.v_rad_s + now.v_rad_s);
-        let implied_rad_s = (now.x_rad - p.reading.x_rad) / interval_s;
-        let allowed_rad_s = self.max_velocity_mismatch_rad_s(interval_s);
-        if !within(reported_rad_s - implied_rad_s, allowed_rad_s) {
-            return Err(Implausible::Inconsistent {
-                reported_rad_s,
-                implied_rad_s,
-                allowed_rad_s,
-            });
+        let consistent_over = |steps: u64| {
+            let interval_s = steps as f64 * self.dt_s;
+            let implied_rad_s = (now.x_rad - p.reading.x_rad) / interval_s;
+            let allowed_rad_s = self.max_velocity_mismatch_rad_s(interval_s);
+            within(reported_rad_s - implied_rad_s, allowed_rad_s)
+                .then_some(())
+                .ok_or(Implausible::Inconsistent {
+                    reported_rad_s,
+                    implied_rad_s,
+                    allowed_rad_s,
+                })
+        };
+        let exact = consistent_over(steps);
+        if exact.is_ok() || p.steps_exact {
+            return exact;
         }
-        Ok(())
+        // Standard CiA 402: one step more or fewer (a late answer).
+        if consistent_over(steps + 1).is_ok() || (steps > 1 && consistent_over(steps - 1).is_ok()) {
+            return Ok(());
+        }
+        exact
     }
 }
 
@@ -490,6 +514,8 @@ pub struct Checks {
     pub implausible: Option<Implausible>,
     /// The log writer failed.
     pub log_failed: bool,
+    /// The handle out of its range (`rig.range`), if it is.
+    pub out_of_range: Option<OutOfRange>,
     /// The run crossed a degraded-run threshold.
     pub degraded: Option<Degradation>,
     /// The terminating signal received, if any (the stop flag).
@@ -505,10 +531,12 @@ pub struct Checks {
 
 impl Checks {
     /// Why the loop must stop after running, if it must: implausible
-    /// feedback, then a log failure, then a degraded run, then a signal.
+    /// feedback, then the handle out of range, then a log failure, then a
+    /// degraded run, then a signal.
     fn stop_reason(&self) -> Option<StopReason> {
         self.implausible
             .map(StopReason::ImplausibleFeedback)
+            .or(self.out_of_range.map(StopReason::OutOfRange))
             .or(self.log_failed.then_some(StopReason::LogWriteFailed))
             .or(self.degraded.map(StopReason::Degraded))
             .or(self.signal.map(StopReason::Signal))
@@ -596,6 +624,7 @@ mod tests {
             foreign_command: false,
             implausible: None,
             log_failed: false,
+            out_of_range: None,
             degraded: None,
             signal: None,
             protocol_done: false,
@@ -911,11 +940,42 @@ mod tests {
             reading: Reading { x_rad, v_rad_s },
             ticks_apart,
             steps,
+            steps_exact: true,
         })
     }
 
     fn at(x_rad: f64, v_rad_s: f64) -> Reading {
         Reading { x_rad, v_rad_s }
+    }
+
+    #[test]
+    fn standard_cia402_steps_may_be_one_off_but_a_doubled_velocity_is_still_refused() {
+        // 1 rad/s, 2 ms of motion between two feedbacks placed 1 SYNC apart
+        // (a late answer): refused with exact steps, taken when inexact.
+        let inexact = |p: Option<Previous>| {
+            p.map(|p| Previous {
+                steps_exact: false,
+                ..p
+            })
+        };
+        let late = prev(0.0, 1.0, 1, 1);
+        assert!(LIMITS.check(at(0.002, 1.0), late).is_err());
+        assert!(LIMITS.check(at(0.002, 1.0), inexact(late)).is_ok());
+        // One step fewer (the previous one was the late one).
+        assert!(LIMITS
+            .check(at(0.002, 1.0), inexact(prev(0.0, 1.0, 3, 3)))
+            .is_ok());
+        // A velocity reported twice over, 1 step apart: neither 1 nor 2
+        // steps explain it (0 is not a step).
+        assert!(LIMITS
+            .check(at(0.001, 2.0), inexact(prev(0.0, 2.0, 1, 1)))
+            .is_err());
+        // The price (docs/safety.md): 2 steps apart, a doubled velocity
+        // looks like 1 step; the echo mode refuses it.
+        assert!(LIMITS.check(at(0.004, 4.0), prev(0.0, 4.0, 2, 2)).is_err());
+        assert!(LIMITS
+            .check(at(0.004, 4.0), inexact(prev(0.0, 4.0, 2, 2)))
+            .is_ok());
     }
 
     #[test]

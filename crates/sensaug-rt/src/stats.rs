@@ -245,6 +245,19 @@ pub struct DriveReport {
     /// Feedback frames discarded as older than, or a repeat of, the one
     /// already taken (the newest SYNC counter wins).
     pub feedback_discarded: u64,
+    /// CiA 402: how TPDOs were matched to SYNCs, "sync_counter_echo" or
+    /// "standard" (`rig.cia402.freshness`; none on the Hi5 or before set-up
+    /// chose).
+    pub freshness: Option<&'static str>,
+    /// CiA 402 standard mode: TPDOs received before the last SYNC but read
+    /// after it (late; kernel receive times, SocketCAN only).
+    pub feedback_late: u64,
+    /// CiA 402 standard mode: second TPDOs of one kind after one SYNC
+    /// (duplicated; that tick's feedback is not fresh).
+    pub feedback_duplicated: u64,
+    /// CiA 402: SYNCs the next SYNC followed without their TPDO1 and TPDO2
+    /// (missing; set-up's and the stop's included).
+    pub syncs_unanswered: u64,
     /// Commands beyond the drive's own limit (0x6072) sent clamped to it.
     pub commands_clamped_at_drive_limit: u64,
     /// Non-finite commands the link sent as zero torque.
@@ -271,6 +284,10 @@ impl DriveReport {
             emcy_received: events.emcy_received,
             emcy,
             feedback_discarded: events.feedback_discarded,
+            freshness: events.freshness.map(|f| f.name()),
+            feedback_late: events.feedback_late,
+            feedback_duplicated: events.feedback_duplicated,
+            syncs_unanswered: events.syncs_unanswered,
             commands_clamped_at_drive_limit: events.commands_clamped_at_drive_limit,
             commands_non_finite: events.commands_non_finite,
         }

@@ -26,6 +26,9 @@ virtual Hi5 drive (``virtual_hi5.new_plant``, ``encoder_counts``,
   Overspeed after a step: FAULT, EMCY 0x8400. Quick stop: torque 0 at once,
   QUICK_STOP_ACTIVE until "disable voltage". NMT leaving OPERATIONAL while
   enabled: FAULT, EMCY 0x8100. Faults latch until a fault reset.
+* ``standard=True`` (``--standard``): an off-the-shelf drive's dictionary, the EDS
+  without 0x2000 (:func:`standard_eds`): the TPDOs carry no SYNC counter, and the
+  master judges freshness from the bus (docs/cia402.md, "Freshness without 0x2000").
 * The handle: outside OPERATION_ENABLED the plant keeps moving at zero torque
   in real time (``virtual_hi5.coast``); with ``log`` every step is recorded,
   commanded or free (``DriveLog``).
@@ -34,7 +37,9 @@ virtual Hi5 drive (``virtual_hi5.new_plant``, ``encoder_counts``,
 from __future__ import annotations
 
 import argparse
+import configparser
 import enum
+import io
 import math
 import sys
 import threading
@@ -59,7 +64,18 @@ from sensaug_bridge.virtual_hi5 import (
     serve,
 )
 
-__all__ = ["PROFILE_NAME", "Cia402Config", "Cia402State", "Fault", "VirtualCia402", "main", "parse_args", "EDS_PATH"]
+__all__ = [
+    "PROFILE_NAME",
+    "Cia402Config",
+    "Cia402State",
+    "Fault",
+    "VirtualCia402",
+    "main",
+    "parse_args",
+    "EDS_PATH",
+    "standard_eds",
+    "load_od",
+]
 
 #: The drive profile's name for people (this module is the virtual drive of
 #: ``[rig] drive = "cia402"``, registered under the ``sensaug.virtual_drives``
@@ -68,6 +84,41 @@ PROFILE_NAME = "CiA 402 (CANopen)"
 
 #: The object dictionary, read from the source tree (editable install), like hi5.dbc.
 EDS_PATH = Path(__file__).resolve().parents[2] / "cia402_drive.eds"
+
+SYNC_COUNTER_ECHO = 0x2000
+_TPDO_MAPPINGS = ("1A00", "1A01")
+
+
+def standard_eds(eds_text: str) -> str:
+    """The EDS of a standard drive: ``eds_text`` without the manufacturer object
+    0x2000 (SYNC counter echo), its TPDOs mapping 2 objects (statusword and
+    position; velocity and torque), the third mapping entry 0. Everything else
+    as given (comments dropped)."""
+    eds = configparser.RawConfigParser(inline_comment_prefixes=(";",))
+    eds.optionxform = str  # type: ignore[assignment,method-assign]
+    eds.read_string(eds_text)
+    eds.remove_section("2000")
+    eds.set("ManufacturerObjects", "SupportedObjects", "0")
+    eds.remove_option("ManufacturerObjects", "1")
+    for mapping in _TPDO_MAPPINGS:
+        assert eds.get(f"{mapping}sub3", "DefaultValue").lower() == "0x20000008"
+        eds.set(f"{mapping}sub0", "DefaultValue", "2")
+        eds.set(f"{mapping}sub3", "DefaultValue", "0x00000000")
+    out = io.StringIO()
+    eds.write(out)
+    return out.getvalue()
+
+
+def load_od(node: int, standard: bool = False) -> Any:
+    """The drive's object dictionary for ``node``: ``cia402_drive.eds``, or
+    with ``standard`` that EDS without 0x2000 (:func:`standard_eds`), through
+    canopen's EDS importer."""
+    if not standard:
+        return canopen.import_od(str(EDS_PATH), node)
+    source = io.StringIO(standard_eds(EDS_PATH.read_text()))
+    source.name = "cia402_drive_standard.eds"  # canopen picks the format by the name
+    return canopen.import_od(source, node)
+
 
 MODE_CST = 10  # 0x6060: cyclic synchronous torque
 SYNC_COB_ID = 0x080
@@ -109,6 +160,8 @@ class Cia402Config(DriveConfig):
     0x608F:01."""
 
     rated_torque_mnm: int = 1000
+    #: A standard drive: no 0x2000 in the dictionary (:func:`standard_eds`).
+    standard: bool = False
 
     def _check_node(self) -> None:
         if not 1 <= self.node <= 127:
@@ -175,7 +228,7 @@ class VirtualCia402:
         self._clock = clock
         self._tasks: list[_LoopTask] = []
         self.network = _DriveNetwork(bus, self)
-        self.node = canopen.LocalNode(cfg.node, canopen.import_od(str(EDS_PATH), cfg.node))
+        self.node = canopen.LocalNode(cfg.node, load_od(cfg.node, cfg.standard))
         self.network.add_node(self.node)
         self.plant = new_plant(cfg)
         self._rad_per_count = 2.0 * math.pi / cfg.encoder_counts_per_rev
@@ -663,6 +716,11 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
     )
     ap.add_argument("--node", type=int, default=d.node, help="CANopen node-ID 1..127 (default 1)")
     ap.add_argument("--rated-torque-mnm", type=int, default=d.rated_torque_mnm, help="0x6076, mN m (default 1000)")
+    ap.add_argument(
+        "--standard",
+        action="store_true",
+        help="a standard drive: the EDS without 0x2000 (no SYNC counter echo in the TPDOs)",
+    )
     add_drive_args(ap, d)
     return ap.parse_args(argv)
 
@@ -670,7 +728,9 @@ def parse_args(argv: Optional[Sequence[str]] = None) -> argparse.Namespace:
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """Console entry point. Exit code 0 on a clean stop, 2 for a bad option, 1 if the bus cannot be opened."""
     args = parse_args(argv)
-    config = Cia402Config(**drive_config_fields(args), rated_torque_mnm=args.rated_torque_mnm)
+    config = Cia402Config(
+        **drive_config_fields(args), rated_torque_mnm=args.rated_torque_mnm, standard=args.standard
+    )
     return serve("sensaug-virtual-cia402", args, config, lambda bus: VirtualCia402(bus, config, log=args.log is not None))
 
 

@@ -249,6 +249,32 @@ pub fn decode_tpdo2(payload: &[u8]) -> Result<Tpdo2, Cia402Error> {
     })
 }
 
+/// Decodes a standard drive's TPDO1 (6 bytes: no SYNC counter echo); the
+/// counter is the one of the SYNC window it arrived in (`sync_counter`,
+/// the master's judgement, docs/cia402.md "Freshness without 0x2000").
+pub fn decode_tpdo1_standard(payload: &[u8], sync_counter: u8) -> Result<Tpdo1, Cia402Error> {
+    let Ok(b) = <&[u8; 6]>::try_from(payload) else {
+        return Err(wrong_length("TPDO1", 6, payload));
+    };
+    Ok(Tpdo1 {
+        statusword: u16::from_le_bytes([b[0], b[1]]),
+        position_increments: i32::from_le_bytes([b[2], b[3], b[4], b[5]]),
+        sync_counter,
+    })
+}
+
+/// Decodes a standard drive's TPDO2 (6 bytes), as [`decode_tpdo1_standard`].
+pub fn decode_tpdo2_standard(payload: &[u8], sync_counter: u8) -> Result<Tpdo2, Cia402Error> {
+    let Ok(b) = <&[u8; 6]>::try_from(payload) else {
+        return Err(wrong_length("TPDO2", 6, payload));
+    };
+    Ok(Tpdo2 {
+        velocity_increments_s: i32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+        torque_per_mille: i16::from_le_bytes([b[4], b[5]]),
+        sync_counter,
+    })
+}
+
 // -- EMCY ----------------------------------------------------------------------------
 
 /// An emergency message (CiA 301 7.2.7.3.1): error code, error register

@@ -9,7 +9,7 @@
 //! [`Master::quick_stop`] first). `boot`, `enable` and `shut_down` wait on
 //! the bus; `tick` and `drain` never wait and never allocate.
 
-use std::time::{Duration, Instant};
+use std::time::{Duration, Instant, SystemTime};
 
 use super::frames::{self, Emcy, NmtCommand, NmtState, SdoResponse};
 use super::od::{self, CanopenNode, Object, PdoMapping};
@@ -43,6 +43,48 @@ pub struct MasterSettings {
     /// set-up refuses a drive whose 0x6072 is another value
     /// ([`Cia402Error::MaxTorqueMismatch`]), higher or lower.
     pub max_torque_nm: f64,
+    /// How a TPDO is matched to the SYNC it answers: chosen from the drive's
+    /// dictionary at set-up, or forced.
+    pub freshness: FreshnessSetting,
+}
+
+/// How the master matches a TPDO to the SYNC it answers (docs/cia402.md,
+/// "Freshness").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Freshness {
+    /// The drive echoes each SYNC's counter in 0x2000, mapped last in both
+    /// TPDOs: a late or replayed TPDO is told by its counter.
+    SyncCounterEcho,
+    /// A standard drive (no 0x2000): a TPDO received after SYNC k and before
+    /// SYNC k+1 answers SYNC k (by its kernel receive time where the
+    /// transport has one, else by when the master reads it); one TPDO of
+    /// each kind per SYNC, a second is a duplicate and makes that SYNC's
+    /// answer ambiguous. A replay inside the window is not detected.
+    Standard,
+}
+
+impl Freshness {
+    /// Its name in the configuration and the statistics.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::SyncCounterEcho => "sync_counter_echo",
+            Self::Standard => "standard",
+        }
+    }
+}
+
+/// [`MasterSettings::freshness`]: the mode, or how set-up chooses it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FreshnessSetting {
+    /// Set-up reads 0x2000: the echo if the drive has it, standard if the
+    /// drive answers "object does not exist".
+    Auto,
+    /// The echo; a drive without 0x2000 is refused
+    /// ([`Cia402Error::NoSyncCounterEcho`]).
+    SyncCounterEcho,
+    /// Standard, even on a drive that has 0x2000 (its TPDOs are mapped
+    /// without it).
+    Standard,
 }
 
 impl MasterSettings {
@@ -61,6 +103,7 @@ impl MasterSettings {
             drive_heartbeat_timeout,
             response_timeout: Duration::from_secs(2),
             max_torque_nm: 3.0,
+            freshness: FreshnessSetting::Auto,
         }
     }
 
@@ -169,8 +212,19 @@ pub struct Feedback {
     pub foreign_commands: u64,
     /// TPDOs discarded because they answer an older SYNC than the TPDO of
     /// the same kind already taken, or the same SYNC again (a duplicate, a
-    /// late copy, a replay): the newest SYNC counter wins.
+    /// late copy, a replay): the newest SYNC counter wins (echo mode).
     pub tpdos_discarded: u64,
+    /// Standard mode: TPDOs received (kernel time) before the last SYNC was
+    /// sent but read after it: a late answer to an earlier SYNC, not taken.
+    /// Needs receive timestamps (SocketCAN); 0 on the UDP bus.
+    pub tpdos_late: u64,
+    /// Standard mode: a second TPDO of one kind after one SYNC, not taken
+    /// (a late answer to the SYNC before, a copy, a second sender); the
+    /// SYNC's answer is ambiguous.
+    pub tpdos_duplicated: u64,
+    /// SYNCs followed by the next SYNC without a TPDO1 and a TPDO2 taken
+    /// for them (both modes; set-up's and the stop's SYNCs included).
+    pub syncs_unanswered: u64,
     /// What said the drive reset after NMT start, the first such report: a
     /// boot-up message, or a heartbeat other than OPERATIONAL after an
     /// OPERATIONAL one.
@@ -200,8 +254,14 @@ pub enum Heard {
     /// A frame from the drive that did not decode.
     Undecodable,
     /// A TPDO discarded: it answers an older SYNC than the one already
-    /// taken, or the same one again ([`Feedback::tpdos_discarded`]).
+    /// taken, or the same one again ([`Feedback::tpdos_discarded`]), or
+    /// (standard mode) it was received before the last SYNC
+    /// ([`Feedback::tpdos_late`]).
     Discarded,
+    /// Standard mode: a second TPDO of its kind after the last SYNC
+    /// ([`Feedback::tpdos_duplicated`]); not taken, and that SYNC's answer
+    /// is ambiguous.
+    Duplicated,
     /// A TPDO echoing the SYNC counter of the one of its kind already
     /// taken, with other values: two answers to one SYNC (a forger on the
     /// bus); not taken.
@@ -224,6 +284,11 @@ pub struct Master {
     syncs_sent: u64,
     /// The counter of the last SYNC sent (0 before the first).
     sync_counter: u8,
+    /// When the last SYNC was sent (`CLOCK_REALTIME`, the kernel receive
+    /// timestamps' clock): standard mode's window start.
+    last_sync_at: Option<SystemTime>,
+    /// The mode set-up chose (None before [`Master::configure`]).
+    freshness: Option<Freshness>,
     /// PDOs whose configuration set-up wrote (they differed from the EDS's).
     pdos_rewritten: u32,
     /// NMT start sent: a boot-up from now on is a reset.
@@ -254,6 +319,8 @@ impl Master {
             last_drive_heartbeat: None,
             syncs_sent: 0,
             sync_counter: 0,
+            last_sync_at: None,
+            freshness: None,
             pdos_rewritten: 0,
             nmt_started: false,
             operational_seen: false,
@@ -294,6 +361,12 @@ impl Master {
         self.sync_counter
     }
 
+    /// How TPDOs are matched to SYNCs: chosen by [`Master::configure`]
+    /// (None before).
+    pub fn freshness(&self) -> Option<Freshness> {
+        self.freshness
+    }
+
     /// The EMCYs received so far (the first [`EMCY_RECORDS`]; all are
     /// counted in [`Feedback::emcy_received`]).
     pub fn emcy_records(&self) -> &[EmcyRecord] {
@@ -312,8 +385,9 @@ impl Master {
 
     /// Set-up: wait for the drive's boot-up or heartbeat; check it is a
     /// CiA 402 device; read the units and check its max torque 0x6072 is
-    /// the configured limit; check the drive has the SYNC counter echo
-    /// 0x2000 (a refused drive is left as found: nothing was written yet);
+    /// the configured limit; choose the freshness mode (the SYNC counter echo
+    /// 0x2000 if the drive has it, unless forced; a refused drive is left as
+    /// found: nothing was written yet);
     /// set cyclic synchronous torque mode and check the display; write the
     /// heartbeat times; check the PDO communication and mapping parameters,
     /// writing those that differ from the EDS's; start the master's
@@ -347,7 +421,7 @@ impl Master {
         // is written: a refused drive is left as it was found.
         self.read_units(bus)?;
         self.check_max_torque()?;
-        self.check_sync_counter_echo(bus)?;
+        self.freshness = Some(self.choose_freshness(bus)?);
         self.sdo_write(
             bus,
             od::MODES_OF_OPERATION,
@@ -418,26 +492,44 @@ impl Master {
         Ok(())
     }
 
-    /// The drive must have 0x2000 (the TPDOs' SYNC counter echo): without it
-    /// a late or replayed TPDO cannot be told from the answer to this tick's
-    /// SYNC. Refused with [`Cia402Error::NoSyncCounterEcho`].
-    fn check_sync_counter_echo(&mut self, bus: &mut dyn Transport) -> Result<(), Cia402Error> {
+    /// The freshness mode ([`MasterSettings::freshness`]): forced standard
+    /// reads nothing; otherwise 0x2000 is read, and a drive answering
+    /// "object does not exist" is standard (auto) or refused with
+    /// [`Cia402Error::NoSyncCounterEcho`] (echo forced).
+    fn choose_freshness(&mut self, bus: &mut dyn Transport) -> Result<Freshness, Cia402Error> {
+        let setting = self.settings.freshness;
+        if setting == FreshnessSetting::Standard {
+            return Ok(Freshness::Standard);
+        }
         match self.sdo_read(bus, od::SYNC_COUNTER_ECHO) {
+            Ok(_) => Ok(Freshness::SyncCounterEcho),
             Err(Cia402Error::SdoAbort { code, .. }) if code == od::SDO_ABORT_NO_OBJECT => {
-                Err(Cia402Error::NoSyncCounterEcho)
+                match setting {
+                    FreshnessSetting::Auto => Ok(Freshness::Standard),
+                    _ => Err(Cia402Error::NoSyncCounterEcho),
+                }
             }
-            other => other.map(|_| ()),
+            Err(e) => Err(e),
         }
     }
 
-    /// The drive must use the EDS's PDO set ([`od::PDOS`]): the predefined
+    /// The PDO set of the mode chosen ([`od::PDOS`] with the echo,
+    /// [`od::STANDARD_PDOS`] without).
+    fn pdos(&self) -> [od::Pdo; 3] {
+        match self.freshness {
+            Some(Freshness::Standard) => od::STANDARD_PDOS,
+            _ => od::PDOS,
+        }
+    }
+
+    /// The drive must use the mode's PDO set ([`Master::pdos`]): the predefined
     /// COB-IDs (another COB-ID is a `Mismatch`: this master does not move
     /// PDOs), valid, transmission type 1 (every SYNC), the EDS's mappings. A
     /// PDO that is not valid or differs in transmission type or mapping is
     /// written with [`od::remap_writes`], then read back.
     fn check_pdos(&mut self, bus: &mut dyn Transport) -> Result<(), Cia402Error> {
         let n = self.settings.node;
-        for pdo in od::PDOS {
+        for pdo in self.pdos() {
             let cob_id = self.sdo_read_u32(bus, pdo.cob_id)?;
             let flags = od::PDO_NOT_VALID | od::PDO_NO_RTR;
             self.expect(pdo.cob_id, (pdo.predefined_cob_id)(n), cob_id & !flags)?;
@@ -587,11 +679,15 @@ impl Master {
         per_mille: i16,
     ) -> Result<(), Cia402Error> {
         self.controlword = cw;
+        if self.syncs_sent > 0 && !self.last_sync_answered() {
+            self.fb.syncs_unanswered += 1;
+        }
         // Each frame is sent even if the one before failed (a full queue):
         // the first error is returned.
         let rpdo = bus.send(&frames::rpdo1(self.settings.node, cw, per_mille));
         self.sync_counter = next_sync_counter(self.sync_counter);
         let sync = bus.send(&frames::sync(self.sync_counter));
+        self.last_sync_at = Some(SystemTime::now());
         self.syncs_sent += 1;
         let heartbeat = if Instant::now() >= self.next_heartbeat {
             self.send_heartbeat(bus, NmtState::Operational)
@@ -617,7 +713,7 @@ impl Master {
     pub fn drain(&mut self, bus: &mut dyn Transport) -> Result<usize, Cia402Error> {
         let mut n = 0;
         while let Some(f) = bus.recv_ready()? {
-            self.absorb(&f);
+            self.absorb_received(&f, bus.last_rx_time());
             n += 1;
         }
         self.check_drive_heartbeat(Instant::now());
@@ -642,15 +738,22 @@ impl Master {
         timeout: Duration,
     ) -> Result<(), Cia402Error> {
         if let Some(f) = bus.recv(timeout)? {
-            self.absorb(&f);
+            self.absorb_received(&f, bus.last_rx_time());
         }
         Ok(())
     }
 
     /// Updates the feedback from one frame (frames not from the drive, or
     /// SDO responses outside a transfer, are ignored) and says what it was.
-    /// Does not allocate.
+    /// Does not allocate. [`Master::absorb_received`] without a receive time.
     pub fn absorb(&mut self, f: &Frame) -> Heard {
+        self.absorb_received(f, None)
+    }
+
+    /// [`Master::absorb`] with the frame's kernel receive time
+    /// ([`Transport::last_rx_time`]), which standard mode uses to tell a
+    /// TPDO received before the last SYNC (late) from an answer to it.
+    pub fn absorb_received(&mut self, f: &Frame, received: Option<SystemTime>) -> Heard {
         if !f.is_standard_data() {
             return Heard::Other;
         }
@@ -665,9 +768,18 @@ impl Master {
             return Heard::ForeignCommand;
         }
         let p = f.payload();
+        let standard = self.freshness == Some(Freshness::Standard);
         let heard = if f.id == n.tpdo1() {
-            frames::decode_tpdo1(p).map(|t| {
+            let decoded = if standard {
+                frames::decode_tpdo1_standard(p, self.sync_counter)
+            } else {
+                frames::decode_tpdo1(p)
+            };
+            decoded.map(|t| {
                 self.fb.tpdo1_received += 1;
+                if self.received_before_last_sync(received) {
+                    return self.late();
+                }
                 let (taken, received) = (self.fb.tpdo1_sync_counter, self.fb.tpdo1_received);
                 if !self.take(t.sync_counter, taken, received) {
                     let same = t.statusword == self.fb.statusword
@@ -682,8 +794,16 @@ impl Master {
                 Heard::Other
             })
         } else if f.id == n.tpdo2() {
-            frames::decode_tpdo2(p).map(|t| {
+            let decoded = if standard {
+                frames::decode_tpdo2_standard(p, self.sync_counter)
+            } else {
+                frames::decode_tpdo2(p)
+            };
+            decoded.map(|t| {
                 self.fb.tpdo2_received += 1;
+                if self.received_before_last_sync(received) {
+                    return self.late();
+                }
                 let (taken, received) = (self.fb.tpdo2_sync_counter, self.fb.tpdo2_received);
                 if !self.take(t.sync_counter, taken, received) {
                     let same = self
@@ -737,24 +857,43 @@ impl Master {
     /// older one or a repeat of the same counter is discarded and counted.
     /// `received` counts this kind's TPDOs, this one included: the first is
     /// always taken, as is any before the first SYNC.
-    fn take(&mut self, echo: u8, taken: u8, received: u64) -> bool {
+    /// In standard mode the echo is the last SYNC's counter (the window the
+    /// TPDO arrived in), so only a second TPDO in one window is not newer.
+    fn take(&self, echo: u8, taken: u8, received: u64) -> bool {
         let age = |c: u8| syncs_ago(self.sync_counter, c);
-        let newer = received == 1 || self.syncs_sent == 0 || age(echo) < age(taken);
-        if !newer {
-            self.fb.tpdos_discarded += 1;
-        }
-        newer
+        received == 1 || self.syncs_sent == 0 || age(echo) < age(taken)
     }
 
-    /// What a TPDO not taken was: a repeat of the one taken for its SYNC
-    /// with other values conflicts; anything else (older, an exact copy) is
-    /// discarded.
-    fn discarded(&self, echo: u8, taken: u8, same_values: bool) -> Heard {
+    /// What a TPDO not taken was, counted: standard mode, a second one in
+    /// the window (duplicated, whatever its values: a late answer to the
+    /// SYNC before looks the same); echo mode, a repeat of the one taken for
+    /// its SYNC with other values conflicts, anything else (older, an exact
+    /// copy) is discarded.
+    fn discarded(&mut self, echo: u8, taken: u8, same_values: bool) -> Heard {
+        if self.freshness == Some(Freshness::Standard) {
+            self.fb.tpdos_duplicated += 1;
+            return Heard::Duplicated;
+        }
+        self.fb.tpdos_discarded += 1;
         if echo == taken && !same_values {
             Heard::Conflicting { sync_counter: echo }
         } else {
             Heard::Discarded
         }
+    }
+
+    /// Standard mode: the frame's kernel receive time is before the last
+    /// SYNC was sent, so it answers an earlier SYNC (it waited in the
+    /// socket). Without a receive time (the UDP bus), never.
+    fn received_before_last_sync(&self, received: Option<SystemTime>) -> bool {
+        self.freshness == Some(Freshness::Standard)
+            && matches!((received, self.last_sync_at), (Some(r), Some(s)) if r < s)
+    }
+
+    /// A late TPDO (standard mode), counted and not taken.
+    fn late(&mut self) -> Heard {
+        self.fb.tpdos_late += 1;
+        Heard::Discarded
     }
 
     /// A heartbeat's NMT state after NMT start: a boot-up is a reset at once;

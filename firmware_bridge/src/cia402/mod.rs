@@ -24,7 +24,9 @@ pub mod state;
 pub mod units;
 
 pub use frames::{Emcy, NmtCommand, NmtState, SdoResponse, Tpdo1, Tpdo2};
-pub use master::{EmcyRecord, Feedback, Heard, Master, MasterSettings};
+pub use master::{
+    EmcyRecord, Feedback, Freshness, FreshnessSetting, Heard, Master, MasterSettings,
+};
 pub use od::{CanopenNode, Object};
 pub use state::{DriveState, Goal};
 pub use units::Units;
@@ -86,8 +88,8 @@ pub enum Cia402Error {
         /// What the drive holds.
         got: u32,
     },
-    /// The drive has no SYNC counter echo 0x2000 (an off-the-shelf drive):
-    /// its TPDOs cannot be matched to the SYNC they answer.
+    /// The drive has no SYNC counter echo 0x2000 (an off-the-shelf drive)
+    /// and the settings require it ([`FreshnessSetting::SyncCounterEcho`]).
     NoSyncCounterEcho,
     /// A parameter outside its valid range.
     BadParameter {
@@ -177,9 +179,10 @@ impl fmt::Display for Cia402Error {
             Self::NoSyncCounterEcho => write!(
                 f,
                 "the drive has no object 0x2000 (SYNC counter echo, UNSIGNED8, mapped last in \
-                 TPDO1 and TPDO2): without it this master cannot tell fresh feedback from a \
-                 late or replayed TPDO, so it does not start; give the drive that object and \
-                 mapping (cia402_drive.eds; docs/cia402.md, \"Freshness\")"
+                 TPDO1 and TPDO2) but rig.cia402.freshness = \"sync_counter_echo\" requires it; \
+                 set rig.cia402.freshness = \"auto\" or \"standard\" to run it with freshness \
+                 judged from the bus (weaker: docs/safety.md), or give the drive that object \
+                 and mapping (cia402_drive.eds; docs/cia402.md, \"Freshness\")"
             ),
             Self::BadParameter { field, value, why } => {
                 write!(f, "{field}: {why}, got {value}")

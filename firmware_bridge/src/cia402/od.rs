@@ -134,6 +134,23 @@ pub const TPDO2_MAPPING: PdoMapping = PdoMapping {
     ],
 };
 
+/// TPDO1 of a standard drive (no 0x2000): statusword, position actual (6 bytes).
+pub const TPDO1_STANDARD_MAPPING: PdoMapping = PdoMapping {
+    index: 0x1A00,
+    entries: &[
+        mapping_entry(STATUSWORD, 16),
+        mapping_entry(POSITION_ACTUAL, 32),
+    ],
+};
+/// TPDO2 of a standard drive (no 0x2000): velocity actual, torque actual (6 bytes).
+pub const TPDO2_STANDARD_MAPPING: PdoMapping = PdoMapping {
+    index: 0x1A01,
+    entries: &[
+        mapping_entry(VELOCITY_ACTUAL, 32),
+        mapping_entry(TORQUE_ACTUAL, 16),
+    ],
+};
+
 /// One PDO as the master configures it: its communication parameter's COB-ID
 /// and transmission type, and its mapping.
 #[derive(Clone, Copy, Debug)]
@@ -167,6 +184,20 @@ pub const PDOS: [Pdo; 3] = [
         transmission: TPDO2_TRANSMISSION,
         mapping: TPDO2_MAPPING,
         predefined_cob_id: CanopenNode::tpdo2,
+    },
+];
+
+/// The PDO set of a standard drive (no SYNC counter echo 0x2000): [`PDOS`]
+/// with the TPDOs' last entry dropped.
+pub const STANDARD_PDOS: [Pdo; 3] = [
+    PDOS[0],
+    Pdo {
+        mapping: TPDO1_STANDARD_MAPPING,
+        ..PDOS[1]
+    },
+    Pdo {
+        mapping: TPDO2_STANDARD_MAPPING,
+        ..PDOS[2]
     },
 ];
 

@@ -69,6 +69,14 @@ pub trait Transport {
         let _ = ids;
         Ok(())
     }
+
+    /// When the kernel received the frame the last `recv`/`recv_ready`
+    /// returned (`CLOCK_REALTIME`), where the transport knows it
+    /// (SocketCAN's `SO_TIMESTAMPNS`); `None` otherwise (the default, the
+    /// UDP bus).
+    fn last_rx_time(&self) -> Option<std::time::SystemTime> {
+        None
+    }
 }
 
 /// What a transport has seen since it was opened.

@@ -277,6 +277,10 @@ fn is_tx_queue_full(e: &io::Error) -> bool {
 }
 
 impl Transport for SocketCan {
+    fn last_rx_time(&self) -> Option<SystemTime> {
+        self.last_rx
+    }
+
     /// One non-blocking `send` of the 16-byte `can_frame`. A full transmit
     /// queue (`ENOBUFS`/`EAGAIN`) is counted in `tx_queue_full` and returned
     /// as [`TransportError::Io`] at once: the frame is dropped, the caller

@@ -17,11 +17,16 @@
 //! [`UdpBus::recv_buffer_bytes`]). A datagram that arrives while it is full
 //! is dropped by the kernel; `SO_RXQ_OVFL` reports the socket's drop count
 //! with every datagram received, and [`BusStats::kernel_dropped`] sums it.
+//!
+//! Receive times: `SO_TIMESTAMPNS` gives each datagram the kernel's arrival
+//! time ([`Transport::last_rx_time`], as on SocketCAN), which the CiA 402
+//! master's standard mode uses to tell a TPDO that arrived before a SYNC
+//! from one after it.
 
 use std::io;
 use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4, UdpSocket};
 use std::os::fd::{AsRawFd, RawFd};
-use std::time::Duration;
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use socket2::{Domain, Protocol, Socket, Type};
 
@@ -49,6 +54,9 @@ pub struct UdpBus {
     kernel_drops_seen: u32,
     /// Datagrams received by the last `recvmmsg` and not yet looked at.
     batch: Batch,
+    /// When the kernel received the datagram of the last frame returned
+    /// (`SO_TIMESTAMPNS`), as on SocketCAN.
+    last_rx: Option<SystemTime>,
 }
 
 /// Datagrams taken from the receive socket per `recvmmsg(2)`: a tick's
@@ -67,6 +75,8 @@ struct Batch {
     data: [Slot; RECV_BATCH],
     len: [usize; RECV_BATCH],
     src: [SocketAddr; RECV_BATCH],
+    /// Kernel receive times (`SO_TIMESTAMPNS`, `CLOCK_REALTIME`).
+    rx_time: [Option<SystemTime>; RECV_BATCH],
     /// Datagrams in the batch.
     filled: usize,
     /// The next one to look at.
@@ -84,6 +94,7 @@ impl Batch {
             data: [[0; WIRE_SIZE + 1]; RECV_BATCH],
             len: [0; RECV_BATCH],
             src: [nowhere; RECV_BATCH],
+            rx_time: [None; RECV_BATCH],
             filled: 0,
             next: 0,
             emptied_socket: false,
@@ -118,6 +129,8 @@ impl UdpBus {
         rx.set_reuse_port(true).map_err(open_err("SO_REUSEPORT"))?;
         set_recv_buffer(&rx, RECV_BUFFER_BYTES).map_err(open_err("SO_RCVBUF"))?;
         set_int_option(rx.as_raw_fd(), libc::SO_RXQ_OVFL, 1).map_err(open_err("SO_RXQ_OVFL"))?;
+        set_int_option(rx.as_raw_fd(), libc::SO_TIMESTAMPNS, 1)
+            .map_err(open_err("SO_TIMESTAMPNS"))?;
         rx.bind(&dest.into())
             .map_err(open_err("bind 127.255.255.255"))?;
         rx.set_nonblocking(true)
@@ -144,6 +157,7 @@ impl UdpBus {
             stats: BusStats::default(),
             kernel_drops_seen: 0,
             batch: Batch::new(),
+            last_rx: None,
         })
     }
 
@@ -192,6 +206,7 @@ impl UdpBus {
             match Frame::from_wire(&b.data[i][..b.len[i]]) {
                 Ok(frame) => {
                     self.stats.received += 1;
+                    self.last_rx = b.rx_time[i];
                     return Some(frame);
                 }
                 Err(_) => self.stats.malformed_dropped += 1,
@@ -231,8 +246,8 @@ fn set_int_option(fd: RawFd, name: libc::c_int, value: libc::c_int) -> io::Resul
     }
 }
 
-/// Control-message buffer for one `SO_RXQ_OVFL` (a u32), aligned for
-/// `cmsghdr`.
+/// Control-message buffer for one `SO_RXQ_OVFL` (a u32) and one
+/// `SCM_TIMESTAMPNS` (a timespec): 24 + 32 bytes, aligned for `cmsghdr`.
 #[repr(C, align(8))]
 #[derive(Clone, Copy)]
 struct CmsgBuf([u8; 64]);
@@ -293,6 +308,7 @@ fn recvmmsg_with_drops(
         // stay within `msg_control[..msg_controllen]` and return null at
         // its end.
         let mut cmsg = unsafe { libc::CMSG_FIRSTHDR(msg) };
+        batch.rx_time[i] = None;
         while !cmsg.is_null() {
             // SAFETY: `cmsg` is non-null and points into `control[i]`.
             let hdr = unsafe { &*cmsg };
@@ -301,6 +317,16 @@ fn recvmmsg_with_drops(
                 // unaligned) right after its header, inside `control[i]`.
                 drops[i] =
                     Some(unsafe { core::ptr::read_unaligned(libc::CMSG_DATA(cmsg).cast::<u32>()) });
+            }
+            if hdr.cmsg_level == libc::SOL_SOCKET && hdr.cmsg_type == libc::SCM_TIMESTAMPNS {
+                // SAFETY: an SCM_TIMESTAMPNS message carries one timespec
+                // right after its header, inside `control[i]`.
+                let ts = unsafe {
+                    core::ptr::read_unaligned(libc::CMSG_DATA(cmsg).cast::<libc::timespec>())
+                };
+                batch.rx_time[i] = u64::try_from(ts.tv_sec).ok().map(|secs| {
+                    UNIX_EPOCH + Duration::new(secs, u32::try_from(ts.tv_nsec).unwrap_or(0))
+                });
             }
             // SAFETY: as for CMSG_FIRSTHDR.
             cmsg = unsafe { libc::CMSG_NXTHDR(msg, cmsg) };
@@ -387,5 +413,9 @@ impl Transport for UdpBus {
 
     fn stats(&self) -> BusStats {
         self.stats
+    }
+
+    fn last_rx_time(&self) -> Option<SystemTime> {
+        self.last_rx
     }
 }

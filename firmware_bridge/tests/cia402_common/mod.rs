@@ -18,7 +18,32 @@ use sensaug_bridge::Frame;
 /// mode display 10 once written, units, the SYNC counter echo, the
 /// predefined PDO set) with 0x6072 = `max_torque_per_mille`; 0 for the rest.
 pub fn eds_value(node: CanopenNode, max_torque_per_mille: u32, index: u16, sub: u8) -> Option<u32> {
-    for pdo in od::PDOS {
+    pdo_set_value(&od::PDOS, node, max_torque_per_mille, index, sub)
+}
+
+/// [`eds_value`] for a standard drive: no 0x2000 (its upload aborts
+/// "object does not exist"), the TPDOs mapped without it
+/// ([`od::STANDARD_PDOS`]).
+pub fn standard_value(
+    node: CanopenNode,
+    max_torque_per_mille: u32,
+    index: u16,
+    sub: u8,
+) -> Option<u32> {
+    if index == od::SYNC_COUNTER_ECHO.index {
+        return None;
+    }
+    pdo_set_value(&od::STANDARD_PDOS, node, max_torque_per_mille, index, sub)
+}
+
+fn pdo_set_value(
+    pdos: &[od::Pdo],
+    node: CanopenNode,
+    max_torque_per_mille: u32,
+    index: u16,
+    sub: u8,
+) -> Option<u32> {
+    for &pdo in pdos {
         let at = |o: od::Object| (o.index, o.subindex) == (index, sub);
         if at(pdo.cob_id) {
             return Some((pdo.predefined_cob_id)(node));
@@ -103,6 +128,30 @@ pub fn spawn_eds_drive(
             Duration::from_secs(3),
         )
     })
+}
+
+/// [`serve_set_up`] with [`standard_value`] in a thread: a standard drive.
+pub fn spawn_standard_drive(bus: UdpBus, node: CanopenNode) -> JoinHandle<(UdpBus, bool)> {
+    thread::spawn(move || {
+        serve_set_up(
+            bus,
+            node,
+            |i, s| standard_value(node, 3000, i, s),
+            Duration::from_secs(3),
+        )
+    })
+}
+
+/// A standard drive's TPDO1 (statusword, position: 6 bytes) from `node`.
+pub fn standard_tpdo1(node: CanopenNode, statusword: u16, position: i32) -> Frame {
+    let (s, p) = (statusword.to_le_bytes(), position.to_le_bytes());
+    Frame::new(node.tpdo1(), &[s[0], s[1], p[0], p[1], p[2], p[3]]).unwrap()
+}
+
+/// A standard drive's TPDO2 (velocity, torque: 6 bytes) from `node`.
+pub fn standard_tpdo2(node: CanopenNode, velocity: i32, torque: i16) -> Frame {
+    let (v, t) = (velocity.to_le_bytes(), torque.to_le_bytes());
+    Frame::new(node.tpdo2(), &[v[0], v[1], v[2], v[3], t[0], t[1]]).unwrap()
 }
 
 /// A TPDO1 (statusword, position, SYNC counter echo) from `node`.
