@@ -167,7 +167,11 @@ def test_the_speed_damping_bounds_a_saturated_push_below_the_hard_speed(procs):
     fast = log.data[(np.abs(log["xdot"]) > 260.0) & (log["fresh"] == 1)]
     along = fast["torque_nm"] * np.sign(fast["xdot"])
     allowed = 1.0 - b * (np.abs(fast["xdot"]) - 200.0) * C
-    assert len(fast) and np.all(along <= allowed + 1e-9), np.max(along - allowed)
+    # The logged torque is what the drive applies: the range's command
+    # rounded (ties to even) to the drive's step, so up to half a step over.
+    half_step_nm = 0.5 * log.meta["end"]["robot_torque_step"] * C
+    assert 0.0 < half_step_nm < 1e-3, half_step_nm
+    assert len(fast) and np.all(along <= allowed + half_step_nm + 1e-12), np.max(along - allowed)
 
 
 def test_a_handle_faster_than_the_hard_speed_stops_the_run_before_the_drive_overspeed(procs):

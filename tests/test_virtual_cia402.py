@@ -348,6 +348,31 @@ def test_watchdog_is_the_heartbeat_consumer_then_fault_reset_and_reenable(drive:
     assert drive.drive.steps == steps + 1 and drive.drive.faults == Fault.NONE
 
 
+def test_a_heartbeat_queued_during_the_drives_own_stall_counts_in_time():
+    """After this process stalled (emulation: the QEMU VM), the frames queued
+    meanwhile are handled as one backlog; a master heartbeat among them
+    reached the drive in time, so the consumer does not trip on the
+    backlog's earlier frames. Without one in the backlog it trips."""
+    now = [0.0]
+    bus = can.Bus(interface="sensaug_udp", channel=free_port())
+    try:
+        d = VirtualCia402(bus, Cia402Config(), clock=lambda: now[0])
+        d.start()
+        d._set_consumer((MASTER << 16) | 100)
+        d._on_master_heartbeat(0x700 + MASTER, bytearray(b"\x05"), now[0])  # armed
+        sync = can.Message(arbitration_id=0x080, data=bytes([1]), is_extended_id=False)
+        beat = can.Message(arbitration_id=0x700 + MASTER, data=b"\x05", is_extended_id=False)
+        now[0] = 0.35  # a 350 ms stall of the drive, 100 ms consumer
+        d._handle_backlog([sync, beat])
+        assert d.heartbeat_events == 0
+        now[0] = 0.70  # 350 ms more, no heartbeat queued: lost
+        d._handle_backlog([sync])
+        assert d.heartbeat_events == 1
+        d.stop()
+    finally:
+        bus.shutdown()
+
+
 def test_watchdog_waits_for_the_first_heartbeat_and_ignores_other_nodes(drive: Drive):
     host = drive.host
     host.sdo_write(0x6060, 0, bytes([10]))

@@ -28,8 +28,9 @@ pub fn mirrored(gains: [f64; 3]) -> [f64; 3] {
     [gains[2], gains[1], gains[0]]
 }
 
-/// What a torque guard did to a command.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// What a torque guard did to a command, ordered by severity (so the
+/// worst of several guards is their `max`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Guard {
     /// The command was finite and within the limit.
     Passed,

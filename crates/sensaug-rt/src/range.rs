@@ -157,15 +157,7 @@ pub fn command_nm(
     let range_nm = wall_torque_nm(s, x_rad, v_rad_s) + speed_torque_nm(s, v_rad_s);
     let (range_nm, range_guard) = guard_torque(range_nm, limit_nm);
     let (torque_nm, last) = guard_torque(driven_nm + range_nm, limit_nm);
-    let guard = [first, range_guard, last]
-        .into_iter()
-        .max_by_key(|g| match g {
-            Guard::Passed => 0,
-            Guard::Clamped => 1,
-            Guard::NonFinite => 2,
-        })
-        .unwrap_or(Guard::Passed);
-    (torque_nm, guard)
+    (torque_nm, first.max(range_guard).max(last))
 }
 
 /// Whether the measured handle is out of its range: beyond a hard limit,
@@ -277,6 +269,9 @@ mod tests {
         let k = s.wall_stiffness_nm_per_rad;
         assert!((t - (3.0 - k * deg(2.0))).abs() < 1e-9, "{t}");
         assert_eq!(g, Guard::Clamped);
+        // The worst guard of the three is reported.
+        let (_, g) = command_nm(&s, deg(42.0), 0.0, f64::NAN, 10.0, 3.0);
+        assert_eq!(g, Guard::NonFinite);
         // Never beyond the limit, never NaN.
         for (x, v, r, p) in [
             (deg(80.0), -20.0, 5.0, -5.0),

@@ -431,6 +431,13 @@ class VirtualCia402:
         """Handles ``frames`` in order, answering only the last SYNC among them."""
         syncs = [i for i, m in enumerate(frames) if m.arbitration_id == SYNC_COB_ID]
         superseded = set(syncs[:-1])
+        # A master heartbeat queued while this process was stalled reached
+        # the drive in time: it is heard before the backlog's other frames,
+        # which check the consumer against this process's late clock (a real
+        # drive's consumer runs on time; under emulation this one did not).
+        beat = None if self._consumer_id is None else 0x700 + self._consumer_id
+        if self._last_master_hb is not None and any(m.arbitration_id == beat for m in frames):
+            self._last_master_hb = self._clock()
         for i, msg in enumerate(frames):
             self._answer_sync = i not in superseded
             self.handle(msg, self._clock())
