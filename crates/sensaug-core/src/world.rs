@@ -9,6 +9,7 @@
 
 use crate::agent::{mirrored, Guard, HumanLike, PartnerLaw};
 use crate::controller::{Robot, RobotConfig, RobotCounters};
+use crate::delay::DelayEvidence;
 use crate::identifier::{Identifier, PartnerDelay};
 use crate::plant::{Plant, PlantParams, PlantState};
 use crate::protocol::{Phase, PhaseKind, Protocol, Sample, MAX_PHASES};
@@ -346,6 +347,18 @@ impl<'a> Scenario<'a> {
     /// Ticks in the trial.
     pub fn ticks(&self) -> usize {
         self.robot.protocol().total_ticks() as usize
+    }
+
+    /// The virtual partner's identification of the robot: its delay
+    /// search's current choice (the robot's delay as the partner finds it;
+    /// not a log column), `None` without a mirror, a search or a choice.
+    pub fn mirror_delay_evidence(&self) -> Option<DelayEvidence> {
+        match &self.partner {
+            Partner::Virtual {
+                mirror: Some(m), ..
+            } => m.delay_evidence(),
+            _ => None,
+        }
     }
 
     /// Runs the whole trial, one row per tick into `out`.

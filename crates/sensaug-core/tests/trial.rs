@@ -248,7 +248,8 @@ fn identifier_errors_name_the_field() {
 fn the_mirror_finds_the_robot_acts_without_a_delay() {
     use sensaug_core::agent::HumanLike;
     use sensaug_core::identifier::PartnerDelay;
-    use sensaug_core::world::{Scenario, TickRecord};
+    use sensaug_core::row::Row;
+    use sensaug_core::world::Scenario;
     let phases = two_phases(10.0);
     let robot = sensaug_core::controller::RobotConfig {
         partner_delay: PartnerDelay::Auto,
@@ -267,22 +268,19 @@ fn the_mirror_finds_the_robot_acts_without_a_delay() {
         ..common::partner(1.0)
     };
     let mut sc = Scenario::new(&phases, robot, partner, common::world(11)).unwrap();
-    let mut out = vec![TickRecord::default(); sc.ticks()];
+    let mut out = vec![Row::UNKNOWN; sc.ticks()];
     sc.run(&mut out).unwrap();
     let end = &out[9_999];
-    assert_eq!(end.robot.partner_delay_ms[0], 100.0, "{:?}", end.robot);
-    assert_eq!(end.mirror.delay_ms[0], 0.0, "{:?}", end.mirror);
+    assert_eq!(end.partner_delay_visual_ms, 100.0, "{end:?}");
+    let mirror = sc.mirror_delay_evidence().expect("the mirror's choice");
+    assert_eq!(mirror.visual, 0, "{mirror:?}");
     let truth = robot.gains;
-    for (g, t) in end.mirror.gains.iter().zip(truth) {
+    let mirror_gains = [end.Lx_hat, end.Lv_hat, end.Lh_hat];
+    for (g, t) in mirror_gains.iter().zip(truth) {
         assert!(
             (g - t).abs() < 0.05 * truth[0],
-            "{:?} vs {truth:?}",
-            end.mirror.gains
+            "{mirror_gains:?} vs {truth:?}"
         );
     }
-    assert!(
-        (end.robot.gains[2] - 1.0).abs() < 0.05,
-        "{:?}",
-        end.robot.gains
-    );
+    assert!((end.Lhh_hat - 1.0).abs() < 0.05, "{end:?}");
 }
