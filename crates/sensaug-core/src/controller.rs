@@ -71,6 +71,19 @@ pub struct RobotCounters {
     pub missing_measurements: u64,
 }
 
+impl RobotCounters {
+    /// Each counter by the name a run's summary gives it.
+    pub fn named(&self) -> [(&'static str, u64); 5] {
+        [
+            ("robot_clamped", self.clamped),
+            ("robot_non_finite", self.non_finite),
+            ("estimator_errors", self.estimator_errors),
+            ("resymmetrised", self.resymmetrised),
+            ("missing_measurements", self.missing_measurements),
+        ]
+    }
+}
+
 /// The robot's controller: estimators and control law.
 #[derive(Clone, Debug)]
 pub struct Robot<'a> {

@@ -133,6 +133,24 @@ pub struct RunSummary {
     pub mirror_errors: u64,
 }
 
+impl RunSummary {
+    /// Each count by name, as a simulated trial's summary reports it (the
+    /// robot's counters but `missing_measurements`: a simulation measures
+    /// every tick).
+    pub fn named(&self) -> [(&'static str, u64); 7] {
+        let [clamped, non_finite, errors, resymmetrised, _] = self.robot.named();
+        [
+            ("ticks", self.ticks as u64),
+            clamped,
+            non_finite,
+            errors,
+            resymmetrised,
+            ("partner_guarded", self.partner_guarded),
+            ("mirror_errors", self.mirror_errors),
+        ]
+    }
+}
+
 /// The memory a simulated trial's log may take: half of what is available
 /// when it starts. The log is one record per tick, kept whole in memory;
 /// writing it to a file takes a second copy (`sensaug run` peaks at about

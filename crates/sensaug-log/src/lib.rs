@@ -347,6 +347,54 @@ pub fn metadata(info: &RunInfo) -> serde_json::Value {
     })
 }
 
+/// The schema as one JSON value, for readers in other languages
+/// (`sensaug.logs`): the format line and version, the checksum keys,
+/// `columns` as `[name, unit, kind, description]`, `sources` (who fills
+/// each column: time, controller, world, rig), the phase names, the
+/// unknown-integer sentinel and the unit symbols.
+pub fn schema() -> serde_json::Value {
+    let columns: Vec<[&str; 4]> = COLUMNS
+        .iter()
+        .map(|c| [c.name, c.unit, c.kind.name(), c.description])
+        .collect();
+    let sources: serde_json::Map<String, serde_json::Value> = COLUMNS
+        .iter()
+        .map(|c| (c.name.to_string(), c.source.name().into()))
+        .collect();
+    serde_json::json!({
+        "format_line": FORMAT_LINE,
+        "format_version": FORMAT_VERSION,
+        "checksum_field": CHECKSUM_FIELD,
+        "json_checksum_key": JSON_CHECKSUM_KEY,
+        "columns": columns,
+        "sources": sources,
+        "phase_names": PHASE_NAMES,
+        "unknown_int": UNKNOWN,
+        "units": UNITS,
+    })
+}
+
+/// Writes a whole log: the header ([`write_header`]), one line per row,
+/// then the end-status line unless `end` is `Null`.
+pub fn write_log(
+    out: &mut impl Write,
+    meta: &serde_json::Value,
+    rows: &[Row],
+    end: &serde_json::Value,
+) -> io::Result<()> {
+    let mut sum = write_header(out, meta)?;
+    let mut line = Vec::with_capacity(1024);
+    for r in rows {
+        line.clear();
+        format_row(r, &mut sum, &mut line);
+        out.write_all(&line)?;
+    }
+    if !end.is_null() {
+        write_footer(out, end, &mut sum)?;
+    }
+    out.flush()
+}
+
 /// Writes the format line, the metadata line (`meta` stamped with this
 /// format and version, and its checksum) and the header row; the running
 /// checksum to write the rows with.
