@@ -98,13 +98,24 @@ def test_every_command_and_feedback_in_the_log_is_on_the_bus(run):
     stale = ticks - 1 - len(fresh)
     assert stale <= stats["can"]["missing_feedback"] <= stale + 1
     unanswered = [int(k) for k in fresh if answer[k - 1] is None]
-    assert not unanswered, f"fresh ticks with no Feedback on the bus: {unanswered[:10]}"
+    assert not unanswered, (f"fresh ticks with no Feedback on the bus: {unanswered[:10]}; "
+                            + around(decoded, commands[matched[unanswered[0] - 1]].index))
     pos = np.array([feedback[answer[k - 1]].signals["position"] for k in fresh])
     vel = np.array([feedback[answer[k - 1]].signals["velocity"] for k in fresh])
     np.testing.assert_allclose(log["x"][fresh] * unit, pos, rtol=0, atol=1e-9)
     np.testing.assert_allclose(log["xdot"][fresh] * unit, vel, rtol=0, atol=1e-9)
     print(f"\ncapture: {len(frames)} frames, {len(commands)} commands, {len(feedback)} feedback; "
           f"{len(fresh)} fresh ticks of {ticks} matched")
+
+
+def around(decoded, index: int, frames: int = 6) -> str:
+    """The bus in capture order around frame ``index`` (name and sequence),
+    for a failure message: a Feedback captured before the command it echoes
+    (the capture's socket and the drive's see each datagram in their own
+    order) reads differently from one missing."""
+    lo, hi = max(index - frames, 0), min(index + frames + 1, len(decoded))
+    return "bus around it: " + ", ".join(
+        f"{'>' if d.index == index else ''}{d.name}({d.signals.get('sequence')})" for d in decoded[lo:hi])
 
 
 def test_the_output_folder_says_what_is_in_it(run):

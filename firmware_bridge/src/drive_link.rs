@@ -348,8 +348,8 @@ pub trait DriveLink {
 
     /// Whether [`Absorbed::Feedback`]'s `steps` is exact (sequence numbers
     /// or the SYNC counter echo); false in CiA 402's standard mode, where a
-    /// late answer is placed on the next SYNC, so the steps between two
-    /// feedbacks may be one more or fewer. Default: exact.
+    /// late answer is placed on a later SYNC, so the steps between two
+    /// feedbacks may be fewer, or one more. Default: exact.
     fn steps_exact(&self) -> bool {
         true
     }

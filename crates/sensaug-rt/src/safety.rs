@@ -339,9 +339,9 @@ pub struct Previous {
     pub steps: u32,
     /// `steps` is exact (sequence numbers, the SYNC counter echo); false
     /// for CiA 402's standard mode, where a TPDO is placed on a SYNC by its
-    /// arrival time and a late answer looks like the next SYNC's: the
-    /// drive steps between two feedbacks are then `steps` or one more or
-    /// fewer ([`DriveLink::steps_exact`](sensaug_bridge::drive_link::DriveLink::steps_exact)).
+    /// arrival time and a late answer looks like a later SYNC's: the drive
+    /// steps between two feedbacks are then anything from 1 to `steps` + 1
+    /// ([`DriveLink::steps_exact`](sensaug_bridge::drive_link::DriveLink::steps_exact)).
     pub steps_exact: bool,
 }
 
@@ -423,8 +423,11 @@ impl FeedbackLimits {
         if exact.is_ok() || p.steps_exact {
             return exact;
         }
-        // Standard CiA 402: one step more or fewer (a late answer).
-        if consistent_over(steps + 1).is_ok() || (steps > 1 && consistent_over(steps - 1).is_ok()) {
+        // Standard CiA 402: the new feedback answers some SYNC after the
+        // previous one's (a late answer is placed on a later SYNC), and the
+        // previous one may itself have been one SYNC late: 1 to steps + 1
+        // drive steps. `steps` is bounded by the feedback timeout.
+        if (1..=steps + 1).any(|s| consistent_over(s).is_ok()) {
             return Ok(());
         }
         exact
@@ -949,7 +952,7 @@ mod tests {
     }
 
     #[test]
-    fn standard_cia402_steps_may_be_one_off_but_a_doubled_velocity_is_still_refused() {
+    fn standard_cia402_steps_may_be_off_but_a_misreported_velocity_is_still_refused() {
         // 1 rad/s, 2 ms of motion between two feedbacks placed 1 SYNC apart
         // (a late answer): refused with exact steps, taken when inexact.
         let inexact = |p: Option<Previous>| {
@@ -976,6 +979,21 @@ mod tests {
         assert!(LIMITS
             .check(at(0.004, 4.0), inexact(prev(0.0, 4.0, 2, 2)))
             .is_ok());
+        // A stalled drive's late answer after a gap (a CI run: 1.44 rad/s
+        // reported, 0.48 rad/s implied over 3 ticks): one step of motion
+        // placed 3 SYNCs after the previous feedback.
+        let gap = prev(0.0, 1.44, 3, 3);
+        assert!(LIMITS.check(at(0.00144, 1.44), gap).is_err());
+        assert!(LIMITS.check(at(0.00144, 1.44), inexact(gap)).is_ok());
+        // Running on, one SYNC apart, a velocity reported 1.5 times over is
+        // explained by neither 1 nor 2 steps: refused.
+        assert!(LIMITS
+            .check(at(0.001, 1.5), inexact(prev(0.0, 1.5, 1, 1)))
+            .is_err());
+        // Nor does any step count explain a velocity of the wrong sign.
+        assert!(LIMITS
+            .check(at(0.002, -1.0), inexact(prev(0.0, -1.0, 3, 3)))
+            .is_err());
     }
 
     #[test]
