@@ -17,6 +17,7 @@ from test_rig import short_config
 
 import sensaug
 from sensaug import _core, experiment, presets, rig
+from sensaug import logs
 from sensaug.logs import UNKNOWN_INT, UnverifiedLogWarning, load_log
 from sensaug.replay import ESTIMATE_COLUMNS
 
@@ -114,6 +115,37 @@ def test_bad_logs_get_named_errors(tmp_path):
         sensaug.replay(no_config)
     with pytest.raises(ValueError, match="fresh: 3 values, but x_meas has 4"):
         sensaug._core.replay_robot(sim_config().resolved(), np.zeros(4), np.zeros(4), np.ones(3, dtype=bool))
+
+
+def test_the_replayed_columns_follow_the_schemas_source_tags():
+    """Replay recomputes the columns the schema tags ``controller`` (no
+    hand-kept list): the core's replay returns packed records in which those
+    equal the online trial's bit for bit, the measurement it read and the
+    tick's time are filled, and every other world or rig column is unknown."""
+    assert ESTIMATE_COLUMNS == tuple(c for c in logs.COLUMNS if logs.SOURCES[c] == "controller")
+    assert {"phase", "u", "e_meas", "partner_delay_margin_nats"} <= set(ESTIMATE_COLUMNS)
+    assert set(logs.SOURCES.values()) == {"time", "controller", "world", "rig"}
+    cfg = sim_config()
+    trial = experiment.run(cfg)
+    d = trial.data
+    records, counters = _core.replay_robot(
+        cfg.resolved(),
+        np.ascontiguousarray(d["x_meas"]),
+        np.ascontiguousarray(d["xdot_meas"]),
+        np.ascontiguousarray(d["fresh"]),
+    )
+    assert records.dtype == np.uint8
+    replayed = logs.from_records(records)
+    assert counters["ticks"] == len(replayed) == len(d)
+    assert_columns_identical(replayed, d)
+    read = {"x_meas", "xdot_meas", "fresh"}
+    for c in logs.COLUMNS:
+        if logs.SOURCES[c] == "time" or c in read:
+            assert np.array_equal(replayed[c], d[c]), c
+        elif logs.SOURCES[c] != "controller":
+            col = replayed[c]
+            unknown = np.isnan(col) if col.dtype.kind == "f" else col == (False if col.dtype == bool else UNKNOWN_INT)
+            assert unknown.all(), c
 
 
 def test_a_virtual_rig_run_replays_tick_by_tick(tmp_path):

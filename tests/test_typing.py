@@ -72,3 +72,35 @@ def test_the_stub_of_the_compiled_module_matches_it():
         capture_output=True, text=True, cwd=REPO, timeout=300,
     )
     assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def test_constructor_defaults_are_the_schemas() -> None:
+    """The binding keeps no defaults of its own: an estimator's or the
+    plant's omitted keyword takes the configuration schema's default, and
+    the signature Python shows (``text_signature``, the ``.pyi``) says so."""
+    import inspect
+
+    from sensaug import _core
+
+    defs = json.loads(_core.config_schema())["$defs"]
+
+    def defaults(spec: str) -> dict:
+        return {n: p["default"] for n, p in defs[spec]["properties"].items() if "default" in p}
+
+    plant, sigma, channel, world = (defaults(s) for s in ("PlantSpec", "SigmaSpec", "ChannelSpec", "WorldSpec"))
+    expected = {
+        _core.Plant: {"damping": plant["damping"], "coulomb": plant["coulomb"], "dt_s": plant["dt_s"],
+                      "x0": world["x0"], "v0": world["v0"]},
+        _core.GainEstimator: {"damping": plant["damping"], "dt": plant["dt_s"], **sigma},
+        _core.TrajectoryEstimator: {"damping": plant["damping"], "dt": plant["dt_s"], **sigma},
+        _core.GoalIntegrator: {"damping": plant["damping"], "dt": plant["dt_s"], **channel},
+    }  # fmt: skip
+    for cls, want in expected.items():
+        shown = {n: p.default for n, p in inspect.signature(cls).parameters.items() if n in want}
+        assert shown == want, cls.__name__
+    # ... and an omitted keyword behaves as the schema's default given.
+    a = _core.Plant(mass=0.5)
+    b = _core.Plant(mass=0.5, damping=plant["damping"], coulomb=plant["coulomb"], dt_s=plant["dt_s"])
+    for p in (a, b):
+        p.step(1.0)
+    assert (a.x, a.v) == (b.x, b.v)

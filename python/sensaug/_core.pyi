@@ -395,14 +395,15 @@ def replay_robot(
     fresh: NDArray[np.bool_],
     /,
     torque_step: float | None = None,
-) -> tuple[dict[str, NDArray[Any]], dict[str, int]]:
+) -> tuple[NDArray[np.uint8], dict[str, int]]:
     """Re-runs the robot's controller over recorded measurements: tick ``k``
     fuses ``(x_meas[k], xdot_meas[k])`` when ``fresh[k]``, else only
     predicts, exactly as online.
 
-    Returns ``(columns, counters)``: one array per column of the log schema
-    (the controller's columns plus ``tick``, ``t``, ``x_meas``,
-    ``xdot_meas``, ``fresh``; the rest unknown) and the robot's counters.
+    Returns ``(records, counters)``: the rows as packed records, as
+    ``run_scenario`` returns them (``sensaug.logs.from_records``; the
+    controller's columns plus ``tick``, ``t``, ``x_meas``, ``xdot_meas``,
+    ``fresh``; the rest unknown) and the robot's counters.
 
     Raises:
         ValueError: the arrays' lengths differ or one is not C-contiguous.
@@ -413,7 +414,8 @@ def replay_robot(
 def log_schema() -> dict[str, Any]:
     """The schema: ``format_line``, ``format_version``, ``columns`` as
     ``(name, unit, kind, description)`` tuples (kind ``int``/``float``/``bool``),
-    ``phase_names``, ``unknown_int``, ``units`` as ``(symbol, meaning)``,
+    ``sources`` (column name -> who fills it: ``time``, ``controller``,
+    ``world``, ``rig``), ``phase_names``, ``unknown_int``, ``units`` as ``(symbol, meaning)``,
     ``checksum_field`` and ``json_checksum_key`` (docs/logs.md, "Checksums")."""
 
 def config_sha256(config_json: str) -> str:

@@ -44,7 +44,7 @@ if TYPE_CHECKING:
     import pandas
 
 __all__ = [
-    "PARQUET_SUFFIX", "COLUMNS", "DTYPE", "PHASE_NAMES", "UNITS", "UNKNOWN_INT",
+    "PARQUET_SUFFIX", "COLUMNS", "DTYPE", "PHASE_NAMES", "SOURCES", "UNITS", "UNKNOWN_INT",
     "Log", "UnverifiedLogWarning", "from_columns", "from_records", "load_log", "to_json",
 ]  # fmt: skip
 
@@ -52,6 +52,9 @@ _SCHEMA = _core.log_schema()
 FORMAT_LINE: str = _SCHEMA["format_line"]
 #: Column names, in file order.
 COLUMNS: tuple[str, ...] = tuple(c[0] for c in _SCHEMA["columns"])
+#: Who fills every column: ``time``, ``controller`` (what a replay
+#: recomputes), ``world`` (handle, measurement, targets, partner) or ``rig``.
+SOURCES: dict[str, str] = dict(_SCHEMA["sources"])
 #: Unit of every column (symbols in ``meta["units"]``).
 UNITS: dict[str, str] = {c[0]: c[1] for c in _SCHEMA["columns"]}
 #: Names of the ``phase`` codes (index = code); -1 is outside the protocol.
@@ -94,8 +97,8 @@ def from_columns(columns: Mapping[str, np.ndarray]) -> np.ndarray:
 
 def from_records(records: np.ndarray) -> np.ndarray:
     """A structured array with :data:`DTYPE` viewing ``records``, the bytes of
-    packed rows in :data:`COLUMNS` order (as ``_core.run_scenario`` returns
-    them): no copy."""
+    packed rows in :data:`COLUMNS` order (as ``_core.run_scenario`` and
+    ``_core.replay_robot`` return them): no copy."""
     if records.dtype != np.uint8 or records.ndim != 1 or records.size % DTYPE.itemsize:
         raise ValueError(
             f"records: expected 1-D uint8 bytes, a multiple of {DTYPE.itemsize} (one row of DTYPE); "

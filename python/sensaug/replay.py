@@ -25,18 +25,13 @@ import numpy as np
 
 from sensaug import _core
 from sensaug.config import ScenarioConfig
-from sensaug.logs import UNKNOWN_INT, Log, UnverifiedLogWarning, load_log, to_json
+from sensaug.logs import COLUMNS, SOURCES, UNKNOWN_INT, Log, UnverifiedLogWarning, from_records, load_log, to_json
 
 __all__ = ["ESTIMATE_COLUMNS", "NEEDED_COLUMNS", "replay"]
 
-#: The controller's columns a replay recomputes (everything else is copied).
-ESTIMATE_COLUMNS: tuple[str, ...] = (
-    "phase", "u", "e_meas",
-    "Lhx_hat", "Lhv_hat", "Lhh_hat", "Lhx_var", "Lhv_var", "Lhh_var",
-    "tau_h_hat", "tau_h_var",
-    "e_hat_own", "e_hat_fused", "e_hat_own_var", "e_hat_fused_var", "partner_var",
-    "partner_delay_visual_ms", "partner_delay_proprioceptive_ms", "partner_delay_margin_nats",
-)  # fmt: skip
+#: The controller's columns a replay recomputes (everything else is copied):
+#: the schema's columns the controller fills, in file order.
+ESTIMATE_COLUMNS: tuple[str, ...] = tuple(c for c in COLUMNS if SOURCES[c] == "controller")
 #: The columns a replay reads: the measurement the robot received, whether
 #: it was new that tick, the tick number, and the rig's controlled-stop flag (``ramp``).
 NEEDED_COLUMNS: tuple[str, ...] = ("tick", "x_meas", "xdot_meas", "fresh", "ramp")
@@ -167,7 +162,7 @@ def replay(log: str | Path | Log, config: ScenarioConfig | None = None, *, allow
     if config is None:
         config, matches = _recorded_config(log, allow_edited_config)
     d = log.data[:n]
-    columns, counters = _core.replay_robot(
+    records, counters = _core.replay_robot(
         config.resolved(),
         np.ascontiguousarray(d["x_meas"], dtype=np.float64),
         np.ascontiguousarray(d["xdot_meas"], dtype=np.float64),
@@ -175,6 +170,7 @@ def replay(log: str | Path | Log, config: ScenarioConfig | None = None, *, allow
         # A rig run's robot rounded its commands to the drive's torque step.
         torque_step=(log.meta.get("end") or {}).get("robot_torque_step"),
     )
+    columns = from_records(records)
     beyond = np.flatnonzero(columns["phase"] == UNKNOWN_INT)
     if beyond.size:
         raise ValueError(

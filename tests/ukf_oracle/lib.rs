@@ -7,13 +7,14 @@
 #[path = "../../crates/sensaug-core/tests/common/pendulum.rs"]
 mod pendulum;
 
-use _core::convert::{mat_from, mat_to, py_err, recoveries_dict, status, vec_from, vec_to};
-use _core::convert::{CoreError, UkfStepError};
+use _core::convert::UkfStepError;
+use _core::convert::{mat_to, matrix, py_err, recoveries_dict, vec_to, vector};
 use _core::estimators::{run_batch, Batch};
 use numpy::{PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pendulum::{Pendulum, PendulumFilter, M, N};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+use sensaug_core::estimator::EstimatorError;
 use sensaug_core::ukf::MerweParams;
 
 /// Merwe-scaled UKF on the pendulum model (N = 3, M = 2).
@@ -28,10 +29,10 @@ impl DemoUkf {
     #[pyo3(signature = (*, x0, P0, Q, R, alpha, beta, kappa, dt_s=1e-3, length_m=0.5, mass_kg=1.0, damping_nms=0.1, gravity_mps2=9.81))]
     #[allow(clippy::too_many_arguments)]
     fn new(
-        x0: PyReadonlyArray1<'_, f64>,
-        P0: PyReadonlyArray2<'_, f64>,
-        Q: PyReadonlyArray2<'_, f64>,
-        R: PyReadonlyArray2<'_, f64>,
+        x0: &Bound<'_, PyAny>,
+        P0: &Bound<'_, PyAny>,
+        Q: &Bound<'_, PyAny>,
+        R: &Bound<'_, PyAny>,
         alpha: f64,
         beta: f64,
         kappa: f64,
@@ -48,11 +49,11 @@ impl DemoUkf {
             damping_nms,
             gravity_mps2,
         };
-        let (x0, P0) = (vec_from::<N>(&x0, "x0")?, mat_from::<N, N>(&P0, "P0")?);
-        let (Q, R) = (mat_from::<N, N>(&Q, "Q")?, mat_from::<M, M>(&R, "R")?);
+        let (x0, P0) = (vector::<N>(x0, "x0")?, matrix::<N, N>(P0, "P0")?);
+        let (Q, R) = (matrix::<N, N>(Q, "Q")?, matrix::<M, M>(R, "R")?);
         let ukf = model
             .ukf(x0, P0, Q, R, MerweParams { alpha, beta, kappa })
-            .map_err(|e| py_err(CoreError::Setup(e)))?;
+            .map_err(|e| py_err(EstimatorError::Ukf(e)))?;
         Ok(Self {
             inner: PendulumFilter { ukf, model },
         })
@@ -60,32 +61,28 @@ impl DemoUkf {
 
     /// Predict one step with torque `u` (N m); optional per-call `Q`.
     #[pyo3(signature = (u, *, Q=None))]
-    fn predict(&mut self, u: f64, Q: Option<PyReadonlyArray2<'_, f64>>) -> PyResult<String> {
+    fn predict(&mut self, u: f64, Q: Option<&Bound<'_, PyAny>>) -> PyResult<String> {
         let (model, ukf) = (self.inner.model, &mut self.inner.ukf);
         let f = |x: &nalgebra::SVector<f64, N>| model.f(x, u);
         match Q {
-            Some(q) => ukf.predict_with_q(&mat_from::<N, N>(&q, "Q")?, f),
+            Some(q) => ukf.predict_with_q(&matrix::<N, N>(q, "Q")?, f),
             None => ukf.predict(f),
         }
-        .map(|s| status(s).to_string())
+        .map(|s| s.to_string())
         .map_err(py_err)
     }
 
     /// Update with measurement `z` (shape (2,)); optional per-call `R`.
     #[pyo3(signature = (z, *, R=None))]
-    fn update(
-        &mut self,
-        z: PyReadonlyArray1<'_, f64>,
-        R: Option<PyReadonlyArray2<'_, f64>>,
-    ) -> PyResult<String> {
+    fn update(&mut self, z: &Bound<'_, PyAny>, R: Option<&Bound<'_, PyAny>>) -> PyResult<String> {
         let (model, ukf) = (self.inner.model, &mut self.inner.ukf);
-        let z = vec_from::<M>(&z, "z")?;
+        let z = vector::<M>(z, "z")?;
         let h = |x: &nalgebra::SVector<f64, N>| model.h(x);
         match R {
-            Some(r) => ukf.update_with_r(&z, &mat_from::<M, M>(&r, "R")?, h),
+            Some(r) => ukf.update_with_r(&z, &matrix::<M, M>(r, "R")?, h),
             None => ukf.update(&z, h),
         }
-        .map(|s| status(s).to_string())
+        .map(|s| s.to_string())
         .map_err(py_err)
     }
 
@@ -108,12 +105,8 @@ impl DemoUkf {
     }
 
     /// Replace x and P (validated).
-    fn reset(
-        &mut self,
-        x: PyReadonlyArray1<'_, f64>,
-        P: PyReadonlyArray2<'_, f64>,
-    ) -> PyResult<()> {
-        let (x, P) = (vec_from::<N>(&x, "x")?, mat_from::<N, N>(&P, "P")?);
+    fn reset(&mut self, x: &Bound<'_, PyAny>, P: &Bound<'_, PyAny>) -> PyResult<()> {
+        let (x, P) = (vector::<N>(x, "x")?, matrix::<N, N>(P, "P")?);
         self.inner.ukf.reset(x, P).map_err(py_err)
     }
 
@@ -141,10 +134,10 @@ impl DemoUkf {
         mat_to(py, self.inner.ukf.Q())
     }
     #[setter(Q)]
-    fn set_Q(&mut self, Q: PyReadonlyArray2<'_, f64>) -> PyResult<()> {
+    fn set_Q(&mut self, Q: &Bound<'_, PyAny>) -> PyResult<()> {
         self.inner
             .ukf
-            .set_Q(mat_from::<N, N>(&Q, "Q")?)
+            .set_Q(matrix::<N, N>(Q, "Q")?)
             .map_err(py_err)
     }
     #[getter]
@@ -152,10 +145,10 @@ impl DemoUkf {
         mat_to(py, self.inner.ukf.R())
     }
     #[setter(R)]
-    fn set_R(&mut self, R: PyReadonlyArray2<'_, f64>) -> PyResult<()> {
+    fn set_R(&mut self, R: &Bound<'_, PyAny>) -> PyResult<()> {
         self.inner
             .ukf
-            .set_R(mat_from::<M, M>(&R, "R")?)
+            .set_R(matrix::<M, M>(R, "R")?)
             .map_err(py_err)
     }
     #[getter]

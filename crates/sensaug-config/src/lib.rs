@@ -46,6 +46,22 @@ pub enum Format {
     Json,
 }
 
+impl std::str::FromStr for Format {
+    type Err = ConfigError;
+
+    /// `"toml"` or `"json"`; anything else is refused naming `format`.
+    fn from_str(name: &str) -> Result<Format, ConfigError> {
+        match name {
+            "toml" => Ok(Format::Toml),
+            "json" => Ok(Format::Json),
+            other => Err(ConfigError::new(
+                "format",
+                format!("{other:?} is not a configuration format; use \"toml\" or \"json\""),
+            )),
+        }
+    }
+}
+
 impl Format {
     /// By the file's extension: `.json` is JSON, anything else TOML.
     pub fn of_path(path: &Path) -> Format {

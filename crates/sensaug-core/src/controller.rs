@@ -11,9 +11,10 @@ use crate::agent::{feedback_torque, guard_torque, xi, Guard};
 use crate::delay::DelayEvidence;
 use crate::estimator::{ExtendedFilterConfig, HandleModel, E_H};
 use crate::goal::{GoalIntegrator, GoalIntegratorConfig};
-use crate::identifier::{FilterTally, Identifier, PartnerDelay, PartnerEstimate};
+use crate::identifier::{FilterTally, Identifier, PartnerDelay};
 use crate::protocol::{PhaseKind, Protocol, Sample};
 use crate::rng::Noise;
+use crate::row::{ColumnSource, Row};
 use crate::ukf::Status;
 use crate::ScenarioError;
 use nalgebra::{SMatrix, Vector2, Vector3};
@@ -70,71 +71,16 @@ pub struct RobotCounters {
     pub missing_measurements: u64,
 }
 
-/// What the robot did in one tick (its log line).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct RobotTick {
-    /// Guarded torque command.
-    pub u: f64,
-    /// Phase code (`PhaseKind::code`); NaN after the protocol ended.
-    pub phase: f64,
-    /// The robot's (possibly noisy) view of `x - tau`.
-    pub e_meas: f64,
-    /// Estimated partner gains (stage 1 or 2, whichever runs).
-    pub gains: [f64; 3],
-    /// Their posterior variances.
-    pub gains_var: [f64; 3],
-    /// Estimated partner target `tau_h^` (stages 2-3), NaN otherwise.
-    pub tau_h_hat: f64,
-    /// Posterior variance of `x - tau_h^`.
-    pub tau_h_var: f64,
-    /// Stage 3: `(x - tau)^` from own sensing only (the bank's member 0).
-    pub e_hat_own: f64,
-    /// Stage 3: `(x - tau)^` with the partner channel (the bank's mixture).
-    pub e_hat_fused: f64,
-    /// Posterior variance of `e_hat_own`.
-    pub e_hat_own_var: f64,
-    /// Posterior variance of `e_hat_fused`.
-    pub e_hat_fused_var: f64,
-    /// Stage 3: the partner channel's effective variance
-    /// (`GoalIntegrator::partner_variance`; infinite when it was not fused).
-    pub partner_var: f64,
-    /// The partner delays `[visual, proprioceptive]` (ms) stages 1-2
-    /// assume (NaN: the paper's model, no choice yet, or not identified).
-    pub partner_delay_ms: [f64; 2],
-    /// The delay search's margin of its visual delay (nats; NaN without one).
-    pub partner_delay_margin_nats: f64,
-}
-
-impl RobotTick {
-    /// No estimate anywhere (NaN), zero command: the start of every tick's
-    /// log line, and the whole of it after the protocol's end.
-    pub const NONE: RobotTick = RobotTick {
-        u: 0.0,
-        phase: f64::NAN,
-        e_meas: f64::NAN,
-        gains: [f64::NAN; 3],
-        gains_var: [f64::NAN; 3],
-        tau_h_hat: f64::NAN,
-        tau_h_var: f64::NAN,
-        e_hat_own: f64::NAN,
-        e_hat_fused: f64::NAN,
-        e_hat_own_var: f64::NAN,
-        e_hat_fused_var: f64::NAN,
-        partner_var: f64::NAN,
-        partner_delay_ms: [f64::NAN; 2],
-        partner_delay_margin_nats: f64::NAN,
-    };
-}
-
-impl RobotTick {
-    /// Fills the partner-identification fields from `est`.
-    fn set_partner(&mut self, est: PartnerEstimate) {
-        self.gains = est.gains;
-        self.gains_var = est.gains_var;
-        self.tau_h_hat = est.target;
-        self.tau_h_var = est.target_var;
-        self.partner_delay_ms = est.delay_ms;
-        self.partner_delay_margin_nats = est.delay_margin_nats;
+impl RobotCounters {
+    /// Each counter by the name a run's summary gives it.
+    pub fn named(&self) -> [(&'static str, u64); 5] {
+        [
+            ("robot_clamped", self.clamped),
+            ("robot_non_finite", self.non_finite),
+            ("estimator_errors", self.estimator_errors),
+            ("resymmetrised", self.resymmetrised),
+            ("missing_measurements", self.missing_measurements),
+        ]
     }
 }
 
@@ -258,17 +204,22 @@ impl<'a> Robot<'a> {
     }
 
     /// One control period: fuse the measurement `(x, v)` of tick `k`,
-    /// compute the command, then propagate the estimators with it. After
-    /// the protocol's end the command is 0.
-    pub fn tick(&mut self, k: u64, x: f64, v: f64) -> RobotTick {
-        self.tick_with(k, Some((x, v)))
+    /// compute the command, then propagate the estimators with it; the
+    /// controller's columns of `row` written. After the protocol's end the
+    /// command is 0.
+    pub fn tick(&mut self, k: u64, x: f64, v: f64, row: &mut Row) {
+        self.tick_with(k, Some((x, v)), row)
     }
 
-    /// [`Robot::tick_at`] for tick `k` (samples the protocol itself).
-    pub fn tick_with(&mut self, k: u64, measurement: Option<(f64, f64)>) -> RobotTick {
+    /// [`Robot::tick_at`] for tick `k` (samples the protocol itself); after
+    /// the protocol's end every controller column is unknown but `u`, 0.
+    pub fn tick_with(&mut self, k: u64, measurement: Option<(f64, f64)>, row: &mut Row) {
         match self.protocol.sample(k) {
-            Some(sample) => self.tick_at(&sample, measurement),
-            None => RobotTick::NONE,
+            Some(sample) => self.tick_at(&sample, measurement, row),
+            None => {
+                row.clear(ColumnSource::Controller);
+                row.u = 0.0;
+            }
         }
     }
 
@@ -276,8 +227,10 @@ impl<'a> Robot<'a> {
     /// frame that did not arrive in time, or a non-finite one). Without a
     /// fresh measurement the estimators skip their update and only predict,
     /// and the command uses the last measurement received: a stale sample
-    /// fed to the filters as if new would corrupt them.
-    pub fn tick_at(&mut self, sample: &Sample<'_>, measurement: Option<(f64, f64)>) -> RobotTick {
+    /// fed to the filters as if new would corrupt them. Writes every
+    /// controller column of `row` (the guarded command in `row.u`, the
+    /// estimates, unknown where the phase has none) and nothing else.
+    pub fn tick_at(&mut self, sample: &Sample<'_>, measurement: Option<(f64, f64)>, row: &mut Row) {
         let fresh = measurement.filter(|(x, v)| x.is_finite() && v.is_finite());
         if let Some(m) = fresh {
             self.last_measurement = m;
@@ -286,18 +239,15 @@ impl<'a> Robot<'a> {
         }
         let (x, v) = self.last_measurement;
         let fresh = fresh.is_some();
-        let mut out = RobotTick {
-            phase: sample.phase.kind.code(),
-            e_meas: x - sample.tau,
-            ..RobotTick::NONE
-        };
-        out.u = match sample.phase.kind {
+        row.clear(ColumnSource::Controller);
+        row.phase = Some(sample.phase.kind);
+        row.e_meas = x - sample.tau;
+        row.u = match sample.phase.kind {
             PhaseKind::Gains | PhaseKind::Trajectory => {
-                self.identification_tick(sample, fresh, (x, v), &mut out)
+                self.identification_tick(sample, fresh, (x, v), row)
             }
-            PhaseKind::Integration => self.integration_tick(sample, fresh, (x, v), &mut out),
+            PhaseKind::Integration => self.integration_tick(sample, fresh, (x, v), row),
         };
-        out
     }
 
     /// Stages 1 and 2: update the identifier, the command on the true
@@ -307,10 +257,10 @@ impl<'a> Robot<'a> {
         s: &Sample<'_>,
         fresh: bool,
         (x, v): (f64, f64),
-        out: &mut RobotTick,
+        out: &mut Row,
     ) -> f64 {
         let y = fresh.then(|| Vector3::new(x - s.tau, v, x - s.tau_h));
-        out.set_partner(self.identifier.update(s, y, x, None));
+        out.set_partner_estimate(&self.identifier.update(s, y, x, None));
         let u = self.guard(feedback_torque(&self.cfg.gains, &xi(x, v, s.tau, s.tau_h)));
         self.identifier.predict(s.phase.kind, u, s.dtau, s.dtau_h);
         u
@@ -325,7 +275,7 @@ impl<'a> Robot<'a> {
         s: &Sample<'_>,
         fresh: bool,
         (x, v): (f64, f64),
-        out: &mut RobotTick,
+        out: &mut Row,
     ) -> f64 {
         let std = s.phase.target_noise_std;
         let e_meas = x - (s.tau + self.noise.normal(std));
@@ -336,7 +286,7 @@ impl<'a> Robot<'a> {
         // The partner's target is unknown here (stage 2 does not read it).
         let y = fresh.then(|| Vector3::new(e_meas, v, f64::NAN));
         let R = self.stage2_R_noisy;
-        out.set_partner(self.identifier.update(s, y, x, Some(&R)));
+        out.set_partner_estimate(&self.identifier.update(s, y, x, Some(&R)));
         let stage2 = self.identifier.trajectory();
         let channel = stage2.filter().x()[E_H];
         if fresh {

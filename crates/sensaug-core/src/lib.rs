@@ -32,6 +32,7 @@ pub mod protocol;
 pub mod replay;
 pub mod riccati;
 pub mod rng;
+pub mod row;
 pub mod target;
 pub mod ukf;
 pub mod world;

@@ -23,12 +23,26 @@ pub enum PhaseKind {
 }
 
 impl PhaseKind {
-    /// A number for logs: 0, 1, 2.
-    pub fn code(self) -> f64 {
+    /// The names of the kinds, indexed by [`PhaseKind::code`] (the log's
+    /// `phase_names`).
+    pub const NAMES: [&'static str; 3] = ["gains", "trajectory", "integration"];
+
+    /// The log's code: 0, 1, 2 (an index of [`PhaseKind::NAMES`]).
+    pub fn code(self) -> i64 {
         match self {
-            PhaseKind::Gains => 0.0,
-            PhaseKind::Trajectory => 1.0,
-            PhaseKind::Integration => 2.0,
+            PhaseKind::Gains => 0,
+            PhaseKind::Trajectory => 1,
+            PhaseKind::Integration => 2,
+        }
+    }
+
+    /// The kind of a log code (`None`: not a phase code).
+    pub fn from_code(code: i64) -> Option<PhaseKind> {
+        match code {
+            0 => Some(PhaseKind::Gains),
+            1 => Some(PhaseKind::Trajectory),
+            2 => Some(PhaseKind::Integration),
+            _ => None,
         }
     }
 }

@@ -12,10 +12,11 @@
 //! (state unchanged or `P` reset) and is counted in the [`RunReport`]. Slice
 //! length errors are reported before anything runs.
 
-use crate::controller::{Robot, RobotCounters, RobotTick};
+use crate::controller::{Robot, RobotCounters};
 use crate::estimator::{GainEstimator, TrajectoryEstimator};
 use crate::goal::GoalIntegrator;
 use crate::plant::Plant;
+use crate::row::Row;
 use crate::ukf::{Phase, RunReport, Status, StepError, UkfError};
 use nalgebra::{SMatrix, SVector, Vector2};
 
@@ -89,8 +90,8 @@ pub enum ReplayArg {
     Torques,
     /// Plant velocities out.
     Vs,
-    /// The robot's per-tick output ([`replay_robot`]).
-    RobotTicks,
+    /// The robot's per-tick rows ([`replay_robot`]).
+    Rows,
 }
 
 impl ReplayArg {
@@ -105,7 +106,7 @@ impl ReplayArg {
             ReplayArg::Pdiag => "Pdiag",
             ReplayArg::Torques => "torques",
             ReplayArg::Vs => "vs",
-            ReplayArg::RobotTicks => "out",
+            ReplayArg::Rows => "out",
         }
     }
 }
@@ -373,24 +374,26 @@ pub fn simulate(
 }
 
 /// Re-runs the robot's controller offline over a recorded trial: for each
-/// tick `k`, `out[k] = robot.tick_with(k, measurements[k])`, the very call
+/// tick `k`, `robot.tick_with(k, measurements[k], &mut out[k])`, the very call
 /// (and so the same step order: update with the measurement, command,
 /// predict) that the rig loop and the simulation make online. `None` is a
 /// tick without a fresh measurement (predict only, the command on the last
 /// one), as online. `robot` must be new (built from the recording's
 /// configuration, its protocol and seed) for the numbers to repeat bit for
-/// bit. Ticks after the protocol's end give [`RobotTick::NONE`].
+/// bit. Only the controller's columns of `out` are written (the caller's
+/// other columns are kept); after the protocol's end they are unknown and
+/// `u` is 0.
 ///
 /// Returns the robot's counters after the last tick; a length mismatch is
 /// reported before anything runs. Allocation-free.
 pub fn replay_robot(
     robot: &mut Robot<'_>,
     measurements: &[Option<(f64, f64)>],
-    out: &mut [RobotTick],
+    out: &mut [Row],
 ) -> Result<RobotCounters, ReplayError> {
-    check_len(ReplayArg::RobotTicks, measurements.len(), out.len())?;
+    check_len(ReplayArg::Rows, measurements.len(), out.len())?;
     for (k, (m, o)) in measurements.iter().zip(out.iter_mut()).enumerate() {
-        *o = robot.tick_with(k as u64, *m);
+        robot.tick_with(k as u64, *m, o);
     }
     Ok(robot.counters())
 }

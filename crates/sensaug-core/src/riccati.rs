@@ -116,6 +116,32 @@ pub enum RiccatiError {
     NotStabilizing,
     /// An [`agent_gains`] parameter is out of range or non-finite.
     InvalidAgentParameter(AgentParameter),
+    /// A [`lqr_dense`] argument's shape `got` does not fit: `A` must be
+    /// `n x n` with `1 <= n <= MAX_STATES`, `B` `n x m` with `1 <= m <= n`,
+    /// `Q` `n x n`, `R` `m x m`.
+    Shape {
+        /// The argument at fault.
+        argument: Argument,
+        /// Its shape `(rows, cols)`.
+        got: [usize; 2],
+        /// The states `n` (from `A`) and inputs `m` (from `B`) known so far.
+        n: usize,
+        /// See `n`.
+        m: usize,
+    },
+}
+
+impl RiccatiError {
+    /// The solver failed its own checks (no convergence, residual, closed
+    /// loop), as opposed to inputs that break a precondition.
+    pub fn is_solver_failure(&self) -> bool {
+        matches!(
+            self,
+            RiccatiError::NoConvergence
+                | RiccatiError::ResidualTooLarge { .. }
+                | RiccatiError::NotStabilizing
+        )
+    }
 }
 
 impl fmt::Display for Argument {
@@ -187,6 +213,31 @@ impl fmt::Display for RiccatiError {
                 }
                 AgentParameter::QVel => "q_vel: must be finite and >= 0 (0 is fine)",
             }),
+            RiccatiError::Shape {
+                argument,
+                got: [r, c],
+                n,
+                m,
+            } => match argument {
+                Argument::A => write!(
+                    f,
+                    "A: expected a square (n, n) array with 1 <= n <= {MAX_STATES}, got ({r}, {c})"
+                ),
+                Argument::B => write!(
+                    f,
+                    "(A, B): B must have as many rows as A: expected shape (n, m) = ({n}, m) with \
+                     1 <= m <= {n}, got ({r}, {c})"
+                ),
+                Argument::Q => write!(
+                    f,
+                    "(A, Q): Q must match A: expected shape (n, n) = ({n}, {n}), got ({r}, {c})"
+                ),
+                Argument::R => write!(
+                    f,
+                    "(B, R): R must match B's columns: expected shape (m, m) = ({m}, {m}), \
+                     got ({r}, {c})"
+                ),
+            },
         }
     }
 }
@@ -783,4 +834,133 @@ pub fn robot_gain_vector(gains: [f64; 2]) -> [f64; 3] {
 /// `L_h = [0, k_vel, k_pos]`, from [`agent_gains`]' output.
 pub fn partner_gain_vector(gains: [f64; 2]) -> [f64; 3] {
     [0.0, gains[1], gains[0]]
+}
+
+// ---------------------------------------------------------------------------
+// Runtime shapes (for callers without the dimensions in their types: Python)
+// ---------------------------------------------------------------------------
+
+/// A matrix whose shape is known only at run time: `rows x cols` entries,
+/// row-major, in `data`.
+#[derive(Clone, Copy, Debug)]
+pub struct DenseMatrix<'a> {
+    /// The entries, row-major (`rows * cols` of them).
+    pub data: &'a [f64],
+    /// `(rows, cols)`.
+    pub shape: [usize; 2],
+}
+
+impl DenseMatrix<'_> {
+    fn fixed<const R: usize, const C: usize>(&self) -> SMatrix<f64, R, C> {
+        SMatrix::from_fn(|i, j| self.data[i * self.shape[1] + j])
+    }
+}
+
+/// [`lqr_dense`]'s solution: `K` (`m x n`) and `X` (`n x n`), row-major.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DenseLqr {
+    /// States.
+    pub n: usize,
+    /// Inputs.
+    pub m: usize,
+    k: [f64; MAX_STATES * MAX_STATES],
+    x: [f64; MAX_STATES * MAX_STATES],
+}
+
+impl DenseLqr {
+    /// The gain `K`, `m x n`, row-major.
+    pub fn k(&self) -> &[f64] {
+        &self.k[..self.m * self.n]
+    }
+
+    /// The Riccati solution `X`, `n x n`, row-major.
+    pub fn x(&self) -> &[f64] {
+        &self.x[..self.n * self.n]
+    }
+}
+
+/// `(n, m)` from the shapes of `A` and `B`, with `Q` and `R` checked
+/// against them (and every `data` against its shape).
+fn dense_dims(args: [&DenseMatrix<'_>; 4]) -> Result<(usize, usize), RiccatiError> {
+    let [a, b, q, r] = args;
+    let (n, m) = (a.shape[0], b.shape[1]);
+    for (arg, argument, want, ok) in [
+        (a, Argument::A, [n, n], (1..=MAX_STATES).contains(&n)),
+        (b, Argument::B, [n, m], (1..=n).contains(&m)),
+        (q, Argument::Q, [n, n], true),
+        (r, Argument::R, [m, m], true),
+    ] {
+        let whole = arg.data.len() == arg.shape[0] * arg.shape[1];
+        if arg.shape != want || !ok || !whole {
+            let got = arg.shape;
+            return Err(RiccatiError::Shape {
+                argument,
+                got,
+                n,
+                m,
+            });
+        }
+    }
+    Ok((n, m))
+}
+
+/// [`lqr_continuous`] (or with `discrete` [`lqr_discrete`]) on matrices of
+/// runtime shape, `1 <= m <= n <= MAX_STATES`: the shapes are checked, then
+/// the fixed-size solver for `(n, m)` runs.
+pub fn lqr_dense(
+    A: DenseMatrix<'_>,
+    B: DenseMatrix<'_>,
+    Q: DenseMatrix<'_>,
+    R: DenseMatrix<'_>,
+    discrete: bool,
+) -> Result<DenseLqr, RiccatiError> {
+    fn solve<const N: usize, const M: usize>(
+        [a, b, q, r]: [DenseMatrix<'_>; 4],
+        discrete: bool,
+    ) -> Result<DenseLqr, RiccatiError> {
+        let (A, B) = (a.fixed::<N, N>(), b.fixed::<N, M>());
+        let (Q, R) = (q.fixed::<N, N>(), r.fixed::<M, M>());
+        let (K, X) = match discrete {
+            true => lqr_discrete(&A, &B, &Q, &R)?,
+            false => lqr_continuous(&A, &B, &Q, &R)?,
+        };
+        let mut out = DenseLqr {
+            n: N,
+            m: M,
+            k: [0.0; MAX_STATES * MAX_STATES],
+            x: [0.0; MAX_STATES * MAX_STATES],
+        };
+        for (i, j) in (0..M).flat_map(|i| (0..N).map(move |j| (i, j))) {
+            out.k[i * N + j] = K[(i, j)];
+        }
+        for (i, j) in (0..N).flat_map(|i| (0..N).map(move |j| (i, j))) {
+            out.x[i * N + j] = X[(i, j)];
+        }
+        Ok(out)
+    }
+    let args = [A, B, Q, R];
+    let (n, m) = dense_dims([&A, &B, &Q, &R])?;
+    // One match arm per `(n, m)`: `inputs!(n; m...)` dispatches the inputs.
+    macro_rules! inputs {
+        ($n:literal; $($m:literal)*) => {
+            match m {
+                $($m => solve::<$n, $m>(args, discrete),)*
+                _ => Err(RiccatiError::Shape { argument: Argument::B, got: B.shape, n, m }),
+            }
+        };
+    }
+    match n {
+        1 => inputs!(1; 1),
+        2 => inputs!(2; 1 2),
+        3 => inputs!(3; 1 2 3),
+        4 => inputs!(4; 1 2 3 4),
+        5 => inputs!(5; 1 2 3 4 5),
+        6 => inputs!(6; 1 2 3 4 5 6),
+        _ => Err(RiccatiError::Shape {
+            argument: Argument::A,
+            got: A.shape,
+            n,
+            m,
+        }),
+    }
 }

@@ -190,6 +190,21 @@ impl Phase {
     }
 }
 
+impl UkfError {
+    /// A step the filter rejected (state unchanged) or repaired (`P`
+    /// reset): the numbers went wrong, not an argument.
+    pub fn is_step_failure(&self) -> bool {
+        matches!(
+            self,
+            UkfError::NonFiniteMeasurement
+                | UkfError::NonFiniteProcess
+                | UkfError::NonFiniteMeasurementModel
+                | UkfError::NonFiniteResult { .. }
+                | UkfError::CovarianceReset { .. }
+        )
+    }
+}
+
 impl core::fmt::Display for UkfError {
     /// Set-up errors: the argument first (as [`Arg::name`] spells it), then
     /// what is wrong and how to fix it. Step errors: what was rejected and
@@ -264,6 +279,16 @@ pub enum Status {
     },
 }
 
+impl core::fmt::Display for Status {
+    /// `nominal`, or `resymmetrised:<stage>`.
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Status::Nominal => f.write_str("nominal"),
+            Status::Resymmetrised { stage } => write!(f, "resymmetrised:{}", stage.name()),
+        }
+    }
+}
+
 /// Counters of everything unusual, readable with [`Ukf::recoveries`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Recoveries {
@@ -300,6 +325,23 @@ pub struct RunReport {
     pub errors: usize,
     /// The first of them, if any.
     pub first_error: Option<StepError>,
+}
+
+impl core::fmt::Display for RunReport {
+    /// How many steps failed and the first failure.
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self.first_error {
+            Some(first) => write!(
+                f,
+                "{} step error(s); first at step {} ({}): {}",
+                self.errors,
+                first.step,
+                first.phase.name(),
+                first.error
+            ),
+            None => f.write_str("no step error"),
+        }
+    }
 }
 
 /// `lambda = alpha^2 (n + kappa) - n` (Van der Merwe 2004, scaled unscented

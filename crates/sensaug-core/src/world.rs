@@ -2,16 +2,19 @@
 //! noise, the partner agent (a [`VirtualHuman`], and in the simulation
 //! section its mirrored identification of the robot, or with goal
 //! integration the robot's own controller on the mirrored protocol) around
-//! a [`Robot`], run over caller-provided [`TickRecord`] buffers.
+//! a [`Robot`], each tick written into one log [`Row`] (caller-provided
+//! buffers, or handed to a closure).
 //!
 //! Everything is built and validated at set-up; a tick allocates nothing.
 
 use crate::agent::{mirrored, Guard, HumanLike, PartnerLaw};
-use crate::controller::{Robot, RobotConfig, RobotCounters, RobotTick};
+use crate::controller::{Robot, RobotConfig, RobotCounters};
+use crate::delay::DelayEvidence;
 use crate::identifier::{Identifier, PartnerDelay};
 use crate::plant::{Plant, PlantParams, PlantState};
 use crate::protocol::{Phase, PhaseKind, Protocol, Sample, MAX_PHASES};
 use crate::rng::Noise;
+use crate::row::Row;
 use crate::ScenarioError;
 use nalgebra::Vector3;
 
@@ -85,61 +88,6 @@ pub struct WorldConfig {
     pub seed: u64,
 }
 
-/// One tick of a simulated trial: the world's side, the robot's log line
-/// and the partner's estimates of the robot (a row of the one log schema,
-/// `sensaug-log`'s `Row::from_tick_record`).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct TickRecord {
-    /// Time (s).
-    pub t: f64,
-    /// True position.
-    pub x: f64,
-    /// True velocity.
-    pub v: f64,
-    /// The position measurement the robot received (true + sensor noise).
-    pub x_meas: f64,
-    /// The velocity measurement the robot received.
-    pub v_meas: f64,
-    /// Robot target.
-    pub tau: f64,
-    /// Partner target.
-    pub tau_h: f64,
-    /// Partner torque.
-    pub u_h: f64,
-    /// Motor noise.
-    pub eps: f64,
-    /// True `x - tau`.
-    pub e: f64,
-    /// What the robot did (command, estimates, variances).
-    pub robot: RobotTick,
-    /// The partner's mirrored estimates of the robot.
-    pub mirror: PartnerEstimate,
-    /// The goal-integrating partner's own log line (its view of
-    /// `x - tau_h`, its stage-3 estimates); [`RobotTick::NONE`] for a
-    /// virtual human.
-    pub partner: RobotTick,
-}
-
-impl Default for TickRecord {
-    fn default() -> Self {
-        TickRecord {
-            t: 0.0,
-            x: 0.0,
-            v: 0.0,
-            x_meas: 0.0,
-            v_meas: 0.0,
-            tau: 0.0,
-            tau_h: 0.0,
-            u_h: 0.0,
-            eps: 0.0,
-            e: 0.0,
-            robot: RobotTick::NONE,
-            mirror: PartnerEstimate::NONE,
-            partner: RobotTick::NONE,
-        }
-    }
-}
-
 /// The partner's identification of the robot (simulation section): the
 /// robot's [`Identifier`] on `[x - tau_h, xdot, x - tau]`, driven by the
 /// partner's own torque `u_h`; gains reported in the robot's `xi` order. It
@@ -183,6 +131,24 @@ pub struct RunSummary {
     pub partner_guarded: u64,
     /// Mirrored-estimator errors (each handled by the filter).
     pub mirror_errors: u64,
+}
+
+impl RunSummary {
+    /// Each count by name, as a simulated trial's summary reports it (the
+    /// robot's counters but `missing_measurements`: a simulation measures
+    /// every tick).
+    pub fn named(&self) -> [(&'static str, u64); 7] {
+        let [clamped, non_finite, errors, resymmetrised, _] = self.robot.named();
+        [
+            ("ticks", self.ticks as u64),
+            clamped,
+            non_finite,
+            errors,
+            resymmetrised,
+            ("partner_guarded", self.partner_guarded),
+            ("mirror_errors", self.mirror_errors),
+        ]
+    }
 }
 
 /// The memory a simulated trial's log may take: half of what is available
@@ -401,8 +367,20 @@ impl<'a> Scenario<'a> {
         self.robot.protocol().total_ticks() as usize
     }
 
-    /// Runs the whole trial, one record per tick into `out`.
-    pub fn run(&mut self, out: &mut [TickRecord]) -> Result<RunSummary, ScenarioError> {
+    /// The virtual partner's identification of the robot: its delay
+    /// search's current choice (the robot's delay as the partner finds it;
+    /// not a log column), `None` without a mirror, a search or a choice.
+    pub fn mirror_delay_evidence(&self) -> Option<DelayEvidence> {
+        match &self.partner {
+            Partner::Virtual {
+                mirror: Some(m), ..
+            } => m.delay_evidence(),
+            _ => None,
+        }
+    }
+
+    /// Runs the whole trial, one row per tick into `out`.
+    pub fn run(&mut self, out: &mut [Row]) -> Result<RunSummary, ScenarioError> {
         let n = self.ticks();
         let Some(out) = out.get_mut(..n) else {
             return Err(ScenarioError::OutputTooShort {
@@ -411,26 +389,30 @@ impl<'a> Scenario<'a> {
             });
         };
         let mut slots = out.iter_mut();
-        Ok(self.run_with(|_, rec| {
+        Ok(self.run_with(|row| {
             if let Some(slot) = slots.next() {
-                *slot = *rec;
+                *slot = *row;
             }
         }))
     }
 
-    /// Runs the whole trial, handing each tick's number and record to `each`
-    /// in tick order ([`Scenario::ticks`] calls): a caller that converts
-    /// records (the log rows of the Python binding) needs no buffer of the
-    /// whole trial's records.
-    pub fn run_with(&mut self, mut each: impl FnMut(u64, &TickRecord)) -> RunSummary {
+    /// Runs the whole trial, handing each tick's log row to `each` in tick
+    /// order ([`Scenario::ticks`] calls): a caller that packs rows (the
+    /// Python binding) needs no buffer of the whole trial's rows.
+    pub fn run_with(&mut self, mut each: impl FnMut(&Row)) -> RunSummary {
         let mut summary = RunSummary {
             ticks: self.ticks(),
             ..RunSummary::default()
         };
         // A copy, so the samples do not borrow the robot the ticks change.
         let protocol = *self.robot.protocol();
+        let mut row = Row::UNKNOWN;
+        // A simulation measures every tick; the rig's columns stay unknown.
+        row.fresh = true;
+        row.feedback_age_ticks = 0;
         for sample in protocol.samples() {
-            each(sample.k, &self.tick(&sample, &mut summary));
+            self.tick(&sample, &mut summary, &mut row);
+            each(&row);
         }
         summary.robot = self.robot.counters();
         summary.mirror_errors = match &self.partner {
@@ -444,15 +426,16 @@ impl<'a> Scenario<'a> {
         summary
     }
 
-    /// One tick of the world: sense, robot, partner, plant.
-    fn tick(&mut self, sample: &Sample<'_>, summary: &mut RunSummary) -> TickRecord {
+    /// One tick of the world: sense, robot, partner, plant; the tick's
+    /// time, controller and world columns written into `row`.
+    fn tick(&mut self, sample: &Sample<'_>, summary: &mut RunSummary, row: &mut Row) {
         let k = sample.k;
         let s = self.plant.state();
         let x_meas = s.x + self.noise.normal(self.world.position_noise_std);
         let v_meas = s.v + self.noise.normal(self.world.velocity_noise_std);
-        let robot = self.robot.tick_at(sample, Some((x_meas, v_meas)));
+        self.robot.tick_at(sample, Some((x_meas, v_meas)), row);
 
-        let (u_h, mirror, partner) = match &mut self.partner {
+        let (u_h, mirror) = match &mut self.partner {
             Partner::Virtual {
                 law,
                 acts_on,
@@ -470,43 +453,42 @@ impl<'a> Scenario<'a> {
                     Some(m) => mirror_tick(m, sample, (x_meas, v_meas), u_h),
                     None => PartnerEstimate::NONE,
                 };
-                (u_h, est, RobotTick::NONE)
+                (row.e_h_meas, row.e_h_hat_own, row.e_h_hat_fused) = (f64::NAN, f64::NAN, f64::NAN);
+                (u_h, est)
             }
             Partner::Mirrored(p) => {
-                let own = p.tick_with(k, Some((x_meas, v_meas)));
-                (own.u, partner_estimate(&own).mirrored(), own)
+                // The partner's controller fills its own row; the robot's
+                // log keeps what it says about the robot and about x - tau_h.
+                let mut own = Row::UNKNOWN;
+                p.tick_with(k, Some((x_meas, v_meas)), &mut own);
+                (row.e_h_meas, row.e_h_hat_own, row.e_h_hat_fused) =
+                    (own.e_meas, own.e_hat_own, own.e_hat_fused);
+                (own.u, partner_estimate(&own).mirrored())
             }
         };
 
         let eps = self.noise.normal(self.world.motor_noise_std);
         // Every term is finite (guarded), so the step cannot fail.
-        let _ = self.plant.step(robot.u + u_h + eps);
-        TickRecord {
-            t: k as f64 * self.robot.protocol().dt_s(),
-            x: s.x,
-            v: s.v,
-            x_meas,
-            v_meas,
-            tau: sample.tau,
-            tau_h: sample.tau_h,
-            u_h,
-            eps,
-            e: s.x - sample.tau,
-            robot,
-            mirror,
-            partner,
-        }
+        let _ = self.plant.step(row.u + u_h + eps);
+        row.tick = k as i64;
+        row.t = k as f64 * self.robot.protocol().dt_s();
+        (row.x, row.xdot, row.x_meas, row.xdot_meas) = (s.x, s.v, x_meas, v_meas);
+        (row.tau, row.tau_h, row.u_h, row.eps) = (sample.tau, sample.tau_h, u_h, eps);
+        row.e = s.x - sample.tau;
+        [row.Lx_hat, row.Lv_hat, row.Lh_hat] = mirror.gains;
+        [row.Lx_var, row.Lv_var, row.Lh_var] = mirror.gains_var;
+        (row.tau_hat, row.tau_hat_var) = (mirror.target, mirror.target_var);
     }
 }
 
-/// What a mirrored partner's log line says about the robot (its own `xi`
+/// What a mirrored partner's row says about the robot (its own `xi`
 /// order; [`PartnerEstimate::mirrored`] turns it into the robot's).
-fn partner_estimate(t: &RobotTick) -> PartnerEstimate {
+fn partner_estimate(own: &Row) -> PartnerEstimate {
     PartnerEstimate {
-        gains: t.gains,
-        gains_var: t.gains_var,
-        target: t.tau_h_hat,
-        target_var: t.tau_h_var,
+        gains: [own.Lhx_hat, own.Lhv_hat, own.Lhh_hat],
+        gains_var: [own.Lhx_var, own.Lhv_var, own.Lhh_var],
+        target: own.tau_h_hat,
+        target_var: own.tau_h_var,
         ..PartnerEstimate::NONE
     }
 }

@@ -14,7 +14,8 @@ use sensaug_core::estimator::{GainEstimator, TrajectoryEstimator};
 use sensaug_core::goal::GoalIntegrator;
 use sensaug_core::plant::{Plant, PlantParams};
 use sensaug_core::riccati::{care, dare};
-use sensaug_core::world::{Scenario, TickRecord};
+use sensaug_core::row::Row;
+use sensaug_core::world::Scenario;
 
 #[test]
 fn the_counter_sees_an_allocation() {
@@ -89,14 +90,14 @@ fn a_full_trial_of_ticks_does_not_allocate() {
         common::world(3),
     )
     .unwrap();
-    let mut out = vec![TickRecord::default(); sc.ticks()];
+    let mut out = vec![Row::UNKNOWN; sc.ticks()];
     // Every tick: sense, robot (3 estimators + control), partner, plant.
     let mut summary = None;
     let n = allocations(|| summary = Some(sc.run(&mut out)));
     assert_eq!(n, 0);
     let summary = summary.unwrap().unwrap();
     assert_eq!(summary.ticks, 6000);
-    assert!(out.iter().all(|r| r.x.is_finite() && r.robot.u.is_finite()));
+    assert!(out.iter().all(|r| r.x.is_finite() && r.u.is_finite()));
 }
 
 #[test]

@@ -403,3 +403,69 @@ fn residual_function_detects_wrong_solution() {
     let Xd = dare(&A, &B, &Q, &R).unwrap();
     assert!(dare_residual(&A, &B, &Q, &R, &(Xd * (1.0 + 1e-6))) > RESIDUAL_TOL);
 }
+
+/// Runtime shapes (`lqr_dense`, the Python binding's entry): the same `K`
+/// and `X` as the fixed-size solver, row-major, and each wrong shape named.
+#[test]
+fn lqr_dense_matches_the_fixed_size_solver_and_names_a_wrong_shape() {
+    use sensaug_core::riccati::{lqr_dense, DenseMatrix};
+    let (A, B, Q, R) = system3();
+    let row_major = |m: &[f64], r: usize, c: usize| -> Vec<f64> {
+        (0..r * c).map(|i| m[(i % c) * r + i / c]).collect()
+    };
+    let (a, b) = (row_major(A.as_slice(), 3, 3), row_major(B.as_slice(), 3, 2));
+    let (q, r) = (row_major(Q.as_slice(), 3, 3), row_major(R.as_slice(), 2, 2));
+    let dense = |data, shape| DenseMatrix { data, shape };
+    for discrete in [false, true] {
+        let (K, X) = match discrete {
+            true => lqr_discrete(&A, &B, &Q, &R).unwrap(),
+            false => lqr_continuous(&A, &B, &Q, &R).unwrap(),
+        };
+        let s = lqr_dense(
+            dense(&a, [3, 3]),
+            dense(&b, [3, 2]),
+            dense(&q, [3, 3]),
+            dense(&r, [2, 2]),
+            discrete,
+        )
+        .unwrap();
+        assert_eq!((s.n, s.m), (3, 2));
+        assert_eq!(s.k(), row_major(K.as_slice(), 2, 3));
+        assert_eq!(s.x(), row_major(X.as_slice(), 3, 3));
+    }
+    let err = lqr_dense(
+        dense(&a, [3, 3]),
+        dense(&b[..4], [2, 2]),
+        dense(&q, [3, 3]),
+        dense(&r, [2, 2]),
+        false,
+    )
+    .unwrap_err();
+    assert_eq!(
+        err,
+        RiccatiError::Shape {
+            argument: Argument::B,
+            got: [2, 2],
+            n: 3,
+            m: 2
+        }
+    );
+    assert!(
+        err.to_string()
+            .starts_with("(A, B): B must have as many rows as A"),
+        "{err}"
+    );
+    let err = lqr_dense(
+        dense(&a, [3, 3]),
+        dense(&b, [3, 2]),
+        dense(&q, [3, 3]),
+        dense(&r[..1], [1, 1]),
+        false,
+    )
+    .unwrap_err();
+    assert!(
+        err.to_string()
+            .starts_with("(B, R): R must match B's columns"),
+        "{err}"
+    );
+}

@@ -9,43 +9,43 @@ mod alloc_counter;
 mod common;
 
 use alloc_counter::allocations;
-use sensaug_core::controller::{Robot, RobotTick};
+use sensaug_core::controller::Robot;
 use sensaug_core::protocol::Protocol;
 use sensaug_core::replay::{replay_robot, ReplayArg, ReplayError};
-use sensaug_core::world::{Scenario, TickRecord};
+use sensaug_core::row::{ColumnSource, Row, Value, COLUMNS};
+use sensaug_core::world::Scenario;
 
-/// Every field's bit pattern (NaN equals NaN, -0.0 differs from 0.0).
-fn bits(t: &RobotTick) -> [u64; 16] {
-    let f = [
-        t.u,
-        t.phase,
-        t.e_meas,
-        t.gains[0],
-        t.gains[1],
-        t.gains[2],
-        t.gains_var[0],
-        t.gains_var[1],
-        t.gains_var[2],
-        t.tau_h_hat,
-        t.tau_h_var,
-        t.e_hat_own,
-        t.e_hat_fused,
-        t.e_hat_own_var,
-        t.e_hat_fused_var,
-        t.partner_var,
-    ];
-    f.map(f64::to_bits)
+/// The controller's columns of a row (only those a replay writes), each
+/// value's bit pattern (NaN equals NaN, -0.0 differs from 0.0).
+fn bits(t: &Row) -> Vec<u64> {
+    COLUMNS
+        .iter()
+        .zip(t.values())
+        .filter(|(c, _)| c.source == ColumnSource::Controller)
+        .map(|(_, v)| match v {
+            Value::Float(f) => f.to_bits(),
+            Value::Int(i) => i as u64,
+            Value::Bool(b) => u64::from(b),
+        })
+        .collect()
 }
 
-fn assert_identical(replayed: &[RobotTick], online: &[RobotTick]) {
+fn assert_identical(replayed: &[Row], online: &[Row]) {
     assert_eq!(replayed.len(), online.len());
     for (k, (a, b)) in replayed.iter().zip(online).enumerate() {
         assert_eq!(bits(a), bits(b), "tick {k}: {a:?} vs {b:?}");
     }
 }
 
+/// The row after the protocol's end: every controller column unknown, the
+/// command 0.
+const AFTER_THE_PROTOCOL: Row = Row {
+    u: 0.0,
+    ..Row::UNKNOWN
+};
+
 /// A noisy simulated trial (sensor, motor and target-view noise).
-fn simulated(phases: &[sensaug_core::protocol::Phase<'static>]) -> Vec<TickRecord> {
+fn simulated(phases: &[sensaug_core::protocol::Phase<'static>]) -> Vec<Row> {
     let mut sc = Scenario::new(
         phases,
         common::robot(),
@@ -53,7 +53,7 @@ fn simulated(phases: &[sensaug_core::protocol::Phase<'static>]) -> Vec<TickRecor
         common::world(5),
     )
     .unwrap();
-    let mut out = vec![TickRecord::default(); sc.ticks()];
+    let mut out = vec![Row::UNKNOWN; sc.ticks()];
     sc.run(&mut out).unwrap();
     out
 }
@@ -62,12 +62,12 @@ fn simulated(phases: &[sensaug_core::protocol::Phase<'static>]) -> Vec<TickRecor
 fn a_simulated_trial_replays_bit_for_bit() {
     let phases = common::phases(1.5, 1.0);
     let recs = simulated(&phases);
-    let measurements: Vec<_> = recs.iter().map(|r| Some((r.x_meas, r.v_meas))).collect();
+    let measurements: Vec<_> = recs.iter().map(|r| Some((r.x_meas, r.xdot_meas))).collect();
     let protocol = Protocol::new(&phases, common::DT).unwrap();
     let mut robot = Robot::new(common::robot(), protocol).unwrap();
-    let mut out = vec![RobotTick::NONE; recs.len()];
+    let mut out = vec![Row::UNKNOWN; recs.len()];
     let counters = replay_robot(&mut robot, &measurements, &mut out).unwrap();
-    let online: Vec<RobotTick> = recs.iter().map(|r| r.robot).collect();
+    let online = recs;
     assert!(online.iter().any(|t| t.e_hat_fused.is_finite()));
     assert_identical(&out, &online);
     assert_eq!(counters.missing_measurements, 0);
@@ -81,28 +81,30 @@ fn missing_measurements_replay_as_the_online_predict_only_ticks() {
     let mut measurements: Vec<_> = recs
         .iter()
         .enumerate()
-        .map(|(k, r)| (k % 7 != 3).then_some((r.x_meas, r.v_meas)))
+        .map(|(k, r)| (k % 7 != 3).then_some((r.x_meas, r.xdot_meas)))
         .collect();
     measurements[100] = Some((f64::NAN, 0.0));
     let protocol = Protocol::new(&phases, common::DT).unwrap();
     let mut online_robot = Robot::new(common::robot(), protocol).unwrap();
-    let online: Vec<RobotTick> = measurements
+    let online: Vec<Row> = measurements
         .iter()
         .enumerate()
         .map(|(k, m)| {
             let s = protocol.sample(k as u64).unwrap();
-            online_robot.tick_at(&s, *m)
+            let mut row = Row::UNKNOWN;
+            online_robot.tick_at(&s, *m, &mut row);
+            row
         })
         .collect();
     let mut robot = Robot::new(common::robot(), protocol).unwrap();
-    let mut out = vec![RobotTick::NONE; recs.len()];
+    let mut out = vec![Row::UNKNOWN; recs.len()];
     let counters = replay_robot(&mut robot, &measurements, &mut out).unwrap();
     assert_identical(&out, &online);
     assert_eq!(counters, online_robot.counters());
     let lost = measurements.iter().filter(|m| m.is_none()).count() as u64 + 1;
     assert_eq!(counters.missing_measurements, lost);
     // ... and differ from a replay that had every measurement.
-    let full: Vec<RobotTick> = recs.iter().map(|r| r.robot).collect();
+    let full = recs;
     assert_ne!(bits(&out[4]), bits(&full[4]));
 }
 
@@ -111,20 +113,23 @@ fn lengths_are_checked_and_ticks_after_the_protocol_are_none() {
     let phases = common::phases(0.01, 0.0);
     let protocol = Protocol::new(&phases, common::DT).unwrap();
     let mut robot = Robot::new(common::robot(), protocol).unwrap();
-    let mut out = vec![RobotTick::NONE; 3];
+    let mut out = vec![Row::UNKNOWN; 3];
     assert_eq!(
         replay_robot(&mut robot, &[None; 4], &mut out),
         Err(ReplayError::Length {
-            which: ReplayArg::RobotTicks,
+            which: ReplayArg::Rows,
             needed: 4,
             got: 3
         })
     );
     let n = protocol.total_ticks() as usize;
-    let mut out = vec![RobotTick::default(); n + 2];
+    let mut out = vec![Row::UNKNOWN; n + 2];
     replay_robot(&mut robot, &vec![Some((0.0, 0.0)); n + 2], &mut out).unwrap();
-    assert!(out[n - 1].phase == 2.0);
-    assert_identical(&out[n..], &[RobotTick::NONE; 2]);
+    assert_eq!(
+        out[n - 1].phase,
+        Some(sensaug_core::protocol::PhaseKind::Integration)
+    );
+    assert_identical(&out[n..], &[AFTER_THE_PROTOCOL; 2]);
 }
 
 #[test]
@@ -136,10 +141,51 @@ fn a_robot_replay_does_not_allocate() {
     let measurements: Vec<_> = (0..n)
         .map(|k| (k % 5 != 0).then_some((1e-3 * (k as f64 * 1e-2).sin(), 0.0)))
         .collect();
-    let mut out = vec![RobotTick::NONE; n];
+    let mut out = vec![Row::UNKNOWN; n];
     let mut result = None;
     let a = allocations(|| result = Some(replay_robot(&mut robot, &measurements, &mut out)));
     assert_eq!(a, 0);
     assert!(result.unwrap().is_ok());
     assert!(out.iter().all(|t| t.u.is_finite()));
+}
+
+/// Every column not tagged `source`, each set to a value that is not its
+/// unknown one.
+fn all_but(source: ColumnSource) -> Row {
+    let mut row = Row::UNKNOWN;
+    for (i, c) in COLUMNS.iter().enumerate() {
+        if c.source != source {
+            let v = match row.values()[i] {
+                Value::Int(_) => Value::Int(1),
+                Value::Float(_) => Value::Float(1.5),
+                Value::Bool(_) => Value::Bool(true),
+            };
+            row.set(i, v).unwrap();
+        }
+    }
+    row
+}
+
+/// The source tags are the truth replay relies on: the controller writes
+/// its columns and no other, and a simulated trial leaves the rig's
+/// columns unknown.
+#[test]
+fn the_controller_and_the_world_fill_the_columns_their_tags_name() {
+    let phases = common::phases(0.5, 1.0);
+    let protocol = Protocol::new(&phases, common::DT).unwrap();
+    let mut robot = Robot::new(common::robot(), protocol).unwrap();
+    let before = all_but(ColumnSource::Controller);
+    for k in 0..protocol.total_ticks() + 2 {
+        let mut row = before;
+        robot.tick_with(k, Some((1e-3 * k as f64, 0.0)), &mut row);
+        let mut others = row;
+        others.copy_columns(&before, ColumnSource::Controller);
+        assert_eq!(format!("{others:?}"), format!("{before:?}"), "tick {k}");
+    }
+    for row in simulated(&phases) {
+        let mut rig = Row::UNKNOWN;
+        rig.copy_columns(&row, ColumnSource::Rig);
+        assert_eq!(format!("{rig:?}"), format!("{:?}", Row::UNKNOWN));
+        assert!(row.u.is_finite() && row.phase.is_some() && row.x.is_finite());
+    }
 }

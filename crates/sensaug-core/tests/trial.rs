@@ -10,6 +10,7 @@ use sensaug_core::controller::Robot;
 use sensaug_core::identifier::{Identifier, PartnerEstimate};
 use sensaug_core::plant::{Plant, PlantParams};
 use sensaug_core::protocol::{Phase, PhaseKind, Protocol, Sample};
+use sensaug_core::row::Row;
 use sensaug_core::ScenarioError;
 
 const LHH: f64 = 2.0;
@@ -141,10 +142,21 @@ fn the_robot_runs_the_same_identifier() {
     let mut id = cfg.identifier(common::DT, None).unwrap();
     let mut compared = 0;
     drive(&protocol, |s, (x, v)| {
-        let tick = robot.tick_at(s, Some((x, v)));
+        let mut tick = Row::UNKNOWN;
+        robot.tick_at(s, Some((x, v)), &mut tick);
         let est = id.update(s, Some(Vector3::new(x - s.tau, v, x - s.tau_h)), x, None);
-        assert_eq!(tick.gains, est.gains, "tick {}", s.k);
-        assert_eq!(tick.gains_var, est.gains_var, "tick {}", s.k);
+        assert_eq!(
+            [tick.Lhx_hat, tick.Lhv_hat, tick.Lhh_hat],
+            est.gains,
+            "tick {}",
+            s.k
+        );
+        assert_eq!(
+            [tick.Lhx_var, tick.Lhv_var, tick.Lhh_var],
+            est.gains_var,
+            "tick {}",
+            s.k
+        );
         assert_eq!(
             tick.tau_h_hat.to_bits(),
             est.target.to_bits(),
@@ -236,7 +248,8 @@ fn identifier_errors_name_the_field() {
 fn the_mirror_finds_the_robot_acts_without_a_delay() {
     use sensaug_core::agent::HumanLike;
     use sensaug_core::identifier::PartnerDelay;
-    use sensaug_core::world::{Scenario, TickRecord};
+    use sensaug_core::row::Row;
+    use sensaug_core::world::Scenario;
     let phases = two_phases(10.0);
     let robot = sensaug_core::controller::RobotConfig {
         partner_delay: PartnerDelay::Auto,
@@ -255,22 +268,19 @@ fn the_mirror_finds_the_robot_acts_without_a_delay() {
         ..common::partner(1.0)
     };
     let mut sc = Scenario::new(&phases, robot, partner, common::world(11)).unwrap();
-    let mut out = vec![TickRecord::default(); sc.ticks()];
+    let mut out = vec![Row::UNKNOWN; sc.ticks()];
     sc.run(&mut out).unwrap();
     let end = &out[9_999];
-    assert_eq!(end.robot.partner_delay_ms[0], 100.0, "{:?}", end.robot);
-    assert_eq!(end.mirror.delay_ms[0], 0.0, "{:?}", end.mirror);
+    assert_eq!(end.partner_delay_visual_ms, 100.0, "{end:?}");
+    let mirror = sc.mirror_delay_evidence().expect("the mirror's choice");
+    assert_eq!(mirror.visual, 0, "{mirror:?}");
     let truth = robot.gains;
-    for (g, t) in end.mirror.gains.iter().zip(truth) {
+    let mirror_gains = [end.Lx_hat, end.Lv_hat, end.Lh_hat];
+    for (g, t) in mirror_gains.iter().zip(truth) {
         assert!(
             (g - t).abs() < 0.05 * truth[0],
-            "{:?} vs {truth:?}",
-            end.mirror.gains
+            "{mirror_gains:?} vs {truth:?}"
         );
     }
-    assert!(
-        (end.robot.gains[2] - 1.0).abs() < 0.05,
-        "{:?}",
-        end.robot.gains
-    );
+    assert!((end.Lhh_hat - 1.0).abs() < 0.05, "{end:?}");
 }

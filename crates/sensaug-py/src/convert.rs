@@ -1,37 +1,21 @@
-//! The binding's one set of conversions: numpy <-> nalgebra and slices, and
-//! one mapping from every core error to a Python exception naming the argument
-//! (the message is the core error's own `Display`).
-use nalgebra::{SMatrix, SVector};
+//! The binding's one set of conversions: Python values -> core arguments
+//! (each refusal names the argument), core values and errors -> Python (an
+//! error's message is the core's own `Display`).
+use nalgebra::SMatrix;
 use numpy::ndarray::Array2;
-use numpy::PyUntypedArrayMethods;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayDyn, PyArrayMethods, PyReadonlyArray};
-use numpy::{PyReadonlyArray1, PyReadonlyArray2};
+use numpy::{PyUntypedArrayMethods, ToPyArray};
 use pyo3::exceptions::{PyRuntimeError, PyTypeError, PyValueError};
 use pyo3::types::{IntoPyDict, PyBool, PyDict};
 use pyo3::{create_exception, prelude::*};
-use sensaug_core::estimator::EstimatorError;
-use sensaug_core::plant::PlantError;
-use sensaug_core::replay::ReplayError;
-use sensaug_core::riccati::RiccatiError;
-use sensaug_core::ukf::{Recoveries, RunReport, Status, UkfError};
+use sensaug_core::ukf::{Recoveries, Status};
+use std::fmt::Display;
 
-create_exception!(
-    _core,
-    UkfStepError,
-    PyRuntimeError,
-    "A UKF predict/update was rejected (state unchanged) or reset P (state valid)."
-);
-create_exception!(
-    _core,
-    RiccatiConvergenceError,
-    PyRuntimeError,
-    "A Riccati solve did not converge or its solution failed the residual or closed-loop check."
-);
+create_exception!(_core, UkfStepError, PyRuntimeError);
+create_exception!(_core, RiccatiConvergenceError, PyRuntimeError);
 
-/// `obj` as an array of real numbers: a float64 numpy array as it is, else
-/// whatever `numpy.asarray` reads as integers or floats (lists, int or
-/// float32 arrays), converted to float64. Anything else (str, None, bool,
-/// complex, ragged lists) is refused naming the argument `name`.
+/// `obj` as a float64 array: as it is, or what `numpy.asarray` reads as
+/// integers or floats; anything else is refused naming the argument `name`.
 pub fn real_array<'py>(
     obj: &Bound<'py, PyAny>,
     name: &str,
@@ -39,107 +23,39 @@ pub fn real_array<'py>(
     if let Ok(a) = obj.cast::<PyArrayDyn<f64>>() {
         return Ok(a.clone());
     }
-    let py = obj.py();
-    let np = PyModule::import(py, "numpy")?;
-    let got = type_name(obj);
-    let arr = np.call_method1("asarray", (obj,)).map_err(|e| {
-        PyValueError::new_err(format!(
-            "{name}: expected an array of real numbers, cannot read this {got} as one ({})",
-            e.value(py)
-        ))
-    })?;
+    let (py, got) = (obj.py(), type_name(obj));
+    let arr = PyModule::import(py, "numpy")?
+        .call_method1("asarray", (obj,))
+        .map_err(|e| {
+            let why = e.value(py);
+            PyValueError::new_err(format!(
+                "{name}: expected an array of real numbers, cannot read this {got} as one ({why})"
+            ))
+        })?;
     let dtype = arr.getattr("dtype")?;
     let kind: String = dtype.getattr("kind")?.extract()?;
     if !matches!(kind.as_str(), "f" | "i" | "u") {
-        return Err(PyTypeError::new_err(format!(
-            "{name}: expected real numbers (int or float), got {}",
-            if kind == "O" {
-                got
-            } else {
-                format!("an array of {}", dtype.str()?)
-            }
-        )));
+        let what = if kind == "O" {
+            got
+        } else {
+            format!("an array of {}", dtype.str()?)
+        };
+        let msg = format!("{name}: expected real numbers (int or float), got {what}");
+        return Err(PyTypeError::new_err(msg));
     }
-    let arr = arr.call_method1("astype", ("float64",))?;
-    Ok(arr.cast_into::<PyArrayDyn<f64>>()?)
+    Ok(arr
+        .call_method1("astype", ("float64",))?
+        .cast_into::<PyArrayDyn<f64>>()?)
 }
 
-/// The type of `obj` as Python names it.
 fn type_name(obj: &Bound<'_, PyAny>) -> String {
     obj.get_type()
         .name()
         .map_or_else(|_| "object".to_owned(), |n| n.to_string())
 }
 
-/// `obj` (any array-like, [`real_array`]) as a 2-D float64 array of any
-/// shape; `name` is the argument in the error.
-pub fn array2<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<PyReadonlyArray2<'py, f64>> {
-    let a = real_array(obj, name)?;
-    if a.ndim() != 2 {
-        return Err(PyValueError::new_err(format!(
-            "{name}: expected a 2-D array, got shape {}",
-            shape(a.shape())
-        )));
-    }
-    Ok(a.cast_into::<PyArray2<f64>>()?.readonly())
-}
-
-/// `obj` (any array-like, [`real_array`]) as a fixed-size matrix; `name` is
-/// the argument in the error.
-pub fn matrix<const R: usize, const C: usize>(
-    obj: &Bound<'_, PyAny>,
-    name: &str,
-) -> PyResult<SMatrix<f64, R, C>> {
-    let a = real_array(obj, name)?.readonly();
-    let v = a.as_array();
-    if v.shape() != [R, C] {
-        return Err(PyValueError::new_err(format!(
-            "{name}: expected shape ({R}, {C}), got {}",
-            shape(v.shape())
-        )));
-    }
-    Ok(SMatrix::from_fn(|i, j| v[[i, j]]))
-}
-
-/// `obj` (any array-like, [`real_array`]) as a fixed-size vector; `name` is
-/// the argument in the error.
-pub fn vector<const D: usize>(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<SVector<f64, D>> {
-    let a = real_array(obj, name)?.readonly();
-    let v = a.as_array();
-    if v.shape() != [D] {
-        return Err(PyValueError::new_err(format!(
-            "{name}: expected shape ({D},), got {}",
-            shape(v.shape())
-        )));
-    }
-    Ok(SVector::from_fn(|i, _| v[[i]]))
-}
-
-/// `obj` as a real number (int, float or a numpy scalar, not bool, str or
-/// complex); `name` is the argument in the error.
-pub fn real(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<f64> {
-    let refused = || {
-        PyTypeError::new_err(format!(
-            "{name}: expected a real number, got {}",
-            type_name(obj)
-        ))
-    };
-    if obj.is_instance_of::<PyBool>() {
-        return Err(refused());
-    }
-    obj.extract::<f64>().map_err(|_| refused())
-}
-
-/// An optional keyword: `None` when not given (its default is the callee's).
-pub type Opt<'a, 'py> = Option<&'a Bound<'py, PyAny>>;
-
-/// `obj` as a real number ([`real`]), or `default` when not given.
-pub fn real_or(obj: Opt<'_, '_>, name: &str, default: f64) -> PyResult<f64> {
-    obj.map_or(Ok(default), |o| real(o, name))
-}
-
-/// A shape as Python prints it: `(3,)`, `(2, 3)`, `()`.
-pub fn shape(s: &[usize]) -> String {
+/// A shape as Python prints it: `(3,)`, `(2, 3)`.
+fn shape(s: &[usize]) -> String {
     match s {
         [n] => format!("({n},)"),
         _ => format!(
@@ -152,46 +68,88 @@ pub fn shape(s: &[usize]) -> String {
     }
 }
 
-/// `a` as a fixed-size matrix; `name` is the argument in the error.
-pub fn mat_from<const R: usize, const C: usize>(
-    a: &PyReadonlyArray2<'_, f64>,
+/// `obj` ([`real_array`]) of shape `want` (its `R x C` entries row-major).
+fn read<const R: usize, const C: usize>(
+    obj: &Bound<'_, PyAny>,
     name: &str,
+    want: &[usize],
 ) -> PyResult<SMatrix<f64, R, C>> {
-    if a.shape() != [R, C] {
+    let a = real_array(obj, name)?.readonly();
+    let v = a.as_array();
+    if v.shape() != want {
+        let (want, got) = (shape(want), shape(v.shape()));
         return Err(PyValueError::new_err(format!(
-            "{name}: expected shape ({R}, {C}), got {}",
-            shape(a.shape())
+            "{name}: expected shape {want}, got {got}"
         )));
     }
-    let v = a.as_array();
-    Ok(SMatrix::from_fn(|i, j| v[[i, j]]))
+    let mut it = v.iter();
+    Ok(SMatrix::from_row_iterator(std::iter::from_fn(|| {
+        it.next().copied()
+    })))
 }
 
-/// `a` as a fixed-size vector; `name` is the argument in the error.
-pub fn vec_from<const D: usize>(
-    a: &PyReadonlyArray1<'_, f64>,
+/// `obj` ([`real_array`]) as an `R x C` matrix; `name` is the argument.
+pub fn matrix<const R: usize, const C: usize>(
+    obj: &Bound<'_, PyAny>,
     name: &str,
-) -> PyResult<SVector<f64, D>> {
-    if a.shape() != [D] {
-        return Err(PyValueError::new_err(format!(
-            "{name}: expected shape ({D},), got {}",
-            shape(a.shape())
-        )));
+) -> PyResult<SMatrix<f64, R, C>> {
+    read(obj, name, &[R, C])
+}
+
+/// `obj` ([`real_array`]) as a vector of `D` entries; `name` is the argument.
+pub fn vector<const D: usize>(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<SMatrix<f64, D, 1>> {
+    read(obj, name, &[D])
+}
+
+/// `obj` ([`real_array`]) as a 2-D array: its entries row-major and its shape.
+pub fn array2(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<(Vec<f64>, [usize; 2])> {
+    let a = real_array(obj, name)?.readonly();
+    match *a.shape() {
+        [r, c] => Ok((a.as_array().iter().copied().collect(), [r, c])),
+        ref s => Err(PyValueError::new_err(format!(
+            "{name}: expected a 2-D array, got shape {}",
+            shape(s)
+        ))),
     }
-    let v = a.as_array();
-    Ok(SVector::from_fn(|i, _| v[i]))
+}
+
+/// `obj` as a real number (int, float or a numpy scalar, not bool, str or
+/// complex); `name` is the argument.
+pub fn real(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<f64> {
+    let got = || format!("{name}: expected a real number, got {}", type_name(obj));
+    if obj.is_instance_of::<PyBool>() {
+        return Err(PyTypeError::new_err(got()));
+    }
+    obj.extract::<f64>()
+        .map_err(|_| PyTypeError::new_err(got()))
+}
+
+/// An optional keyword: `None` when not given.
+pub type Opt<'a, 'py> = Option<&'a Bound<'py, PyAny>>;
+
+/// Optional keywords as real numbers ([`real`]), each `defaults`' entry
+/// (the schema's) where not given; `names` are the keywords.
+pub fn reals_or<const K: usize>(
+    objs: [Opt<'_, '_>; K],
+    names: [&str; K],
+    defaults: [f64; K],
+) -> PyResult<[f64; K]> {
+    let mut out = defaults;
+    for ((obj, name), v) in objs.into_iter().zip(names).zip(&mut out) {
+        if let Some(obj) = obj {
+            *v = real(obj, name)?;
+        }
+    }
+    Ok(out)
 }
 
 /// A C-contiguous array's data, row-major.
-pub fn slice<'a, D: numpy::ndarray::Dimension>(
-    a: &'a PyReadonlyArray<'_, f64, D>,
+pub fn slice<'a, T: numpy::Element, D: numpy::ndarray::Dimension>(
+    a: &'a PyReadonlyArray<'_, T, D>,
     name: &str,
-) -> PyResult<&'a [f64]> {
-    a.as_slice().map_err(|_| {
-        PyValueError::new_err(format!(
-            "{name}: must be C-contiguous (use np.ascontiguousarray)"
-        ))
-    })
+) -> PyResult<&'a [T]> {
+    let msg = || format!("{name}: must be C-contiguous (use np.ascontiguousarray)");
+    a.as_slice().map_err(|_| PyValueError::new_err(msg()))
 }
 
 pub fn mat_to<'py, const R: usize, const C: usize>(
@@ -203,14 +161,12 @@ pub fn mat_to<'py, const R: usize, const C: usize>(
 
 pub fn vec_to<'py, const D: usize>(
     py: Python<'py>,
-    v: &SVector<f64, D>,
+    v: &SMatrix<f64, D, 1>,
 ) -> Bound<'py, PyArray1<f64>> {
-    v.as_slice().to_vec().into_pyarray(py)
+    v.as_slice().to_pyarray(py)
 }
 
-/// How a UKF step went (the core's `ukf::Status`): `Status.Nominal()`, or
-/// `Status.Resymmetrised(stage=...)` with the stage that was repaired (a
-/// counted repair); `str()` gives `nominal` / `resymmetrised:<stage>`.
+/// How a UKF step went (the core's `ukf::Status`).
 #[pyclass(name = "Status", module = "sensaug._core", frozen, eq)]
 #[derive(Clone, Debug, PartialEq)]
 pub enum PyStatus {
@@ -218,23 +174,16 @@ pub enum PyStatus {
     Resymmetrised { stage: String },
 }
 
-impl std::fmt::Display for PyStatus {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+#[pymethods]
+impl PyStatus {
+    fn __str__(&self) -> String {
         match self {
-            PyStatus::Nominal() => f.write_str("nominal"),
-            PyStatus::Resymmetrised { stage } => write!(f, "resymmetrised:{stage}"),
+            PyStatus::Nominal() => "nominal".into(),
+            PyStatus::Resymmetrised { stage } => format!("resymmetrised:{stage}"),
         }
     }
 }
 
-#[pymethods]
-impl PyStatus {
-    fn __str__(&self) -> String {
-        self.to_string()
-    }
-}
-
-/// The core's status as [`PyStatus`].
 pub fn status(s: Status) -> PyStatus {
     match s {
         Status::Nominal => PyStatus::Nominal(),
@@ -244,7 +193,6 @@ pub fn status(s: Status) -> PyStatus {
     }
 }
 
-/// A UKF's counters as a dict.
 pub fn recoveries_dict<'py>(py: Python<'py>, r: &Recoveries) -> PyResult<Bound<'py, PyDict>> {
     let (rs, cr, rj) = (r.resymmetrised, r.covariance_resets, r.rejected);
     [
@@ -257,89 +205,47 @@ pub fn recoveries_dict<'py>(py: Python<'py>, r: &Recoveries) -> PyResult<Bound<'
     .into_py_dict(py)
 }
 
-/// Every core error the binding can meet.
-pub enum CoreError {
-    /// A step's or setter's error.
-    Ukf(UkfError),
-    /// A constructor's: its `x` and `P` are the arguments `x0`, `P0`.
-    Setup(UkfError),
-    Estimator(EstimatorError),
-    Replay(ReplayError),
-    Plant(PlantError),
-    Riccati(RiccatiError),
-    /// A strict run that had step errors.
-    Run(RunReport),
-}
-
-macro_rules! from_core {
-    ($($t:ty => $v:ident),*) => {$(
-        impl From<$t> for CoreError {
-            fn from(e: $t) -> Self {
-                CoreError::$v(e)
-            }
-        }
-    )*};
-}
-from_core!(UkfError => Ukf, EstimatorError => Estimator, ReplayError => Replay,
-    PlantError => Plant, RiccatiError => Riccati, RunReport => Run);
-
-/// Which Python exception an error becomes.
-enum Kind {
-    Value,
-    Step,
-    Convergence,
-}
-
-/// The one error mapping: a core error as a Python exception whose message
-/// starts with the argument's name.
-pub fn py_err(e: impl Into<CoreError>) -> PyErr {
-    let (kind, msg) = describe(e.into());
-    match kind {
-        Kind::Value => PyValueError::new_err(msg),
-        Kind::Step => UkfStepError::new_err(msg),
-        Kind::Convergence => RiccatiConvergenceError::new_err(msg),
+/// Which Python exception a core error becomes (`ValueError` unless the
+/// numbers, not an argument, failed).
+pub trait CoreError: Display {
+    fn into_py(self) -> PyErr
+    where
+        Self: Sized,
+    {
+        PyValueError::new_err(self.to_string())
     }
 }
 
-/// The exception kind and the core's own message (its `Display`: the
-/// argument first, then what is wrong and how to fix it).
-fn describe(e: CoreError) -> (Kind, String) {
-    use Kind::{Convergence, Step, Value};
-    match e {
-        // A constructor's UKF arguments are the estimators' `x0` and `P0`.
-        CoreError::Setup(u) => (Value, EstimatorError::Ukf(u).to_string()),
-        CoreError::Estimator(e) => (Value, e.to_string()),
-        CoreError::Ukf(e) => {
-            let kind = match e {
-                UkfError::NonFiniteMeasurement
-                | UkfError::NonFiniteProcess
-                | UkfError::NonFiniteMeasurementModel
-                | UkfError::NonFiniteResult { .. }
-                | UkfError::CovarianceReset { .. } => Step,
-                _ => Value,
-            };
-            (kind, e.to_string())
+impl CoreError for sensaug_core::estimator::EstimatorError {}
+impl CoreError for sensaug_core::replay::ReplayError {}
+impl CoreError for sensaug_core::plant::PlantError {}
+
+impl CoreError for sensaug_core::ukf::UkfError {
+    fn into_py(self) -> PyErr {
+        match self.is_step_failure() {
+            true => UkfStepError::new_err(self.to_string()),
+            false => PyValueError::new_err(self.to_string()),
         }
-        CoreError::Replay(e) => (Value, e.to_string()),
-        CoreError::Plant(e) => (Value, e.to_string()),
-        CoreError::Riccati(
-            e @ (RiccatiError::NoConvergence
-            | RiccatiError::ResidualTooLarge { .. }
-            | RiccatiError::NotStabilizing),
-        ) => (Convergence, e.to_string()),
-        CoreError::Riccati(e) => (Value, e.to_string()),
-        CoreError::Run(r) => (
-            Step,
-            match r.first_error {
-                Some(first) => format!(
-                    "{} step error(s); first at step {} ({}): {}",
-                    r.errors,
-                    first.step,
-                    first.phase.name(),
-                    first.error
-                ),
-                None => "no step error".into(),
-            },
-        ),
     }
+}
+
+impl CoreError for sensaug_core::riccati::RiccatiError {
+    fn into_py(self) -> PyErr {
+        match self.is_solver_failure() {
+            true => RiccatiConvergenceError::new_err(self.to_string()),
+            false => PyValueError::new_err(self.to_string()),
+        }
+    }
+}
+
+/// A strict run that had step errors.
+impl CoreError for sensaug_core::ukf::RunReport {
+    fn into_py(self) -> PyErr {
+        UkfStepError::new_err(self.to_string())
+    }
+}
+
+/// The one error mapping: a core error as its Python exception.
+pub fn py_err(e: impl CoreError) -> PyErr {
+    e.into_py()
 }

@@ -1,20 +1,19 @@
 //! The paper's three estimators with filterpy's conventions: step-wise
 //! `update` / `predict`, and `run` over a whole recording in one core call
-//! (`sensaug_core::replay`). Conversion only.
+//! (`sensaug_core::replay`). Conversion only; the docs are in `_core.pyi`.
 #![allow(non_snake_case)]
 
-use crate::convert::Opt;
-use crate::convert::PyStatus;
-use crate::convert::{mat_to, matrix, py_err, real, real_or, recoveries_dict, slice, status};
-use crate::convert::{vec_from, vec_to, vector};
-use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
+use crate::convert::{mat_to, matrix, py_err, real, reals_or, recoveries_dict, slice, status};
+use crate::convert::{vec_to, vector, Opt, PyStatus};
+use numpy::{PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
 use numpy::{PyUntypedArrayMethods, ToPyArray};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use sensaug_core::estimator::GainEstimator as CoreGain;
-use sensaug_core::estimator::TrajectoryEstimator as CoreTrajectory;
+use pyo3::IntoPyObjectExt;
+use sensaug_config::{PlantSpec, SigmaSpec};
 use sensaug_core::estimator::{EstimatorError, ExtendedFilterConfig, HandleModel};
+use sensaug_core::estimator::{GainEstimator as CoreGain, TrajectoryEstimator as CoreTrajectory};
 use sensaug_core::goal::{ChannelConfig, GoalIntegrator as CoreGoal, GoalIntegratorConfig};
 use sensaug_core::replay::{replay, GoalReplay, Posteriors, Recording, Replay};
 use sensaug_core::ukf::MerweParams;
@@ -28,18 +27,17 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
 /// `(xs (T, n), Pdiag (T, n))` of a run.
 pub type Batch<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>);
 
-/// `names: must be finite` unless every value is.
 fn finite(values: &[f64], names: &str) -> PyResult<()> {
-    if values.iter().all(|v| v.is_finite()) {
-        return Ok(());
+    match values.iter().all(|v| v.is_finite()) {
+        true => Ok(()),
+        false => Err(PyValueError::new_err(format!(
+            "{names}: must be finite; predict not run"
+        ))),
     }
-    Err(PyValueError::new_err(format!(
-        "{names}: must be finite; predict not run"
-    )))
 }
 
-/// A whole recording through [`replay`]: converts the arrays, runs, and
-/// raises the first step error after the run when `strict`.
+/// A whole recording through [`replay`]; with `strict`, the first step
+/// error raised after the run.
 pub fn run_batch<'py>(
     py: Python<'py>,
     filter: &mut impl Replay,
@@ -55,17 +53,16 @@ pub fn run_batch<'py>(
             "y: expected shape (T, {m}), got {got:?}"
         )));
     }
+    let dtau = dtau.map(|d| slice(d, "dtau")).transpose()?;
+    let dtau_h = dtau_h.map(|d| slice(d, "dtau_h")).transpose()?;
     let rec = Recording {
         y: slice(y, "y")?,
         u: slice(u, "u")?,
-        dtau: dtau.map(|d| slice(d, "dtau")).transpose()?,
-        dtau_h: dtau_h.map(|d| slice(d, "dtau_h")).transpose()?,
+        dtau,
+        dtau_h,
     };
-    let T = rec.u.len();
-    let (xs, pd) = (
-        PyArray2::zeros(py, [T, n], false),
-        PyArray2::zeros(py, [T, n], false),
-    );
+    let zeros = || PyArray2::zeros(py, [rec.u.len(), n], false);
+    let (xs, pd) = (zeros(), zeros());
     let report = {
         let (mut x, mut var) = (xs.readwrite(), pd.readwrite());
         let mut out = Posteriors {
@@ -74,204 +71,131 @@ pub fn run_batch<'py>(
         };
         replay(filter, &rec, &mut out).map_err(py_err)?
     };
-    if strict && report.errors > 0 {
-        return Err(py_err(report));
+    match strict && report.errors > 0 {
+        true => Err(py_err(report)),
+        false => Ok((xs, pd)),
     }
-    Ok((xs, pd))
 }
 
-/// The keywords every estimator constructor shares, converted with their
-/// names: the handle model (`mass`, `damping`, `dt`) and the sigma points.
-/// The optional ones come as `None` when not given (their defaults are
-/// here, and in the classes' text signatures).
-struct Common {
-    model: HandleModel,
-    sigma: MerweParams,
-}
-
-impl Common {
-    fn new(mass: &Bound<'_, PyAny>, optional: [Opt<'_, '_>; 5]) -> PyResult<Self> {
-        let [damping, dt, alpha, beta, kappa] = optional;
-        Ok(Common {
-            model: HandleModel {
-                mass: real(mass, "mass")?,
-                damping: real_or(damping, "damping", 0.0)?,
-                dt_s: real_or(dt, "dt", 1e-3)?,
-            },
-            sigma: MerweParams {
-                alpha: real_or(alpha, "alpha", 1.0)?,
-                beta: real_or(beta, "beta", 2.0)?,
-                kappa: real_or(kappa, "kappa", 0.0)?,
-            },
-        })
-    }
+/// The handle model from `mass`, `damping`, `dt`: the schema's `[plant]`
+/// defaults where one is not given.
+fn handle_model(mass: &Bound<'_, PyAny>, damping: Opt, dt: Opt) -> PyResult<HandleModel> {
+    let d = PlantSpec::default();
+    let mass = real(mass, "mass")?;
+    let [damping, dt_s] = reals_or([damping, dt], ["damping", "dt"], [d.damping, d.dt_s])?;
+    Ok(HandleModel {
+        mass,
+        damping,
+        dt_s,
+    })
 }
 
 /// A constructor's core error: the core calls the model's step `dt_s`,
 /// these classes' keyword is `dt`.
 fn setup_error(e: EstimatorError) -> PyErr {
-    let msg = e.to_string();
-    match msg.strip_prefix("dt_s:") {
+    match e.to_string().strip_prefix("dt_s:") {
         Some(rest) => PyValueError::new_err(format!("dt:{rest}")),
         None => py_err(e),
     }
 }
 
-/// A class over the core estimator `$core` whose UKF `self.inner.$f()` gives
-/// the shared getters `x`, `P`, `x_prior`, `P_prior` and `recoveries()`.
-macro_rules! estimator_class {
-    ($name:ident, $core:ty, $f:ident, $doc:literal, { $($methods:tt)* }) => {
-        #[doc = $doc]
+/// `#[pymethods]` of `$name`: `$methods`, then one-line getters, each
+/// `name = |inner, py| value` over the class's core value `inner`.
+macro_rules! methods {
+    ($name:ident { $($methods:tt)* } $($get:ident = |$s:ident, $py:ident| $e:expr;)*) => {
+        #[pymethods]
+        impl $name {
+            $($methods)*
+            $(#[getter] fn $get(&self, $py: Python<'_>) -> PyResult<Py<PyAny>> {
+                let $s = &self.inner;
+                ($e).into_py_any($py)
+            })*
+        }
+    };
+}
+
+/// One class over a core estimator of the 6-state extended model with `$m`
+/// measurements.
+macro_rules! extended_estimator {
+    ($name:ident, $core:ty, $m:literal, { $($extra:tt)* }) => {
         #[pyclass(module = "sensaug._core")]
         pub struct $name {
             inner: $core,
         }
 
-        #[pymethods]
-        impl $name {
-            $($methods)*
-
-            /// Posterior state.
-            #[getter]
-            fn x<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-                vec_to(py, self.inner.$f().x())
-            }
-            /// Posterior covariance.
-            #[getter]
-            fn P<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-                mat_to(py, self.inner.$f().P())
-            }
-            /// Prior state (after the last predict).
-            #[getter]
-            fn x_prior<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-                vec_to(py, self.inner.$f().x_prior())
-            }
-            /// Prior covariance.
-            #[getter]
-            fn P_prior<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-                mat_to(py, self.inner.$f().P_prior())
-            }
-            /// Counters of the filter's recoveries.
-            fn recoveries<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-                recoveries_dict(py, &self.inner.$f().recoveries())
-            }
-        }
-    };
-}
-
-/// One estimator class over the 6-state extended model with `$m` measurements.
-macro_rules! extended_estimator {
-    ($name:ident, $core:ty, $m:literal, $doc:literal, { $($extra:tt)* }) => {
-        estimator_class!($name, $core, filter, $doc, {
+        methods!($name {
             #[new]
             #[pyo3(signature = (*, mass, Q, R, x0, P0, damping = None, dt = None, alpha = None, beta = None, kappa = None))]
             #[pyo3(text_signature = "(*, mass, Q, R, x0, P0, damping=0.0, dt=1e-3, alpha=1.0, beta=2.0, kappa=0.0)")]
             #[allow(clippy::too_many_arguments)]
-            fn new(
-                mass: &Bound<'_, PyAny>,
-                Q: &Bound<'_, PyAny>,
-                R: &Bound<'_, PyAny>,
-                x0: &Bound<'_, PyAny>,
-                P0: &Bound<'_, PyAny>,
-                damping: Opt<'_, '_>,
-                dt: Opt<'_, '_>,
-                alpha: Opt<'_, '_>,
-                beta: Opt<'_, '_>,
-                kappa: Opt<'_, '_>,
-            ) -> PyResult<Self> {
-                let Common { model, sigma } = Common::new(mass, [damping, dt, alpha, beta, kappa])?;
-                let cfg = ExtendedFilterConfig::<$m> {
-                    x0: vector(x0, "x0")?,
-                    P0: matrix(P0, "P0")?,
-                    Q: matrix(Q, "Q")?,
-                    R: matrix(R, "R")?,
-                    sigma,
-                };
-                let inner = <$core>::new(model, &cfg).map_err(setup_error)?;
-                Ok(Self { inner })
+            fn new(mass: &Bound<'_, PyAny>, Q: &Bound<'_, PyAny>, R: &Bound<'_, PyAny>,
+                   x0: &Bound<'_, PyAny>, P0: &Bound<'_, PyAny>, damping: Opt, dt: Opt,
+                   alpha: Opt, beta: Opt, kappa: Opt) -> PyResult<Self> {
+                let model = handle_model(mass, damping, dt)?;
+                let d = SigmaSpec::default();
+                let [alpha, beta, kappa] =
+                    reals_or([alpha, beta, kappa], ["alpha", "beta", "kappa"], [d.alpha, d.beta, d.kappa])?;
+                let sigma = MerweParams { alpha, beta, kappa };
+                let (x0, P0) = (vector(x0, "x0")?, matrix(P0, "P0")?);
+                let cfg = ExtendedFilterConfig::<$m> { x0, P0, Q: matrix(Q, "Q")?, R: matrix(R, "R")?, sigma };
+                Ok(Self { inner: <$core>::new(model, &cfg).map_err(setup_error)? })
             }
 
-            /// Fuse one measurement; returns the step's `Status`.
-            fn update(&mut self, y: PyReadonlyArray1<'_, f64>) -> PyResult<PyStatus> {
-                let y = vec_from::<$m>(&y, "y")?;
-                self.inner.update(&y).map(status).map_err(py_err)
+            fn update(&mut self, y: &Bound<'_, PyAny>) -> PyResult<PyStatus> {
+                self.inner.update(&vector::<$m>(y, "y")?).map(status).map_err(py_err)
             }
 
-            /// Propagate with the own torque and the targets' increments.
             #[pyo3(signature = (u, dtau = 0.0, dtau_h = 0.0))]
             fn predict(&mut self, u: f64, dtau: f64, dtau_h: f64) -> PyResult<PyStatus> {
                 finite(&[u, dtau, dtau_h], "u, dtau, dtau_h")?;
                 self.inner.predict(u, dtau, dtau_h).map(status).map_err(py_err)
             }
 
-            /// For each k: `update(y[k])`, then `predict(u[k], dtau[k], dtau_h[k])`.
             #[pyo3(signature = (y, u, dtau, dtau_h, *, strict = true))]
-            fn run<'py>(
-                &mut self,
-                py: Python<'py>,
-                y: PyReadonlyArray2<'py, f64>,
-                u: PyReadonlyArray1<'py, f64>,
-                dtau: PyReadonlyArray1<'py, f64>,
-                dtau_h: PyReadonlyArray1<'py, f64>,
-                strict: bool,
+            fn run<'py>(&mut self, py: Python<'py>, y: PyReadonlyArray2<'py, f64>, u: PyReadonlyArray1<'py, f64>,
+                        dtau: PyReadonlyArray1<'py, f64>, dtau_h: PyReadonlyArray1<'py, f64>, strict: bool,
             ) -> PyResult<Batch<'py>> {
                 run_batch(py, &mut self.inner, &y, &u, [Some(&dtau), Some(&dtau_h)], strict)
             }
 
-            /// Estimated partner gains `[Lhx, Lhv, Lhh]`.
-            #[getter]
-            fn gains<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-                self.inner.filter().x().as_slice()[3..].to_pyarray(py)
+            fn recoveries<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+                recoveries_dict(py, &self.inner.filter().recoveries())
             }
 
             $($extra)*
-        });
+        }
+            gains = |s, py| s.filter().x().as_slice()[3..].to_pyarray(py);
+            x = |s, py| vec_to(py, s.filter().x());
+            P = |s, py| mat_to(py, s.filter().P());
+            x_prior = |s, py| vec_to(py, s.filter().x_prior());
+            P_prior = |s, py| mat_to(py, s.filter().P_prior());
+        );
     };
 }
 
-extended_estimator!(
-    GainEstimator,
-    CoreGain,
-    3,
-    "Stage 1: the partner's gains from y1 = [x - tau, xdot, x - tau_h].",
-    {}
-);
-extended_estimator!(
-    TrajectoryEstimator,
-    CoreTrajectory,
-    5,
-    "Stage 2: the partner's target from y2 = [x - tau, xdot, Lhx^, Lhv^, Lhh^].",
-    {
-        /// `tau_h^ = x - (x - tau_h)^` for the handle position `x`.
-        fn partner_target(&self, x: f64) -> f64 {
-            self.inner.partner_target(x)
-        }
+extended_estimator!(GainEstimator, CoreGain, 3, {});
+extended_estimator!(TrajectoryEstimator, CoreTrajectory, 5, {
+    fn partner_target(&self, x: f64) -> f64 {
+        self.inner.partner_target(x)
     }
-);
+});
 
 /// Whether a measurement of `len` entries carries the partner channel.
 fn with_channel(len: usize) -> PyResult<bool> {
     match len {
-        2 => Ok(false),
-        3 => Ok(true),
+        2 | 3 => Ok(len == 3),
         n => Err(PyValueError::new_err(format!(
             "y: expected 2 entries [x - tau, xdot] or 3 [x - tau, xdot, x - tau_h^], got {n}"
         ))),
     }
 }
 
-/// Stage 3: goal integration on `[x - tau, xdot]` with the adaptive partner
-/// channel (a bank of Kalman filters over the channel's variance, weighted by
-/// their predictions of the own measurement; docs/model.md). `x`, `var` are
-/// the mixture's (with the partner), `x_own`, `var_own` member 0's (own
-/// sensing only), as of the last update.
 #[pyclass(module = "sensaug._core")]
 pub struct GoalIntegrator {
     inner: CoreGoal,
 }
 
-#[pymethods]
-impl GoalIntegrator {
+methods!(GoalIntegrator {
     #[new]
     #[pyo3(signature = (*, mass, Q, R, x0, P0, damping = None, dt = None, gate = None, window_n0 = None, hold_max_s = None))]
     #[pyo3(
@@ -284,69 +208,52 @@ impl GoalIntegrator {
         R: &Bound<'_, PyAny>,
         x0: &Bound<'_, PyAny>,
         P0: &Bound<'_, PyAny>,
-        damping: Opt<'_, '_>,
-        dt: Opt<'_, '_>,
-        gate: Opt<'_, '_>,
-        window_n0: Opt<'_, '_>,
-        hold_max_s: Opt<'_, '_>,
+        damping: Opt,
+        dt: Opt,
+        gate: Opt,
+        window_n0: Opt,
+        hold_max_s: Opt,
     ) -> PyResult<Self> {
-        let model = HandleModel {
-            mass: real(mass, "mass")?,
-            damping: real_or(damping, "damping", 0.0)?,
-            dt_s: real_or(dt, "dt", 1e-3)?,
-        };
+        let model = handle_model(mass, damping, dt)?;
+        let (x0, P0) = (vector(x0, "x0")?, matrix(P0, "P0")?);
+        let (Q, R_own) = (matrix(Q, "Q")?, matrix(R, "R")?);
         let d = ChannelConfig::default();
-        let cfg = GoalIntegratorConfig {
-            x0: vector(x0, "x0")?,
-            P0: matrix(P0, "P0")?,
-            Q: matrix(Q, "Q")?,
-            R_own: matrix(R, "R")?,
-            channel: ChannelConfig {
-                gate: real_or(gate, "gate", d.gate)?,
-                window_n0: real_or(window_n0, "window_n0", d.window_n0)?,
-                hold_max_s: real_or(hold_max_s, "hold_max_s", d.hold_max_s)?,
-            },
-        };
-        let inner = CoreGoal::new(model, &cfg).map_err(setup_error)?;
-        Ok(Self { inner })
+        let names = ["gate", "window_n0", "hold_max_s"];
+        let [gate, window_n0, hold_max_s] =
+            reals_or([gate, window_n0, hold_max_s], names, [d.gate, d.window_n0, d.hold_max_s])?;
+        let channel = ChannelConfig { gate, window_n0, hold_max_s };
+        let cfg = GoalIntegratorConfig { x0, P0, Q, R_own, channel };
+        Ok(Self {
+            inner: CoreGoal::new(model, &cfg).map_err(setup_error)?,
+        })
     }
 
-    /// Fuse `y = [x - tau, xdot]` (own sensing only) or
-    /// `y = [x - tau, xdot, x - tau_h^]` (with the partner channel; NaN: none).
     fn update(&mut self, y: PyReadonlyArray1<'_, f64>) -> PyResult<PyStatus> {
         let y = slice(&y, "y")?;
         let mut one_tick = GoalReplay::new(&mut self.inner, with_channel(y.len())?);
         one_tick.update_row(y).map(status).map_err(py_err)
     }
 
-    /// Propagate with the known torque `u` (own plus estimated partner) and
-    /// the own target's increment. `dtau_h` must be 0: this state has no `x - tau_h`.
     #[pyo3(signature = (u, dtau = 0.0, dtau_h = 0.0))]
     fn predict(&mut self, u: f64, dtau: f64, dtau_h: f64) -> PyResult<PyStatus> {
         if dtau_h != 0.0 {
-            return Err(PyValueError::new_err(
-                "dtau_h: must be 0 for GoalIntegrator (its state is [x - tau, xdot])",
-            ));
+            let msg = "dtau_h: must be 0 for GoalIntegrator (its state is [x - tau, xdot])";
+            return Err(PyValueError::new_err(msg));
         }
         finite(&[u, dtau], "u, dtau")?;
         self.inner.predict(u, dtau).map(status).map_err(py_err)
     }
 
-    /// Phase start: the own measurement's covariance (target-view noise
-    /// included), which sets the channel grid and the score window.
     fn set_own_noise(&mut self, R: &Bound<'_, PyAny>) -> PyResult<()> {
-        let R = matrix(R, "R")?;
-        self.inner.set_own_noise(R).map_err(setup_error)
+        self.inner
+            .set_own_noise(matrix(R, "R")?)
+            .map_err(setup_error)
     }
 
-    /// Phase start: every member at `x0` with `P0`, scores 0.
     fn reset(&mut self, x0: &Bound<'_, PyAny>) -> PyResult<()> {
-        let x0 = vector(x0, "x0")?;
-        self.inner.reset(x0).map_err(py_err)
+        self.inner.reset(vector(x0, "x0")?).map_err(py_err)
     }
 
-    /// For each k: `update(y[k])`, then `predict(u[k], dtau[k])`.
-    /// The posteriors are the mixture's.
     #[pyo3(signature = (y, u, dtau, *, strict = true))]
     fn run<'py>(
         &mut self,
@@ -360,63 +267,15 @@ impl GoalIntegrator {
         run_batch(py, &mut r, &y, &u, [Some(&dtau), None], strict)
     }
 
-    /// The mixture's `[x - tau, xdot]` (goal integration with the partner).
-    #[getter]
-    fn x<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        vec_to(py, &self.inner.estimate(true))
-    }
-
-    /// The mixture's variances `[var(x - tau), var(xdot)]`.
-    #[getter]
-    fn var<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        self.inner.variance(true).to_pyarray(py)
-    }
-
-    /// Member 0's `[x - tau, xdot]` (own sensing only).
-    #[getter]
-    fn x_own<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        vec_to(py, &self.inner.estimate(false))
-    }
-
-    /// Member 0's variances.
-    #[getter]
-    fn var_own<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        self.inner.variance(false).to_pyarray(py)
-    }
-
-    /// The mixture weights of the last update (member 0 first).
-    #[getter]
-    fn weights<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        self.inner.weights().to_pyarray(py)
-    }
-
-    /// Each member's `x - tau` (posterior after update, prior after predict).
-    #[getter]
-    fn members<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        self.inner.members().to_pyarray(py)
-    }
-
-    /// The members' channel variances (member 0: inf).
-    #[getter]
-    fn grid<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        self.inner.grid().to_pyarray(py)
-    }
-
-    /// The last update detected a change point (a target jump).
-    #[getter]
-    fn change_point(&self) -> bool {
-        self.inner.change_point()
-    }
-
-    /// The last update fused the partner channel.
-    #[getter]
-    fn channel_admitted(&self) -> bool {
-        self.inner.channel_admitted()
-    }
-
-    /// The channel's effective variance in the last update (inf: not fused).
-    #[getter]
-    fn partner_variance(&self) -> f64 {
-        self.inner.partner_variance()
-    }
 }
+    x = |s, py| vec_to(py, &s.estimate(true));
+    var = |s, py| s.variance(true).to_pyarray(py);
+    x_own = |s, py| vec_to(py, &s.estimate(false));
+    var_own = |s, py| s.variance(false).to_pyarray(py);
+    weights = |s, py| s.weights().to_pyarray(py);
+    members = |s, py| s.members().to_pyarray(py);
+    grid = |s, py| s.grid().to_pyarray(py);
+    change_point = |s, _py| s.change_point();
+    channel_admitted = |s, _py| s.channel_admitted();
+    partner_variance = |s, _py| s.partner_variance();
+);

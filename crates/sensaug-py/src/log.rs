@@ -1,14 +1,13 @@
-//! The one log schema (`sensaug-log`) for Python: the column table, the
-//! metadata of a simulated trial, rows <-> numpy columns, and the writer of
-//! a log file. Conversion only; the format lives in `sensaug-log`.
+//! The one log schema (`sensaug-log`) for Python: the schema, rows <->
+//! numpy, and the writer of a log file. Conversion only.
 
-use numpy::{IntoPyArray, PyReadonlyArray1};
+use crate::scenario::config_err;
+use numpy::{Element, IntoPyArray, PyReadonlyArray1};
 use pyo3::exceptions::{PyOSError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
-use sensaug_config::outputs::{create_partial, partial_path, replace};
+use pythonize::pythonize;
+use sensaug_config::outputs::{check_outputs, create_partial, partial_path, replace};
 use sensaug_log::{Kind, PackedRow, Row, Value, COLUMNS};
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use zerocopy::IntoBytes;
 
@@ -16,95 +15,53 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(log_schema, m)?)?;
     m.add_function(wrap_pyfunction!(git_commit, m)?)?;
     m.add_function(wrap_pyfunction!(write_log, m)?)?;
-    m.add_function(wrap_pyfunction!(config_sha256, m)?)?;
-    Ok(())
+    m.add_function(wrap_pyfunction!(config_sha256, m)?)
 }
 
-/// The schema: format line and version, `columns` as `(name, unit, kind,
-/// description)` tuples, phase names, the unknown-integer sentinel, units.
 #[pyfunction]
-fn log_schema(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
-    let d = PyDict::new(py);
-    d.set_item("format_line", sensaug_log::FORMAT_LINE)?;
-    d.set_item("format_version", sensaug_log::FORMAT_VERSION)?;
-    d.set_item("checksum_field", sensaug_log::CHECKSUM_FIELD)?;
-    d.set_item("json_checksum_key", sensaug_log::JSON_CHECKSUM_KEY)?;
-    let cols: Vec<(&str, &str, &str, &str)> = COLUMNS
-        .iter()
-        .map(|c| (c.name, c.unit, c.kind.name(), c.description))
-        .collect();
-    d.set_item("columns", cols)?;
-    d.set_item("phase_names", sensaug_log::PHASE_NAMES.to_vec())?;
-    d.set_item("unknown_int", sensaug_log::UNKNOWN)?;
-    d.set_item("units", sensaug_log::UNITS.to_vec())?;
-    Ok(d)
+fn log_schema(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
+    Ok(pythonize(py, &sensaug_log::schema())?)
 }
 
-/// The git commit of the checkout containing `dir` (`-dirty` if modified),
-/// or `None`.
 #[pyfunction]
 fn git_commit(py: Python<'_>, dir: PathBuf) -> Option<String> {
     py.detach(|| sensaug_log::git_commit(&dir))
 }
 
-/// The configuration digest a log records (`meta["config_sha256"]`) of the
-/// configuration given as JSON text.
+fn json(name: &str, text: &str) -> PyResult<serde_json::Value> {
+    serde_json::from_str(text)
+        .map_err(|e| PyValueError::new_err(format!("{name}: not valid JSON: {e}")))
+}
+
 #[pyfunction]
 fn config_sha256(config_json: &str) -> PyResult<String> {
-    let config = serde_json::from_str::<serde_json::Value>(config_json)
-        .map_err(|e| PyValueError::new_err(format!("config_json: not valid JSON: {e}")))?;
-    Ok(sensaug_log::config_sha256(&config))
-}
-
-/// One column's values while converting rows to numpy.
-enum ColumnValues {
-    Int(Vec<i64>),
-    Float(Vec<f64>),
-    Bool(Vec<bool>),
-}
-
-/// Rows as one numpy array per column (float64, int64 or bool), by name.
-pub fn rows_to_columns<'py>(py: Python<'py>, rows: &[Row]) -> PyResult<Bound<'py, PyDict>> {
-    let n = rows.len();
-    let mut cols: Vec<ColumnValues> = COLUMNS
-        .iter()
-        .map(|c| match c.kind {
-            Kind::Int => ColumnValues::Int(Vec::with_capacity(n)),
-            Kind::Float => ColumnValues::Float(Vec::with_capacity(n)),
-            Kind::Bool => ColumnValues::Bool(Vec::with_capacity(n)),
-        })
-        .collect();
-    for r in rows {
-        for (col, v) in cols.iter_mut().zip(r.values()) {
-            // `values()` and `COLUMNS` come from one table: kinds agree.
-            match (col, v) {
-                (ColumnValues::Int(a), Value::Int(x)) => a.push(x),
-                (ColumnValues::Float(a), Value::Float(x)) => a.push(x),
-                (ColumnValues::Bool(a), Value::Bool(x)) => a.push(x),
-                _ => {}
-            }
-        }
-    }
-    let d = PyDict::new(py);
-    for (c, col) in COLUMNS.iter().zip(cols) {
-        match col {
-            ColumnValues::Int(a) => d.set_item(c.name, a.into_pyarray(py))?,
-            ColumnValues::Float(a) => d.set_item(c.name, a.into_pyarray(py))?,
-            ColumnValues::Bool(a) => d.set_item(c.name, a.into_pyarray(py))?,
-        }
-    }
-    Ok(d)
+    Ok(sensaug_log::config_sha256(&json(
+        "config_json",
+        config_json,
+    )?))
 }
 
 /// Bytes of one packed record ([`PackedRow`]: the columns in schema order,
 /// native-endian int64 / float64, bool as one byte; `sensaug.logs.DTYPE`).
 pub const RECORD_BYTES: usize = std::mem::size_of::<PackedRow>();
 
-/// Appends `row` to `out` as one packed record, for `ndarray.view(DTYPE)`:
-/// records appended to one buffer are the log, with no per-column arrays to
-/// re-interleave in Python.
+/// Appends `row` to `out` as one packed record (`ndarray.view(DTYPE)`).
 pub fn pack_record(row: &Row, out: &mut Vec<u8>) {
     out.extend_from_slice(row.packed().as_bytes());
+}
+
+/// Rows as the bytes of packed records (every Rust -> numpy path of log
+/// rows returns these; `sensaug.logs.from_records` views them).
+pub fn packed_records<'py>(py: Python<'py>, rows: &[Row]) -> Bound<'py, numpy::PyArray1<u8>> {
+    let mut out = Vec::with_capacity(rows.len() * RECORD_BYTES);
+    rows.iter().for_each(|r| pack_record(r, &mut out));
+    out.into_pyarray(py)
+}
+
+/// A 1-D array of `T` as values, or `None` if `col` is not one.
+fn values<T: Element + Copy>(col: &Bound<'_, PyAny>, value: fn(T) -> Value) -> Option<Vec<Value>> {
+    let a: PyReadonlyArray1<T> = col.extract().ok()?;
+    Some(a.as_array().iter().map(|v| value(*v)).collect())
 }
 
 /// Rows from `data[name]` for every column (a numpy structured array or a
@@ -115,94 +72,51 @@ fn columns_to_rows(data: &Bound<'_, PyAny>) -> PyResult<Vec<Row>> {
     let contiguous = data.py().import("numpy")?.getattr("ascontiguousarray")?;
     let mut rows: Vec<Row> = Vec::new();
     for (j, c) in COLUMNS.iter().enumerate() {
+        let err = |msg: String| PyValueError::new_err(format!("data.{}: {msg}", c.name));
         let col = data
             .get_item(c.name)
-            .map_err(|_| PyValueError::new_err(format!("data.{}: missing column", c.name)))?;
+            .map_err(|_| err("missing column".into()))?;
         let col = contiguous.call1((col,))?;
-        let wrong = |what: &str| {
-            PyValueError::new_err(format!(
-                "data.{}: expected a 1-D {what} array (column kind {})",
-                c.name,
-                c.kind.name()
-            ))
+        let (values, dtype) = match c.kind {
+            Kind::Int => (values(&col, Value::Int), "int64"),
+            Kind::Float => (values(&col, Value::Float), "float64"),
+            Kind::Bool => (values(&col, Value::Bool), "bool"),
         };
-        let len = col.len().map_err(|_| wrong("numpy"))?;
+        let kind = c.kind.name();
+        let values = values
+            .ok_or_else(|| err(format!("expected a 1-D {dtype} array (column kind {kind})")))?;
         if j == 0 {
-            rows = vec![Row::UNKNOWN; len];
-        } else if len != rows.len() {
-            return Err(PyValueError::new_err(format!(
-                "data.{}: {len} values, but {} has {}",
-                c.name,
-                COLUMNS[0].name,
-                rows.len()
-            )));
+            rows = vec![Row::UNKNOWN; values.len()];
+        } else if values.len() != rows.len() {
+            let (n, first) = (rows.len(), COLUMNS[0].name);
+            return Err(err(format!("{} values, but {first} has {n}", values.len())));
         }
-        let set =
-            |rows: &mut [Row], k: usize, v: Value| rows[k].set(j, v).map_err(PyValueError::new_err);
-        match c.kind {
-            Kind::Int => {
-                let a: PyReadonlyArray1<i64> = col.extract().map_err(|_| wrong("int64"))?;
-                for (k, v) in a.as_array().iter().enumerate() {
-                    set(&mut rows, k, Value::Int(*v))?;
-                }
-            }
-            Kind::Float => {
-                let a: PyReadonlyArray1<f64> = col.extract().map_err(|_| wrong("float64"))?;
-                for (k, v) in a.as_array().iter().enumerate() {
-                    set(&mut rows, k, Value::Float(*v))?;
-                }
-            }
-            Kind::Bool => {
-                let a: PyReadonlyArray1<bool> = col.extract().map_err(|_| wrong("bool"))?;
-                for (k, v) in a.as_array().iter().enumerate() {
-                    set(&mut rows, k, Value::Bool(*v))?;
-                }
-            }
+        for (k, (row, v)) in rows.iter_mut().zip(values).enumerate() {
+            row.set(j, v)
+                .map_err(|e| PyValueError::new_err(format!("data.{e} (row {k})")))?;
         }
     }
     Ok(rows)
 }
 
-/// Writes the log to `<path>.partial`, then renames it over `path` (an
-/// older regular file is replaced only by a complete log; nothing else is
-/// ever opened or replaced: `sensaug_config::outputs`).
+/// Writes to `<path>.partial`, then renames it over `path` (an older
+/// regular file is replaced only by a complete log: `sensaug_config::outputs`).
 fn write_file(
     path: &Path,
     meta: &serde_json::Value,
     rows: &[Row],
     end: &serde_json::Value,
 ) -> std::io::Result<()> {
-    let file = create_partial(path)?;
-    let written = write_rows(file, meta, rows, end).and_then(|()| replace(path));
+    let mut out = std::io::BufWriter::new(create_partial(path)?);
+    let written = sensaug_log::write_log(&mut out, meta, rows, end);
+    drop(out);
+    let written = written.and_then(|()| replace(path));
     if written.is_err() {
         let _ = std::fs::remove_file(partial_path(path));
     }
     written
 }
 
-fn write_rows(
-    file: std::fs::File,
-    meta: &serde_json::Value,
-    rows: &[Row],
-    end: &serde_json::Value,
-) -> std::io::Result<()> {
-    let mut out = std::io::BufWriter::new(file);
-    let mut sum = sensaug_log::write_header(&mut out, meta)?;
-    let mut line = Vec::with_capacity(1024);
-    for r in rows {
-        line.clear();
-        sensaug_log::format_row(r, &mut sum, &mut line);
-        out.write_all(&line)?;
-    }
-    if !end.is_null() {
-        sensaug_log::write_footer(&mut out, end, &mut sum)?;
-    }
-    out.flush()
-}
-
-/// Writes a log file: the metadata line `meta_json`, one line per row of
-/// `data` (every column of the schema, with its dtype), then the end-status
-/// line `end_json` if given.
 #[pyfunction]
 #[pyo3(signature = (path, data, /, *, meta_json, end_json=None))]
 fn write_log(
@@ -212,18 +126,10 @@ fn write_log(
     meta_json: &str,
     end_json: Option<&str>,
 ) -> PyResult<()> {
-    let parse = |name: &str, text: &str| {
-        serde_json::from_str::<serde_json::Value>(text)
-            .map_err(|e| PyValueError::new_err(format!("{name}: not valid JSON: {e}")))
-    };
-    let meta = parse("meta_json", meta_json)?;
-    let end = match end_json {
-        Some(t) => parse("end_json", t)?,
-        None => serde_json::Value::Null,
-    };
+    let meta = json("meta_json", meta_json)?;
+    let end = end_json.map_or(Ok(serde_json::Value::Null), |t| json("end_json", t))?;
     let rows = columns_to_rows(data)?;
-    sensaug_config::outputs::check_outputs(&[("path", &path)])
-        .map_err(crate::scenario::config_err)?;
+    check_outputs(&[("path", &path)]).map_err(config_err)?;
     py.detach(|| write_file(&path, &meta, &rows, &end))
         .map_err(|e| PyOSError::new_err(format!("{}: cannot write the log: {e}", path.display())))
 }

@@ -1,33 +1,22 @@
 //! `_core.Config`, the resolved configuration as one Python object, and the
 //! entry points that take it: a simulated trial and the memory it needs.
-//! The one schema (`sensaug-config`) reads, checks and resolves; the core
-//! runs the whole trial in one call. Conversion only.
+//! The schema (`sensaug-config`) reads, checks and resolves; the core runs
+//! the whole trial in one call. Conversion only; the docs are in `_core.pyi`.
 
 use crate::log::{pack_record, RECORD_BYTES};
 use numpy::IntoPyArray;
 use pyo3::create_exception;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
-use pyo3::types::{PyDict, PyTuple};
+use pyo3::types::{IntoPyDict, PyDict, PyTuple};
 use pythonize::{pythonize, Depythonizer};
-use sensaug_config::{Format, Resolved};
+use sensaug_config::Resolved;
 use sensaug_core::protocol::Protocol;
 use sensaug_core::world::{check_log_memory, log_budget, LogTooLarge, Scenario};
-use sensaug_log::Row;
 use std::path::{Path, PathBuf};
 
-create_exception!(
-    _core,
-    ConfigError,
-    PyValueError,
-    "A configuration error: `.field` is the dotted field path, `.message` what is wrong and how to fix it; `str(e)` is `<field>: <message>`."
-);
-create_exception!(
-    _core,
-    TrialTooLargeError,
-    ConfigError,
-    "A simulated trial whose log would not fit the memory it may take; raised before it runs, naming the fields that make it large."
-);
+create_exception!(_core, ConfigError, PyValueError);
+create_exception!(_core, TrialTooLargeError, ConfigError);
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("ConfigError", m.py().get_type::<ConfigError>())?;
@@ -40,22 +29,21 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(check_output_paths, m)?)?;
     m.add_function(wrap_pyfunction!(config_schema, m)?)?;
     m.add_function(wrap_pyfunction!(resolve_count, m)?)?;
-    m.add_function(wrap_pyfunction!(run_scenario, m)?)?;
-    Ok(())
+    m.add_function(wrap_pyfunction!(run_scenario, m)?)
 }
 
-/// A configuration error as `ConfigError` (or `kind`) with `.field` and
-/// `.message` set.
+/// `E` (`ConfigError` or a subclass) with `.field` and `.message` set.
 fn field_error<E: pyo3::PyTypeInfo>(field: &str, message: &str) -> PyErr {
     Python::attach(|py| {
         let err = PyErr::new::<E, _>(format!("{field}: {message}"));
-        let value = err.value(py);
-        for (name, v) in [("field", field), ("message", message)] {
-            if let Err(e) = value.setattr(name, v) {
-                return e;
-            }
+        let set = |(name, v)| err.value(py).setattr(name, v);
+        match [("field", field), ("message", message)]
+            .into_iter()
+            .try_for_each(set)
+        {
+            Ok(()) => err,
+            Err(e) => e,
         }
-        err
     })
 }
 
@@ -69,10 +57,7 @@ fn too_large(e: LogTooLarge) -> PyErr {
     field_error::<TrialTooLargeError>(field, message)
 }
 
-/// A configuration resolved once (`sensaug_config::Resolved`): the file's
-/// values with every default filled in and everything derived from them
-/// (gains, period, unit, the rig loop's settings). Immutable; what runs,
-/// replays and launches the rig takes it.
+/// A configuration resolved once (`sensaug_config::Resolved`). Immutable.
 #[pyclass(module = "sensaug._core", frozen)]
 pub struct Config {
     pub resolved: Resolved,
@@ -80,19 +65,13 @@ pub struct Config {
 
 #[pymethods]
 impl Config {
-    /// Resolves a configuration given as plain dicts and lists (the tables
-    /// of a file); raises `ConfigError` naming the first bad field.
     #[new]
     fn new(tables: &Bound<'_, PyAny>) -> PyResult<Self> {
-        let spec = sensaug_config::parse_from(&mut Depythonizer::from_object(tables))
-            .map_err(config_err)?;
-        let resolved = Resolved::new(spec).map_err(config_err)?;
+        let spec = sensaug_config::parse_from(&mut Depythonizer::from_object(tables));
+        let resolved = Resolved::new(spec.map_err(config_err)?).map_err(config_err)?;
         Ok(Config { resolved })
     }
 
-    /// Reads and resolves a file (TOML, or JSON by extension); with
-    /// `check_outputs` also a session plan's conditions and its rig output
-    /// paths, as `sensaug-rt --check` (`sensaug_config::check_file`).
     #[staticmethod]
     #[pyo3(signature = (path, /, *, check_outputs))]
     fn from_file(path: PathBuf, check_outputs: bool) -> PyResult<Self> {
@@ -105,57 +84,38 @@ impl Config {
         })
     }
 
-    /// Parses and resolves configuration text in `format` ("toml" or "json").
     #[staticmethod]
     #[pyo3(signature = (text, /, *, format))]
     fn from_text(text: &str, format: &str) -> PyResult<Self> {
-        let format = match format {
-            "toml" => Format::Toml,
-            "json" => Format::Json,
-            other => {
-                let msg =
-                    format!("{other:?} is not a configuration format; use \"toml\" or \"json\"");
-                return Err(field_error::<ConfigError>("format", &msg));
-            }
-        };
+        let format = format.parse().map_err(config_err)?;
         let resolved = sensaug_config::load_str(text, format).map_err(config_err)?;
         Ok(Config { resolved })
     }
 
-    /// The file's values, every default filled in, as plain dicts and lists.
     fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        pythonize(py, &self.resolved.spec).map_err(|e| PyValueError::new_err(e.to_string()))
+        Ok(pythonize(py, &self.resolved.spec)?)
     }
 
-    /// The file's values as compact JSON.
     fn to_json(&self) -> String {
         sensaug_config::to_json(&self.resolved.spec)
     }
 
-    /// The file's values as TOML with each field's description and unit.
     fn to_toml(&self) -> String {
         sensaug_config::to_toml(&self.resolved.spec)
     }
 
-    /// What a log's metadata records of it: `{"config", "resolved", "loop"}`
-    /// (the file's values, the derived values, the rig loop's settings).
     fn metadata<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        pythonize(py, &self.resolved).map_err(|e| PyValueError::new_err(e.to_string()))
+        Ok(pythonize(py, &self.resolved)?)
     }
 
-    /// `(ticks, log_bytes)` of its trial: the protocol's ticks and the bytes
-    /// of its log kept in memory. With `memory_budget` (bytes), raises
-    /// `TrialTooLargeError` when the log needs more, as `run_scenario` does.
     #[pyo3(signature = (*, memory_budget))]
     fn trial_memory(&self, memory_budget: Option<u64>) -> PyResult<(u64, u64)> {
         let phases = self.resolved.phases();
         let protocol = protocol(&self.resolved, &phases)?;
-        let bytes = check_log_memory(&protocol, RECORD_BYTES, memory_budget.unwrap_or(u64::MAX))
-            .map_err(too_large)?;
-        Ok((protocol.total_ticks(), bytes))
+        let bytes = check_log_memory(&protocol, RECORD_BYTES, memory_budget.unwrap_or(u64::MAX));
+        Ok((protocol.total_ticks(), bytes.map_err(too_large)?))
     }
 
-    /// Immutable: a copy is the same object.
     fn __copy__(slf: Py<Self>) -> Py<Self> {
         slf
     }
@@ -166,15 +126,8 @@ impl Config {
 
     /// Pickled as its tables (a process pool resolves it again).
     fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<Bound<'py, PyTuple>> {
-        let py = slf.py();
-        let tables = slf.get().to_dict(py)?;
-        PyTuple::new(
-            py,
-            [
-                slf.get_type().into_any(),
-                PyTuple::new(py, [tables])?.into_any(),
-            ],
-        )
+        let tables = slf.get().to_dict(slf.py())?;
+        (slf.get_type(), (tables,)).into_pyobject(slf.py())
     }
 }
 
@@ -188,22 +141,15 @@ pub(crate) fn protocol<'a>(
 
 /// The core refused what the schema resolved: a bug, not the user's.
 pub(crate) fn rejected() -> PyErr {
-    field_error::<ConfigError>(
-        "(config)",
-        "the core rejected a resolved configuration; please report this",
-    )
+    let msg = "the core rejected a resolved configuration; please report this";
+    field_error::<ConfigError>("(config)", msg)
 }
 
-/// Configurations resolved on the calling thread (`sensaug_config::resolve_count`):
-/// the tests' check that a trial resolves its configuration once.
 #[pyfunction]
 fn resolve_count() -> u64 {
     sensaug_config::resolve_count()
 }
 
-/// Checks output paths, `(field, path)` each, as the rig's own are checked
-/// (`sensaug_config::outputs::check_outputs`): regular files or absent,
-/// distinct. Raises `ConfigError` naming the field.
 #[pyfunction]
 fn check_output_paths(outputs: Vec<(String, PathBuf)>) -> PyResult<()> {
     let refs: Vec<(&str, &Path)> = outputs
@@ -213,55 +159,18 @@ fn check_output_paths(outputs: Vec<(String, PathBuf)>) -> PyResult<()> {
     sensaug_config::outputs::check_outputs(&refs).map_err(config_err)
 }
 
-/// The JSON Schema of a configuration file.
 #[pyfunction]
 fn config_schema() -> String {
     serde_json::to_string_pretty(sensaug_config::json_schema()).expect("a schema is JSON")
 }
 
-/// Bytes this process can still take: `MemAvailable` of `/proc/meminfo`,
-/// and under a cgroup (v2) memory limit what is left of it; `None` where
-/// neither can be read (not Linux).
-fn available_bytes() -> Option<u64> {
-    let meminfo = std::fs::read_to_string("/proc/meminfo").ok();
-    let available = meminfo.as_deref().and_then(|text| {
-        let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
-        let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-        Some(kib.saturating_mul(1024))
-    });
-    let cgroup = std::fs::read_to_string("/proc/self/cgroup")
-        .ok()
-        .and_then(|text| {
-            let path = text.lines().find_map(|l| l.strip_prefix("0::"))?.to_owned();
-            let dir = Path::new("/sys/fs/cgroup").join(path.trim_start_matches('/'));
-            let read = |f: &str| std::fs::read_to_string(dir.join(f)).ok();
-            let max: u64 = read("memory.max")?.trim().parse().ok()?; // "max": no limit
-            let current: u64 = read("memory.current")?.trim().parse().ok()?;
-            Some(max.saturating_sub(current))
-        });
-    match (available, cgroup) {
-        (Some(a), Some(c)) => Some(a.min(c)),
-        (a, c) => a.or(c),
-    }
-}
-
-/// The memory (bytes) a simulated trial's log may take here: half of what
-/// is available (`sensaug_core::world::log_budget`), or `None` (no check)
-/// where that cannot be read.
 #[pyfunction]
 fn available_memory() -> Option<u64> {
-    available_bytes().map(log_budget)
+    sensaug_log::available_bytes().map(log_budget)
 }
 
-/// Runs one trial of a resolved configuration. Returns `(records, summary,
-/// meta)`: the log's rows as the bytes of packed records in the log
-/// schema's column order (`records.view(sensaug.logs.DTYPE)` is the log),
-/// the run's counters, and the log's metadata line as JSON text (built
-/// here, from the configuration: `sensaug_log::metadata`).
-///
-/// Before it runs, the log's size is checked against `memory_budget` bytes
-/// (`None`: [`available_memory`]); a trial that would not fit raises
-/// `TrialTooLargeError` naming the fields that make it large.
+/// One trial: `(records, summary, meta)`; each tick's row is packed as the
+/// tick ends into the buffer numpy takes over (no buffer of rows between).
 #[pyfunction]
 #[pyo3(signature = (config, /, *, memory_budget, git_commit))]
 fn run_scenario<'py>(
@@ -277,10 +186,8 @@ fn run_scenario<'py>(
     let bytes = check_log_memory(&protocol, RECORD_BYTES, budget).map_err(too_large)?;
     let mut scenario = Scenario::new(&phases, resolved.robot, resolved.partner, resolved.world)
         .map_err(|_| rejected())?;
-    // Each tick's log row is packed as the tick ends, straight into the
-    // buffer numpy takes over without a copy: no buffer of the whole
-    // trial's records in between. Reserved fallibly: where the budget is
-    // unknown, or the system refuses, the trial still fails with a message.
+    // Reserved fallibly: where the budget is unknown, or the system
+    // refuses, the trial still fails with a message.
     let mut records = Vec::new();
     usize::try_from(bytes)
         .ok()
@@ -294,16 +201,7 @@ fn run_scenario<'py>(
         start_unix_s: sensaug_log::now_unix_s(),
         loop_settings: serde_json::Value::Null,
     });
-    let summary = py.detach(|| {
-        scenario.run_with(|k, rec| pack_record(&Row::from_tick_record(k, rec), &mut records))
-    });
-    let d = PyDict::new(py);
-    d.set_item("ticks", summary.ticks)?;
-    d.set_item("robot_clamped", summary.robot.clamped)?;
-    d.set_item("robot_non_finite", summary.robot.non_finite)?;
-    d.set_item("estimator_errors", summary.robot.estimator_errors)?;
-    d.set_item("resymmetrised", summary.robot.resymmetrised)?;
-    d.set_item("partner_guarded", summary.partner_guarded)?;
-    d.set_item("mirror_errors", summary.mirror_errors)?;
-    Ok((records.into_pyarray(py), d, meta.to_string()))
+    let summary = py.detach(|| scenario.run_with(|row| pack_record(row, &mut records)));
+    let summary = summary.named().into_py_dict(py)?;
+    Ok((records.into_pyarray(py), summary, meta.to_string()))
 }

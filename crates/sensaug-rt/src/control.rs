@@ -11,7 +11,7 @@
 //! ([`Safety::next`]) that says whether the controller commands, the
 //! controlled stop brakes the handle, or the loop stops.
 
-use crate::log::{LogRecord, LogSink};
+use crate::log::LogSink;
 use crate::os;
 use crate::stats::{CanCounters, ComputeParts, DriveReport, Histogram, LoopReport, StartGap};
 use crate::wake::{wake_up, Wake};
@@ -21,9 +21,10 @@ use sensaug_bridge::{Frame, Transport};
 /// when it is resolved (`sensaug_config::Resolved::rig`).
 pub use sensaug_config::rig::{RigSettings as LoopSettings, StopSettings, QUIET_WATCHDOG_PERIODS};
 use sensaug_core::agent::{guard_torque, Guard, PartnerLaw};
-use sensaug_core::controller::{applied_torque, Robot, RobotTick};
+use sensaug_core::controller::{applied_torque, Robot};
 use sensaug_core::plant::{Plant, PlantParams, PlantState};
 use sensaug_core::protocol::{Protocol, Sample};
+use sensaug_core::row::Row;
 use sensaug_core::ScenarioError;
 use std::fmt;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -85,16 +86,13 @@ struct Sensed {
     age_ticks: u64,
 }
 
-/// What a tick decided: the torque to send and the controller's part of the
-/// log record (NaN during the controlled stop).
+/// What a tick decided: the torque to send and the tick's log row so far
+/// (the controller's columns, the targets, the virtual human's torque, the
+/// torque sent and its guard; unknown during the controlled stop).
 #[derive(Clone, Copy, Debug)]
 struct Command {
     torque_nm: f64,
-    robot: RobotTick,
-    tau: f64,
-    tau_h: f64,
-    u_h: f64,
-    guard: Option<Guard>,
+    row: Row,
 }
 
 impl Command {
@@ -103,14 +101,10 @@ impl Command {
     fn stopping(torque_nm: f64) -> Command {
         Command {
             torque_nm,
-            robot: RobotTick {
-                u: f64::NAN,
-                ..RobotTick::NONE
+            row: Row {
+                torque_nm,
+                ..Row::UNKNOWN
             },
-            tau: f64::NAN,
-            tau_h: f64::NAN,
-            u_h: f64::NAN,
-            guard: None,
         }
     }
 }
@@ -654,7 +648,9 @@ impl<'a> Rig<'a> {
     /// drive's limit.
     fn control(&mut self, sample: &Sample<'_>, sensed: &Sensed) -> Command {
         let (x, v) = (sensed.x, sensed.v);
-        let robot = self.robot.tick_at(sample, sensed.fresh.then_some((x, v)));
+        let mut row = Row::UNKNOWN;
+        self.robot
+            .tick_at(sample, sensed.fresh.then_some((x, v)), &mut row);
         let seen = self.handle_view.see(PlantState { x, v }, sensed.fresh);
         let (u_h, _) = self
             .partner
@@ -668,7 +664,7 @@ impl<'a> Rig<'a> {
             &self.settings.range,
             seen.x * unit,
             seen.v * unit,
-            robot.u * unit,
+            row.u * unit,
             u_h * unit,
             self.settings.torque_limit_nm,
         );
@@ -682,14 +678,9 @@ impl<'a> Rig<'a> {
             Guard::Clamped => self.torque_clamped += 1,
             Guard::NonFinite => self.non_finite += 1,
         }
-        Command {
-            torque_nm,
-            robot,
-            tau: sample.tau,
-            tau_h: sample.tau_h,
-            u_h,
-            guard: Some(g),
-        }
+        (row.tau, row.tau_h, row.u_h) = (sample.tau, sample.tau_h, u_h);
+        (row.torque_nm, row.guard) = (torque_nm, Some(g));
+        Command { torque_nm, row }
     }
 
     /// Actuate: one torque command (the link numbers it for tick `k`).
@@ -718,25 +709,18 @@ impl<'a> Rig<'a> {
         let wake = sensed.wake;
         let compute_ns = sent_ns.saturating_sub(wake.woke_ns);
         self.compute.record(compute_ns);
-        log.push(LogRecord {
-            tick: k,
-            t: k as f64 * self.settings.dt_s,
-            x: sensed.x,
-            v: sensed.v,
-            fresh: sensed.fresh,
-            tau: command.tau,
-            tau_h: command.tau_h,
-            u_h: command.u_h,
-            torque_nm: command.torque_nm,
-            robot: command.robot,
-            wake_latency_us: wake.wake_latency_ns() as f64 / 1e3,
-            sleep_latency_us: wake.sleep_latency_ns() as f64 / 1e3,
-            compute_us: compute_ns as f64 / 1e3,
-            feedback_age_ticks: sensed.age_ticks,
-            drive_state: self.drive.sample.status,
-            guard: command.guard,
-            ramp: matches!(safety, Safety::Braking { .. }),
-        });
+        // On the rig the controller's measurement is the drive's feedback.
+        let mut row = command.row;
+        (row.tick, row.t) = (k as i64, k as f64 * self.settings.dt_s);
+        (row.x, row.xdot, row.x_meas, row.xdot_meas) = (sensed.x, sensed.v, sensed.x, sensed.v);
+        (row.fresh, row.e) = (sensed.fresh, sensed.x - row.tau);
+        row.wake_latency_us = wake.wake_latency_ns() as f64 / 1e3;
+        row.sleep_latency_us = wake.sleep_latency_ns() as f64 / 1e3;
+        row.compute_us = compute_ns as f64 / 1e3;
+        row.feedback_age_ticks = sensed.age_ticks as i64;
+        row.drive_state = i64::from(self.drive.sample.status.code());
+        row.ramp = matches!(safety, Safety::Braking { .. });
+        log.push(row);
     }
 
     /// After the loop, without waiting: the drive's emergency stop on a

@@ -28,11 +28,8 @@
 
 use crate::feed::Feed;
 use rtrb::{Consumer, Producer, RingBuffer};
-use sensaug_bridge::drive_link::DriveStatus;
 use sensaug_config::outputs::{create_partial, partial_path, replace};
-use sensaug_core::agent::Guard;
-use sensaug_core::controller::RobotTick;
-use sensaug_log::{format_row, write_footer, write_header, Checksum, Row, UNKNOWN};
+use sensaug_log::{format_row, write_footer, write_header, Checksum, Row};
 use std::fs::File;
 use std::io::{self, Write};
 use std::path::{Path, PathBuf};
@@ -44,94 +41,16 @@ use std::time::Duration;
 /// How often the writer drains the ring and writes what it found.
 pub const WRITE_PERIOD: Duration = Duration::from_millis(10);
 
-/// One tick of the real-time loop, as the loop knows it; the writer thread
-/// turns it into a [`Row`] ([`LogRecord::to_row`]), off the loop.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct LogRecord {
-    /// Tick number.
-    pub tick: u64,
-    /// Time of the tick (s).
-    pub t: f64,
-    /// Measured position (controller units): the drive's last feedback.
-    pub x: f64,
-    /// Measured velocity (controller units).
-    pub v: f64,
-    /// The feedback was new this tick (the controller updated with it).
-    pub fresh: bool,
-    /// Robot target (NaN during the controlled stop).
-    pub tau: f64,
-    /// Partner target (NaN during the controlled stop).
-    pub tau_h: f64,
-    /// Virtual human torque (model units; NaN during the controlled stop).
-    pub u_h: f64,
-    /// Torque sent to the drive (N m).
-    pub torque_nm: f64,
-    /// The controller's log line (its `u` is NaN during the controlled stop).
-    pub robot: RobotTick,
-    /// Wake-up latency: the tick's start after its deadline (us).
-    pub wake_latency_us: f64,
-    /// Sleep latency: the deadline sleep's return after its own target,
-    /// the deadline less the spin (us).
-    pub sleep_latency_us: f64,
-    /// Wake-up to command sent (us).
-    pub compute_us: f64,
-    /// Ticks since the last feedback.
-    pub feedback_age_ticks: u64,
-    /// The drive's status, whatever its profile.
-    pub drive_state: DriveStatus,
-    /// What the drive-torque guard did (`None` during the controlled stop).
-    pub guard: Option<Guard>,
-    /// The controlled stop's ticks (braking after a stop request).
-    pub ramp: bool,
-}
-
-/// The `guard` column's code of a guard outcome.
-fn guard_code(g: Option<Guard>) -> i64 {
-    match g {
-        Some(Guard::Passed) => 0,
-        Some(Guard::Clamped) => 1,
-        Some(Guard::NonFinite) => 2,
-        None => UNKNOWN,
-    }
-}
-
-impl LogRecord {
-    /// The record as a row of the log schema. On the rig the controller's
-    /// measurement is the drive's feedback, so `x_meas = x`.
-    pub fn to_row(&self) -> Row {
-        Row {
-            x: self.x,
-            xdot: self.v,
-            x_meas: self.x,
-            xdot_meas: self.v,
-            fresh: self.fresh,
-            tau: self.tau,
-            tau_h: self.tau_h,
-            u_h: self.u_h,
-            torque_nm: self.torque_nm,
-            e: self.x - self.tau,
-            wake_latency_us: self.wake_latency_us,
-            sleep_latency_us: self.sleep_latency_us,
-            compute_us: self.compute_us,
-            feedback_age_ticks: self.feedback_age_ticks as i64,
-            drive_state: i64::from(self.drive_state.code()),
-            guard: guard_code(self.guard),
-            ramp: self.ramp,
-            ..Row::from_robot(self.tick, self.t, &self.robot)
-        }
-    }
-}
-
 /// The real-time side of the log: a ring producer plus an overflow counter.
 pub struct LogSink {
-    producer: Producer<LogRecord>,
+    producer: Producer<Row>,
     overflows: u64,
     failed: Arc<AtomicBool>,
 }
 
 impl LogSink {
     /// Per tick: queue a record; a full ring counts an overflow and drops it.
-    pub fn push(&mut self, r: LogRecord) {
+    pub fn push(&mut self, r: Row) {
         if self.producer.push(r).is_err() {
             self.overflows += 1;
         }
@@ -305,26 +224,8 @@ pub fn start(
 /// its pages are resident before the loop's first pushes: without
 /// `mlockall`, or before it, the loop would take a page fault every few
 /// dozen ticks until the ring had wrapped once.
-fn touch_every_slot(producer: &mut Producer<LogRecord>, consumer: &mut Consumer<LogRecord>) {
-    let blank = LogRecord {
-        tick: 0,
-        t: 0.0,
-        x: 0.0,
-        v: 0.0,
-        fresh: false,
-        tau: 0.0,
-        tau_h: 0.0,
-        u_h: 0.0,
-        torque_nm: 0.0,
-        robot: RobotTick::NONE,
-        wake_latency_us: 0.0,
-        sleep_latency_us: 0.0,
-        compute_us: 0.0,
-        feedback_age_ticks: 0,
-        drive_state: DriveStatus::Booting,
-        guard: None,
-        ramp: false,
-    };
+fn touch_every_slot(producer: &mut Producer<Row>, consumer: &mut Consumer<Row>) {
+    let blank = Row::UNKNOWN;
     while producer.push(blank).is_ok() {}
     while consumer.pop().is_ok() {}
 }
@@ -336,7 +237,7 @@ fn touch_every_slot(producer: &mut Producer<LogRecord>, consumer: &mut Consumer<
 /// datagram per pass.
 fn write_loop(
     mut file: File,
-    mut consumer: Consumer<LogRecord>,
+    mut consumer: Consumer<Row>,
     done: &AtomicBool,
     failed: &AtomicBool,
     mut place: Place,
@@ -350,8 +251,7 @@ fn write_loop(
         // set is in the ring now and gets written by this pass.
         let finished = done.load(Ordering::Acquire);
         let mut n = 0u64;
-        while let Ok(r) = consumer.pop() {
-            let row = r.to_row();
+        while let Ok(row) = consumer.pop() {
             format_row(&row, &mut sum, &mut lines);
             if let Some(f) = feed.as_mut() {
                 f.push(&row);
@@ -391,55 +291,27 @@ fn write_loop(
 
 #[cfg(test)]
 mod tests {
-    use super::{partial_path, replace, start, write_loop, DriveStatus, LogRecord};
+    use super::{partial_path, replace, start, write_loop};
     use sensaug_core::agent::Guard;
-    use sensaug_core::controller::RobotTick;
+    use sensaug_core::protocol::PhaseKind;
     use sensaug_log::Checksum;
+    use sensaug_log::Row;
 
-    fn record(tick: u64) -> LogRecord {
-        LogRecord {
-            tick,
+    fn record(tick: u64) -> Row {
+        Row {
+            tick: tick as i64,
             t: tick as f64 * 1e-3,
+            phase: Some(PhaseKind::Trajectory),
             x: 0.5,
-            v: -0.25,
+            xdot: -0.25,
             fresh: tick % 2 == 0,
             tau: 0.125,
-            tau_h: 0.0,
-            u_h: 0.1,
+            u: 0.2,
             torque_nm: 0.01,
-            robot: RobotTick {
-                u: 0.2,
-                phase: 1.0,
-                ..RobotTick::NONE
-            },
-            wake_latency_us: 12.5,
-            sleep_latency_us: 112.5,
-            compute_us: 30.0,
-            feedback_age_ticks: 1,
-            drive_state: DriveStatus::Enabled,
+            drive_state: 2,
             guard: Some(Guard::Clamped),
-            ramp: false,
+            ..Row::UNKNOWN
         }
-    }
-
-    #[test]
-    fn a_record_becomes_a_schema_row() {
-        let row = record(4).to_row();
-        assert_eq!(
-            (row.tick, row.phase, row.guard, row.drive_state),
-            (4, 1, 1, 2)
-        );
-        assert!(row.fresh && !row.ramp);
-        assert_eq!((row.x_meas, row.xdot_meas), (0.5, -0.25));
-        assert_eq!(row.e, 0.5 - 0.125);
-        assert_eq!((row.wake_latency_us, row.sleep_latency_us), (12.5, 112.5));
-        assert!(row.eps.is_nan() && row.Lx_hat.is_nan());
-        let ramp = LogRecord {
-            guard: None,
-            robot: RobotTick::NONE,
-            ..record(5)
-        };
-        assert_eq!((ramp.to_row().guard, ramp.to_row().phase), (-1, -1));
     }
 
     #[test]
@@ -462,7 +334,7 @@ mod tests {
         let log = sensaug_log::read(&text).unwrap();
         assert_eq!(log.rows.len() as u64, stats.records_written);
         // Debug text: NaN fields compare equal.
-        let first = format!("{:?}", record(0).to_row());
+        let first = format!("{:?}", record(0));
         assert_eq!(format!("{:?}", log.rows[0]), first);
         let end = log.end.unwrap();
         assert_eq!(end["stop_reason"], "completed");

@@ -15,6 +15,7 @@ use sensaug_core::agent::PartnerLaw;
 use sensaug_core::controller::Robot;
 use sensaug_core::plant::{Plant, PlantState};
 use sensaug_core::protocol::{PhaseKind, Protocol};
+use sensaug_core::row::Row;
 
 /// A seeded gap pattern: a gap starts at a tick with probability 1% and
 /// lasts 1-20 ticks, a long one (30-70 ticks) with probability 0.05%;
@@ -93,12 +94,13 @@ fn run(resolved: &Resolved, seed: Option<u64>) -> Outcome {
     let mut fresh_sq = (0.0, 0usize);
     let (mut tau_h_at_gap, mut err_at_gap, mut excess) = (0.0, 0.0, 0.0f64);
     let skip_ticks = (2.0 / resolved.dt_s).round() as u64;
+    let mut tick = Row::UNKNOWN;
     for sample in protocol.samples() {
         let s = plant.state();
         let gap = missing[sample.k as usize];
         run = if gap { run + 1 } else { 0 };
         longest = longest.max(run);
-        let tick = robot.tick_at(&sample, (!gap).then_some((s.x, s.v)));
+        robot.tick_at(&sample, (!gap).then_some((s.x, s.v)), &mut tick);
         let (u_h, _) = partner.torque(s.x, s.v, sample.tau, sample.tau_h);
         plant.step(tick.u + u_h).unwrap();
         if !gap {

@@ -14,7 +14,8 @@ use sensaug_core::estimator::{GainEstimator, TrajectoryEstimator};
 use sensaug_core::goal::{ChannelConfig, GoalIntegrator, GoalIntegratorConfig};
 use sensaug_core::protocol::Protocol;
 use sensaug_core::riccati::{care, dare};
-use sensaug_core::world::{Scenario, TickRecord};
+use sensaug_core::row::Row;
+use sensaug_core::world::Scenario;
 use std::hint::black_box;
 
 /// One benchmarked call, repeated by the runners.
@@ -167,18 +168,19 @@ fn robot_tick_with(phase: usize, cfg: sensaug_core::controller::RobotConfig) -> 
     let phases = common::phases(TICK_PHASE_S, 1.0);
     let mut scenario = Scenario::new(&phases, cfg, common::partner(2.0), common::world(3))
         .expect("valid scenario");
-    let mut records = vec![TickRecord::default(); scenario.ticks()];
+    let mut records = vec![Row::UNKNOWN; scenario.ticks()];
     scenario.run(&mut records).expect("simulated trial");
     let protocol = Protocol::new(&phases, common::DT).expect("valid protocol");
     let mut robot = Robot::new(cfg, protocol).expect("valid robot");
     let phase_ticks = (TICK_PHASE_S / common::DT).round() as u64;
     let (start, end) = (phase as u64 * phase_ticks, (phase as u64 + 1) * phase_ticks);
+    let mut row = Row::UNKNOWN;
     for (k, r) in records.iter().enumerate().take(start as usize) {
-        robot.tick(k as u64, r.x_meas, r.v_meas);
+        robot.tick(k as u64, r.x_meas, r.xdot_meas, &mut row);
     }
     let measured: Vec<(f64, f64)> = records[start as usize..end as usize]
         .iter()
-        .map(|r| (r.x_meas, r.v_meas))
+        .map(|r| (r.x_meas, r.xdot_meas))
         .collect();
     let samples: Vec<_> = (start..end)
         .map(|k| protocol.sample(k).expect("tick inside the protocol"))
@@ -186,8 +188,8 @@ fn robot_tick_with(phase: usize, cfg: sensaug_core::controller::RobotConfig) -> 
     assert!(samples.iter().all(|s| s.index == phase));
     let mut i = 0usize;
     Box::new(move || {
-        let out = robot.tick_at(black_box(&samples[i]), Some(measured[i]));
-        black_box(out);
+        robot.tick_at(black_box(&samples[i]), Some(measured[i]), &mut row);
+        black_box(&row);
         i += 1;
         if i == samples.len() {
             i = 0;
@@ -269,7 +271,7 @@ pub fn trial() -> (Call, usize) {
     };
     let make = move || Scenario::new(&phases, robot, partner, common::world(0));
     let ticks = make().expect("valid scenario").ticks();
-    let mut records = vec![TickRecord::default(); ticks];
+    let mut records = vec![Row::UNKNOWN; ticks];
     let call = Box::new(move || {
         let mut scenario = make().expect("valid scenario");
         let summary = scenario.run(black_box(&mut records)).expect("whole trial");
