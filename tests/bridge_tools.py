@@ -19,3 +19,11 @@ def load_tool(name: str) -> ModuleType:
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def regenerated(name: str, committed: Path, tmp_path: Path) -> tuple[str, str]:
+    """The text tool ``name`` writes afresh (into ``tmp_path``) and the
+    committed file's text, for a byte-for-byte comparison."""
+    out = tmp_path / committed.name
+    assert load_tool(name).main([f"{name}.py", str(out)]) == 0
+    return out.read_text(), committed.read_text()

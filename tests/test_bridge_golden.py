@@ -14,16 +14,13 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from bridge_tools import ROOT, load_tool
+from bridge_tools import ROOT, load_tool, regenerated
 
 COMMITTED = ROOT / "firmware_bridge" / "golden" / "frames.json"
 
 
 def test_committed_golden_frames_are_cantools_output(tmp_path: Path) -> None:
-    out = tmp_path / "frames.json"
-    assert load_tool("make_golden").main(["make_golden.py", str(out)]) == 0
-    fresh = out.read_text()
-    committed = COMMITTED.read_text()
+    fresh, committed = regenerated("make_golden", COMMITTED, tmp_path)
     if fresh != committed:
         a = json.loads(fresh)["frames"]
         b = json.loads(committed)["frames"]

@@ -15,7 +15,7 @@ import json
 from pathlib import Path
 
 import canopen
-from bridge_tools import ROOT, load_tool
+from bridge_tools import ROOT, load_tool, regenerated
 from canopen import objectdictionary as odt
 
 COMMITTED = ROOT / "firmware_bridge" / "golden" / "cia402_frames.json"
@@ -52,10 +52,7 @@ def test_eds_loads_with_canopens_importer() -> None:
 
 
 def test_committed_golden_frames_are_canopens_output(tmp_path: Path) -> None:
-    out = tmp_path / "cia402_frames.json"
-    assert load_tool("make_cia402_golden").main(["make_cia402_golden.py", str(out)]) == 0
-    fresh = out.read_text()
-    committed = COMMITTED.read_text()
+    fresh, committed = regenerated("make_cia402_golden", COMMITTED, tmp_path)
     if fresh != committed:
         a = json.loads(fresh)
         b = json.loads(committed)
