@@ -50,8 +50,10 @@ impl DemoUkf {
         };
         let (x0, P0) = (vec_from::<N>(&x0, "x0")?, mat_from::<N, N>(&P0, "P0")?);
         let (Q, R) = (mat_from::<N, N>(&Q, "Q")?, mat_from::<M, M>(&R, "R")?);
+        // The model is validated first, then the filter.
         let ukf = model
-            .ukf(x0, P0, Q, R, MerweParams { alpha, beta, kappa })
+            .validate()
+            .and_then(|()| pendulum::DemoUkf::new(x0, P0, Q, R, MerweParams { alpha, beta, kappa }))
             .map_err(|e| py_err(CoreError::Setup(e)))?;
         Ok(Self {
             inner: PendulumFilter { ukf, model },

@@ -702,15 +702,15 @@ fn covariance_reset_in_predict_and_update() {
 fn run_checks_slices_and_matches_stepping() {
     let model = Pendulum::default();
     let make = || -> DemoUkf {
-        model
-            .ukf(
-                SVector::<f64, 3>::new(0.3, 0.0, 0.0),
-                SMatrix::<f64, 3, 3>::from_diagonal(&SVector::<f64, 3>::new(0.1, 0.1, 0.5)),
-                SMatrix::<f64, 3, 3>::from_diagonal(&SVector::<f64, 3>::new(1e-8, 1e-6, 1e-6)),
-                SMatrix::<f64, 2, 2>::identity() * 1e-4,
-                params(0.5, 2.0, 0.0),
-            )
-            .expect("valid")
+        model.validate().expect("valid model");
+        DemoUkf::new(
+            SVector::<f64, 3>::new(0.3, 0.0, 0.0),
+            SMatrix::<f64, 3, 3>::from_diagonal(&SVector::<f64, 3>::new(0.1, 0.1, 0.5)),
+            SMatrix::<f64, 3, 3>::from_diagonal(&SVector::<f64, 3>::new(1e-8, 1e-6, 1e-6)),
+            SMatrix::<f64, 2, 2>::identity() * 1e-4,
+            params(0.5, 2.0, 0.0),
+        )
+        .expect("valid")
     };
     const T: usize = 200;
     let u: [f64; T] = core::array::from_fn(u_at);
