@@ -8,6 +8,7 @@ measured side by side. Run alone, this prints the medians and tails.
 """
 from __future__ import annotations
 
+import itertools
 import os
 import time
 from typing import Callable
@@ -64,25 +65,35 @@ def fx(z, dt, u=0.0, dtau=0.0, dtau_h=0.0):
 P0 = np.diag([1e-4] * 3 + [1.0] * 3)
 
 
-def filterpy_step(dim_z: int) -> Callable[[], None]:
-    """update(y) then predict(u, dtau, dtau_h), as workloads::ukf_step_3/5."""
+def filterpy_ukf(dim_z: int) -> UnscentedKalmanFilter:
+    """filterpy's UKF of stage 1 (``dim_z`` 3) or stage 2 (5): Merwe 1/2/0,
+    ``Q = 1e-2 I6``, ``R = 1e-7 I``, ``P0``, as the workloads'."""
     pts = MerweScaledSigmaPoints(6, alpha=1.0, beta=2.0, kappa=0.0)
     hx = (lambda z: z[:3]) if dim_z == 3 else (lambda z: z[[0, 1, 3, 4, 5]])
     f = UnscentedKalmanFilter(dim_x=6, dim_z=dim_z, dt=DT, fx=fx, hx=hx, points=pts)
     f.x, f.P = np.zeros(6), P0.copy()
     f.Q, f.R = 1e-2 * np.eye(6), 1e-7 * np.eye(dim_z)
     f.sigmas_f = pts.sigma_points(f.x, f.P)
-    k = [0]
+    return f
+
+
+def step_inputs(dim_z: int, k: int) -> tuple[np.ndarray, float, float, float]:
+    """Step ``k``'s measurement and ``(u, dtau, dtau_h)``, as workloads::ukf_step_3/5."""
+    s = np.sin(k * 1e-3)
+    if dim_z == 3:
+        return np.array([s, 0.1, s]), 0.01 * s, 1e-3, 1e-3
+    return np.array([s, 0.1, 0.0, 0.0, 2.0]), 0.01 * s, 1e-3, 0.0
+
+
+def filterpy_step(dim_z: int) -> Callable[[], None]:
+    """update(y) then predict(u, dtau, dtau_h), as workloads::ukf_step_3/5."""
+    f = filterpy_ukf(dim_z)
+    steps = itertools.count(1)
 
     def step() -> None:
-        k[0] += 1
-        s = np.sin(k[0] * 1e-3)
-        if dim_z == 3:
-            f.update(np.array([s, 0.1, s]))
-            f.predict(u=0.01 * s, dtau=1e-3, dtau_h=1e-3)
-        else:
-            f.update(np.array([s, 0.1, 0.0, 0.0, 2.0]))
-            f.predict(u=0.01 * s, dtau=1e-3, dtau_h=0.0)
+        y, u, dtau, dtau_h = step_inputs(dim_z, next(steps))
+        f.update(y)
+        f.predict(u=u, dtau=dtau, dtau_h=dtau_h)
 
     return step
 
@@ -91,17 +102,12 @@ def sensaug_step_python(dim_z: int) -> Callable[[], None]:
     """The same step through sensaug's Python estimators (one FFI call each)."""
     kw = dict(mass=M, dt=DT, Q=1e-2 * np.eye(6), R=1e-7 * np.eye(dim_z), x0=np.zeros(6), P0=P0)
     est = sensaug.GainEstimator(**kw) if dim_z == 3 else sensaug.TrajectoryEstimator(**kw)
-    k = [0]
+    steps = itertools.count(1)
 
     def step() -> None:
-        k[0] += 1
-        s = np.sin(k[0] * 1e-3)
-        if dim_z == 3:
-            est.update(np.array([s, 0.1, s]))
-            est.predict(0.01 * s, 1e-3, 1e-3)
-        else:
-            est.update(np.array([s, 0.1, 0.0, 0.0, 2.0]))
-            est.predict(0.01 * s, 1e-3, 0.0)
+        y, u, dtau, dtau_h = step_inputs(dim_z, next(steps))
+        est.update(y)
+        est.predict(u, dtau, dtau_h)
 
     return step
 
@@ -132,11 +138,7 @@ def numpy_filterpy_trial_per_tick_ns(ticks: int = 2000) -> dict[str, float]:
     phase only (plant, LQR robot, virtual human, noise, filterpy's stage-1
     update and predict per tick), median wall time per tick."""
     rng = np.random.default_rng(0)
-    pts = MerweScaledSigmaPoints(6, alpha=1.0, beta=2.0, kappa=0.0)
-    f = UnscentedKalmanFilter(dim_x=6, dim_z=3, dt=DT, fx=fx, hx=lambda z: z[:3], points=pts)
-    f.x, f.P = np.zeros(6), P0.copy()
-    f.Q, f.R = 1e-2 * np.eye(6), 1e-7 * np.eye(3)
-    f.sigmas_f = pts.sigma_points(f.x, f.P)
+    f = filterpy_ukf(3)
     k_pos, k_vel, lhh = 1.0, np.sqrt(2.0 * M), 2.0
     x = v = 0.0
     samples = np.empty(ticks)

@@ -6,11 +6,5 @@
 # under SCHED_OTHER and SCHED_FIFO (benches/report.py). The criterion
 # benches (the same workloads) stay available separately:
 #   cargo bench -p sensaug-core --bench numerics
-set -euo pipefail
-cd "$(dirname "$0")/.."
-bash scripts/setup.sh
-# cyclictest (Debian rt-tests): the baseline of the loop's wake-up latency.
-if ! command -v cyclictest >/dev/null; then
-    apt-get update -qq && apt-get install -y -qq rt-tests
-fi
+source "$(dirname "$0")/setup.sh"
 .venv/bin/python benches/report.py "$@"

@@ -147,7 +147,7 @@ class Gen:
         required = [p for p in d.get("required", []) if p != tag]
         order = required + [p for p in props if p not in required and p != tag]
         self.lines += ["", "", "@dataclass"]
-        self.lines.append(f"class {cls}:")
+        self.lines.append(f"class {cls}(_Table):")
         self.lines += self.doc(d.get("description", cls), "    ")
         self.lines.append("")
         if kind is not None:
@@ -163,24 +163,10 @@ class Gen:
             desc = prop.get("description") or self.defs.get(ref_name(prop) or "", {}).get("description")
             if desc:
                 self.lines += self.doc(desc, "    ")
-        convs = {p: self.converter(props[p]) for p in order}
-        self.lines += [
-            "",
-            "    @classmethod",
-            f"    def from_dict(cls, d: dict[str, Any]) -> {cls}:",
-            '        """From a plain dict as the schema describes it (already validated)."""',
-            "        kw = dict(d)",
-        ]
-        if kind is not None:
-            self.lines.append('        kw.pop("kind", None)')
-        for p, c in convs.items():
-            if c and optional_ref(props[p]) is not None:
-                self.lines.append(f"        if kw.get({p!r}) is not None:")
-                self.lines.append(f"            kw[{p!r}] = {c}(kw[{p!r}])")
-            elif c:
-                self.lines.append(f"        if {p!r} in kw:")
-                self.lines.append(f"            kw[{p!r}] = {c}(kw[{p!r}])")
-        self.lines.append("        return cls(**kw)")
+        convs = {p: c for p in order if (c := self.converter(props[p]))}
+        if convs:
+            self.lines.append("")
+            self.lines.append("    _nested = {" + ", ".join(f"{p!r}: {c}" for p, c in convs.items()) + "}")
 
     def run(self) -> str:
         self.lines = [
@@ -194,13 +180,32 @@ class Gen:
             "# ruff: noqa: E501",
             "from __future__ import annotations",
             "",
-            "from dataclasses import dataclass, field",
-            "from typing import Any, Callable, ClassVar, Literal, Sequence, Union",
+            "from dataclasses import dataclass, field, fields",
+            "from typing import Any, Callable, ClassVar, Literal, Self, Sequence, Union",
             "",
             "import numpy as np",
             "",
             "#: A covariance: N diagonal entries or an N x N nested list (or array).",
             "Covariance = Union[Sequence[float], Sequence[Sequence[float]], np.ndarray]",
+            "",
+            "",
+            "class _Table:",
+            '    """A table of the schema: built from a plain dict by :meth:`from_dict`."""',
+            "",
+            "    #: Field -> converter of the field's plain value (nested tables, shapes).",
+            "    _nested: ClassVar[dict[str, Callable[[Any], Any]]] = {}",
+            "",
+            "    @classmethod",
+            "    def from_dict(cls, d: dict[str, Any]) -> Self:",
+            '        """From a plain dict as the schema describes it (already validated);',
+            '        a shape\'s ``kind`` tag is dropped (it is the class, not a field)."""',
+            "        kw = dict(d)",
+            '        if "kind" not in {f.name for f in fields(cls)}:  # type: ignore[arg-type]',
+            '            kw.pop("kind", None)',
+            "        for name, convert in cls._nested.items():",
+            "            if kw.get(name) is not None:",
+            "                kw[name] = convert(kw[name])",
+            "        return cls(**kw)",
         ]
         shapes = self.defs["ShapeSpec"]["oneOf"]
         shape_classes = []

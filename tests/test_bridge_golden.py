@@ -11,28 +11,16 @@ Regenerate with: python firmware_bridge/tools/make_golden.py
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-TOOL = ROOT / "firmware_bridge" / "tools" / "make_golden.py"
+from bridge_tools import ROOT, load_tool, regenerated
+
 COMMITTED = ROOT / "firmware_bridge" / "golden" / "frames.json"
 
 
-def _make_golden():
-    spec = importlib.util.spec_from_file_location("make_golden", TOOL)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_committed_golden_frames_are_cantools_output(tmp_path: Path) -> None:
-    out = tmp_path / "frames.json"
-    assert _make_golden().main(["make_golden.py", str(out)]) == 0
-    fresh = out.read_text()
-    committed = COMMITTED.read_text()
+    fresh, committed = regenerated("make_golden", COMMITTED, tmp_path)
     if fresh != committed:
         a = json.loads(fresh)["frames"]
         b = json.loads(committed)["frames"]
@@ -88,10 +76,7 @@ def test_torque_crc_is_crc16_with_the_frame_id() -> None:
 def test_protocol_doc_tables_are_generated_from_the_dbc() -> None:
     """docs/can_protocol.md's frame tables equal what make_doc_tables.py makes
     from hi5.dbc with cantools (so the docs cannot drift from the DBC)."""
-    spec = importlib.util.spec_from_file_location("make_doc_tables", TOOL.parent / "make_doc_tables.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = load_tool("make_doc_tables")
     doc_path = ROOT / "docs" / "can_protocol.md"
     doc = doc_path.read_text()
     import cantools

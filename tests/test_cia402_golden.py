@@ -11,25 +11,15 @@ Regenerate with: python firmware_bridge/tools/make_cia402_golden.py
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
 import canopen
+from bridge_tools import ROOT, load_tool, regenerated
 from canopen import objectdictionary as odt
 
-ROOT = Path(__file__).resolve().parents[1]
-TOOL = ROOT / "firmware_bridge" / "tools" / "make_cia402_golden.py"
 COMMITTED = ROOT / "firmware_bridge" / "golden" / "cia402_frames.json"
 EDS = ROOT / "firmware_bridge" / "cia402_drive.eds"
-
-
-def _tool():
-    spec = importlib.util.spec_from_file_location("make_cia402_golden", TOOL)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def test_eds_loads_with_canopens_importer() -> None:
@@ -62,10 +52,7 @@ def test_eds_loads_with_canopens_importer() -> None:
 
 
 def test_committed_golden_frames_are_canopens_output(tmp_path: Path) -> None:
-    out = tmp_path / "cia402_frames.json"
-    assert _tool().main(["make_cia402_golden.py", str(out)]) == 0
-    fresh = out.read_text()
-    committed = COMMITTED.read_text()
+    fresh, committed = regenerated("make_cia402_golden", COMMITTED, tmp_path)
     if fresh != committed:
         a = json.loads(fresh)
         b = json.loads(committed)
@@ -90,7 +77,7 @@ def test_golden_frames_cover_every_kind() -> None:
 
 def test_docs_object_table_is_the_eds() -> None:
     """docs/cia402.md's object table equals what the tool renders from the EDS."""
-    tool = _tool()
+    tool = load_tool("make_cia402_golden")
     doc = tool.DOC.read_text()
     assert tool.BEGIN in doc and tool.END in doc
     if tool.spliced_doc(doc) != doc:

@@ -98,13 +98,8 @@ class Processes:
 
     def close(self) -> None:
         for proc in (self.controller, self.drive):
-            if proc is not None and proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-                try:
-                    proc.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-                    proc.wait()
+            if proc is not None:
+                rig.stop_process(proc, timeout_s=10.0)
         self.monitor.shutdown()
 
 

@@ -21,10 +21,11 @@ import subprocess
 import sys
 import threading
 import time
-from typing import Any, Callable, Iterator, Optional
+from typing import Callable, Iterator, Optional
 
 import can
 import pytest
+from drive_threads import DriveThread, drive_factory
 
 import sensaug
 from sensaug_bridge.udp_bus import free_port
@@ -128,35 +129,17 @@ def emcy(host: Host, code: int) -> bytes:
     return host.expect(0x080 + host.node, lambda d: struct.unpack_from("<H", d)[0] == code)
 
 
-class Drive:
-    def __init__(self, host: Host, drive: VirtualCia402, thread: threading.Thread, stop: threading.Event):
-        self.host, self.drive, self.thread, self.stop = host, drive, thread, stop
+#: A VirtualCia402 on its thread; ``host`` the master's side (:class:`Host`).
+Drive = DriveThread[Host]
 
 
 @pytest.fixture
 def start_drive() -> Iterator[Callable[..., Drive]]:
-    started: list[tuple[Drive, can.BusABC]] = []
-
-    def factory(**config: Any) -> Drive:
-        port = free_port()
-        host_bus = can.Bus(interface="sensaug_udp", channel=port)
-        drive_bus = can.Bus(interface="sensaug_udp", channel=port)
-        drive = VirtualCia402(drive_bus, Cia402Config(**config))
-        stop = threading.Event()
-        drive.start()
-        thread = threading.Thread(target=drive.run, kwargs={"stop": stop, "duration_s": 30.0}, daemon=True)
-        thread.start()
-        d = Drive(Host(host_bus, config.get("node", NODE)), drive, thread, stop)
-        started.append((d, drive_bus))
-        return d
-
-    yield factory
-    for d, drive_bus in started:
-        d.stop.set()
-        d.thread.join(timeout=5)
-        d.drive.stop()
-        drive_bus.shutdown()
-        d.host.bus.shutdown()
+    yield from drive_factory(
+        lambda **config: DriveThread(
+            lambda bus: VirtualCia402(bus, Cia402Config(**config)), lambda bus: Host(bus, config.get("node", NODE))
+        )
+    )
 
 
 @pytest.fixture

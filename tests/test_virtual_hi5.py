@@ -23,13 +23,13 @@ import socket
 import struct
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
 import can
 import pytest
+from drive_threads import DriveThread, drive_factory
 
 import sensaug
 from sensaug_bridge import protocol as p  # noqa: E402
@@ -97,36 +97,16 @@ def encoder(x: float, counts: int = DriveConfig().encoder_counts_per_rev) -> flo
     return round(x / step) * step
 
 
-class Drive:
-    def __init__(self, port: int, host: can.BusABC, hi5: VirtualHi5, thread: threading.Thread, stop: threading.Event):
-        self.port, self.host, self.hi5, self.thread, self.stop = port, host, hi5, thread, stop
+#: A VirtualHi5 on its thread; ``host`` is the host's bus.
+Drive = DriveThread[can.BusABC]
 
 
 @pytest.fixture
 def start_drive() -> Iterator[Callable[..., Drive]]:
     """Factory: a drive thread on a fresh port, and a host bus opened before it boots."""
-    started: list[tuple[Drive, can.BusABC]] = []
-
-    def factory(**config: Any) -> Drive:
-        port = free_port()
-        host = can.Bus(interface="sensaug_udp", channel=port)
-        drive_bus = can.Bus(interface="sensaug_udp", channel=port)
-        hi5 = VirtualHi5(drive_bus, DriveConfig(**config))
-        stop = threading.Event()
-        hi5.start()
-        thread = threading.Thread(target=hi5.run, kwargs={"stop": stop, "duration_s": 30.0}, daemon=True)
-        thread.start()
-        drive = Drive(port, host, hi5, thread, stop)
-        started.append((drive, drive_bus))
-        return drive
-
-    yield factory
-    for drive, drive_bus in started:
-        drive.stop.set()
-        drive.thread.join(timeout=5)
-        drive.hi5.stop()
-        drive_bus.shutdown()
-        drive.host.shutdown()
+    yield from drive_factory(
+        lambda **config: DriveThread(lambda bus: VirtualHi5(bus, DriveConfig(**config)), lambda bus: bus)
+    )
 
 
 @pytest.fixture
@@ -197,7 +177,7 @@ def test_torque_ignored_unless_enabled(drive: Drive):
     expect(drive.host, "Heartbeat")
     drive.host.send(p.TorqueCommand(1.0, 1).encode(NODE))
     assert not [d for d in frames_for(drive.host, 0.2) if d.name == "Feedback"]
-    assert drive.hi5.ignored == 1 and drive.hi5.plant.x == 0.0
+    assert drive.drive.ignored == 1 and drive.drive.plant.x == 0.0
 
 
 def test_feedback_echoes_sequence_and_matches_plant(drive: Drive):
@@ -214,7 +194,7 @@ def test_feedback_echoes_sequence_and_matches_plant(drive: Drive):
         assert abs(fb.velocity_rad_s - v) <= 0.5 * VEL_LSB + 1e-12, (k, fb.velocity_rad_s, v)
     # Exactly one feedback each: nothing more arrives.
     assert not [d for d in frames_for(drive.host, 0.1) if d.name == "Feedback"]
-    assert drive.hi5.accepted == len(torques)
+    assert drive.drive.accepted == len(torques)
 
 
 def test_torque_beyond_limit_rejected_and_counted_not_clamped(start_drive):
@@ -237,7 +217,7 @@ def test_torque_beyond_limit_rejected_and_counted_not_clamped(start_drive):
             assert not fb.torque_limited
             assert abs(fb.position_rad - encoder(x)) <= 0.5 * POS_LSB + 1e-12
             assert abs(fb.velocity_rad_s - v) <= 0.5 * VEL_LSB + 1e-12
-    assert drive.hi5.range_errors == 2 and drive.hi5.accepted == 2
+    assert drive.drive.range_errors == 2 and drive.drive.accepted == 2
     hb = expect(drive.host, "Heartbeat", lambda h: h.range_errors == 2)
     assert hb.fault_flags in (FaultFlag.NONE, FaultFlag.WATCHDOG)  # no more commands: the watchdog may fire
 
@@ -252,7 +232,7 @@ def test_watchdog_faults_then_clear_and_reenable(drive: Drive):
     print(f"watchdog 100 ms: FAULT seen {elapsed * 1e3:.1f} ms after the last accepted command was sent")
     assert fault.fault_flags == FaultFlag.WATCHDOG
     assert 0.100 <= elapsed <= 0.100 + WATCHDOG_MARGIN_S
-    assert drive.hi5.torque_nm == 0.0
+    assert drive.drive.torque_nm == 0.0
     # Latched: commands are ignored, no feedback, until ClearFaults.
     drive.host.send(p.TorqueCommand(0.01, 4).encode(NODE))
     assert not [d for d in frames_for(drive.host, 0.15) if d.name == "Feedback"]
@@ -273,7 +253,7 @@ def test_emergency_stop(drive: Drive):
     drive.host.send(p.EmergencyStop().encode(NODE))
     fault = expect(drive.host, "Fault", lambda f: f.state == State.FAULT)
     assert fault.fault_flags == FaultFlag.EMERGENCY_STOP
-    assert drive.hi5.torque_nm == 0.0
+    assert drive.drive.torque_nm == 0.0
     drive.host.send(p.TorqueCommand(0.5, 1).encode(NODE))
     assert not [d for d in frames_for(drive.host, 0.15) if d.name == "Feedback"]
 
@@ -286,7 +266,7 @@ def test_overspeed_faults(start_drive):
     frames = {d.name: d.message for d in frames_for(drive.host, 0.3) if d.name in ("Feedback", "Fault")}
     assert frames["Feedback"].fault_active and frames["Feedback"].state == State.FAULT
     assert frames["Fault"].state == State.FAULT and frames["Fault"].fault_flags == FaultFlag.OVERSPEED
-    assert drive.hi5.torque_nm == 0.0
+    assert drive.drive.torque_nm == 0.0
 
 
 def test_other_nodes_ignored_silently(start_drive):
@@ -296,7 +276,7 @@ def test_other_nodes_ignored_silently(start_drive):
     drive.host.send(p.TorqueCommand(0.1, 0).encode(1))
     enable(drive.host, node=3)
     assert command(drive.host, 0.1, 0, node=3).sequence == 0
-    assert drive.hi5.unknown_ids == 0 and drive.hi5.accepted == 1
+    assert drive.drive.unknown_ids == 0 and drive.drive.accepted == 1
 
 
 def test_bad_frames_dropped_counted_no_crash(start_drive):
@@ -327,7 +307,7 @@ def test_bad_frames_dropped_counted_no_crash(start_drive):
         host, "Heartbeat", lambda h: all(getattr(h, k) == v for k, v in want.items()) and h.state == State.ENABLED
     )
     assert hb.fault_flags == FaultFlag.NONE
-    assert drive.hi5.accepted == 2
+    assert drive.drive.accepted == 2
 
 
 def test_second_command_source_latches_a_sequence_fault(drive: Drive):
@@ -339,10 +319,10 @@ def test_second_command_source_latches_a_sequence_fault(drive: Drive):
     drive.host.send(p.TorqueCommand(0.2, 101).encode(NODE))
     fault = expect(drive.host, "Fault", lambda f: f.state == State.FAULT)
     assert fault.fault_flags == FaultFlag.SEQUENCE
-    assert drive.hi5.torque_nm == 0.0 and drive.hi5.sequence_errors == 1
+    assert drive.drive.torque_nm == 0.0 and drive.drive.sequence_errors == 1
     drive.host.send(p.TorqueCommand(0.2, 102).encode(NODE))
     assert not [d for d in frames_for(drive.host, 0.15) if d.name == "Feedback"]
-    assert drive.hi5.accepted == 2
+    assert drive.drive.accepted == 2
 
 
 def test_random_valid_frames_are_accepted_only_in_sequence():
@@ -387,12 +367,12 @@ def test_watchdog_change_refused_while_enabled(drive: Drive):
     print(f"watchdog 50 ms after two refused changes: FAULT {elapsed * 1e3:.0f} ms after the last command")
     assert fault.fault_flags == FaultFlag.WATCHDOG
     assert elapsed <= 0.050 + WATCHDOG_MARGIN_S
-    assert drive.hi5.ignored == 2 and drive.hi5.watchdog_s == 0.050
+    assert drive.drive.ignored == 2 and drive.drive.watchdog_s == 0.050
 
 
 def test_error_counters_saturate_at_255(drive: Drive):
-    drive.hi5.crc_errors = 1000
-    hb = drive.hi5.heartbeat()
+    drive.drive.crc_errors = 1000
+    hb = drive.drive.heartbeat()
     assert hb.crc_errors == 255
     assert p.Heartbeat.decode(bytes(hb.encode(NODE).data)).crc_errors == 255
 

@@ -71,6 +71,26 @@ def chol_repair(A: np.ndarray, reset: np.ndarray | None, counter: np.ndarray | N
     return Lf.reshape(A.shape), A, failed
 
 
+def sigma_predict(filt, acceleration, dtau, dtau_h, P_reset, Q) -> None:
+    """The unscented predict of stages 1 and 2 (state ``[e, v, e_h, Lhx,
+    Lhv, Lhh]``, gains a random walk), in place on ``filt`` (``x``, ``P``,
+    ``Wm``, ``Wc``, ``c``, ``resets``, ``h``): the handle's step with the
+    acceleration ``acceleration(chi)`` on the sigma points ``chi``; ``P``
+    repaired to ``P_reset`` first where it is not positive definite."""
+    h = filt.h
+    L, P, _ = chol_repair(filt.c * filt.P, filt.c * P_reset, filt.resets)
+    filt.P = P / filt.c
+    chi = sigma_points(filt.x, L)
+    e, v, eh, lx, lv, lh = (chi[..., i] for i in range(6))
+    a = acceleration(chi)
+    dx = h.dt * v + 0.5 * h.dt * h.dt * a
+    f = np.stack([e + dx - dtau[:, None], v + h.dt * a, eh + dx - dtau_h[:, None], lx, lv, lh], axis=-1)
+    xm = np.einsum("s,bsi->bi", filt.Wm, f)
+    d = f - xm[:, None, :]
+    filt.x = xm
+    filt.P = np.einsum("s,bsi,bsj->bij", filt.Wc, d, d) + Q
+
+
 class PaperStage1:
     """The paper's stage 1 (the project's GainEstimator), B filters."""
 
@@ -95,18 +115,11 @@ class PaperStage1:
         self.resets += bad
 
     def predict(self, u, dtau, dtau_h) -> None:
-        h = self.h
-        L, P, _ = chol_repair(self.c * self.P, self.c * h.P01, self.resets)
-        self.P = P / self.c
-        chi = sigma_points(self.x, L)
-        e, v, eh, lx, lv, lh = (chi[..., i] for i in range(6))
-        a = (u[:, None] - lx * e - lv * v - lh * eh - h.C * v) / h.M
-        dx = h.dt * v + 0.5 * h.dt * h.dt * a
-        f = np.stack([e + dx - dtau[:, None], v + h.dt * a, eh + dx - dtau_h[:, None], lx, lv, lh], axis=-1)
-        xm = np.einsum("s,bsi->bi", self.Wm, f)
-        d = f - xm[:, None, :]
-        self.x = xm
-        self.P = np.einsum("s,bsi,bsj->bij", self.Wc, d, d) + h.Q1
+        def acceleration(chi):
+            e, v, eh, lx, lv, lh = (chi[..., i] for i in range(6))
+            return (u[:, None] - lx * e - lv * v - lh * eh - self.h.C * v) / self.h.M
+
+        sigma_predict(self, acceleration, dtau, dtau_h, self.h.P01, self.h.Q1)
 
     @property
     def gains(self):
@@ -232,18 +245,10 @@ class Stage2:
         return lx * phi_e[:, None] + lv * phi_v[:, None] + lh * (eh - dxm[:, None])
 
     def predict(self, u, dtau, dtau_h, ctx=None) -> None:
-        h = self.h
-        L, P, _ = chol_repair(self.c * self.P, self.c * h.P02, self.resets)
-        self.P = P / self.c
-        chi = sigma_points(self.x, L)
-        e, v, eh, lx, lv, lh = (chi[..., i] for i in range(6))
-        a = (u[:, None] - self.partner_terms(chi, ctx) - h.C * v) / h.M
-        dx = h.dt * v + 0.5 * h.dt * h.dt * a
-        f = np.stack([e + dx - dtau[:, None], v + h.dt * a, eh + dx - dtau_h[:, None], lx, lv, lh], axis=-1)
-        xm = np.einsum("s,bsi->bi", self.Wm, f)
-        d = f - xm[:, None, :]
-        self.x = xm
-        self.P = np.einsum("s,bsi,bsj->bij", self.Wc, d, d) + h.Q2
+        def acceleration(chi):
+            return (u[:, None] - self.partner_terms(chi, ctx) - self.h.C * chi[..., 1]) / self.h.M
+
+        sigma_predict(self, acceleration, dtau, dtau_h, self.h.P02, self.h.Q2)
 
     def partner_torque(self, ctx=None) -> np.ndarray:
         return -self.partner_terms(self.x[:, None, :], ctx)[:, 0]

@@ -236,20 +236,26 @@ fn run(profile: &Profile, link: &mut dyn DriveLink) {
         t0.elapsed()
     );
     let state = plant.state();
-    assert!(
-        (last.position_rad - state.x).abs() <= profile.position_tol_rad,
-        "{}: position {} vs plant {}",
-        profile.module,
-        last.position_rad,
-        state.x
-    );
-    assert!(
-        (last.velocity_rad_s - state.v).abs() <= profile.velocity_tol_rad_s,
-        "{}: velocity {} vs plant {}",
-        profile.module,
-        last.velocity_rad_s,
-        state.v
-    );
+    for (what, reported, simulated, tol) in [
+        (
+            "position",
+            last.position_rad,
+            state.x,
+            profile.position_tol_rad,
+        ),
+        (
+            "velocity",
+            last.velocity_rad_s,
+            state.v,
+            profile.velocity_tol_rad_s,
+        ),
+    ] {
+        assert!(
+            (reported - simulated).abs() <= tol,
+            "{}: {what} {reported} vs plant {simulated}",
+            profile.module
+        );
+    }
     assert_eq!(last.status, DriveStatus::Enabled);
     link.shut_down(&mut bus, ticks).unwrap();
     let err = stop(child);

@@ -11,6 +11,18 @@ fn node(n: u32) -> NodeId {
     NodeId::new(n).unwrap()
 }
 
+/// A disabled drive's Feedback at this position (rad) and velocity (rad/s).
+fn fb(position_rad: f64, velocity_rad_s: f64) -> Message {
+    Message::Feedback {
+        position_rad,
+        velocity_rad_s,
+        sequence: 0,
+        state: DriveState::Disabled,
+        torque_limited: false,
+        fault_active: false,
+    }
+}
+
 fn samples() -> [Message; 7] {
     [
         Message::TorqueCommand {
@@ -122,14 +134,6 @@ fn encode_rejects_non_finite_naming_the_signal() {
         assert!(e
             .to_string()
             .starts_with("TorqueCommand.torque: must be finite"));
-        let fb = |p, v| Message::Feedback {
-            position_rad: p,
-            velocity_rad_s: v,
-            sequence: 0,
-            state: DriveState::Disabled,
-            torque_limited: false,
-            fault_active: false,
-        };
         assert!(matches!(
             encode(node(1), &fb(bad, 0.0)),
             Err(EncodeError::NotFinite {
@@ -174,14 +178,6 @@ fn encode_rejects_out_of_range_never_wraps() {
         }
         assert!(e.to_string().contains("TorqueCommand.torque"), "{e}");
     }
-    let fb = |p, v| Message::Feedback {
-        position_rad: p,
-        velocity_rad_s: v,
-        sequence: 0,
-        state: DriveState::Disabled,
-        torque_limited: false,
-        fault_active: false,
-    };
     assert!(encode(node(1), &fb(8.388607, 8.388607)).is_ok());
     assert!(encode(node(1), &fb(-8.388608, -8.388608)).is_ok());
     assert!(matches!(

@@ -19,6 +19,12 @@ fn frame(id: u32, byte: u8) -> Frame {
 const SHORT: Duration = Duration::from_millis(30);
 const LONG: Duration = Duration::from_secs(2);
 
+/// Two buses on one fresh loopback port.
+fn two_buses() -> (UdpBus, UdpBus) {
+    let port = common::free_port();
+    (UdpBus::open(port).unwrap(), UdpBus::open(port).unwrap())
+}
+
 #[test]
 fn three_peers_exchange_frames_and_never_see_their_own() {
     let port = common::free_port();
@@ -61,9 +67,7 @@ fn three_peers_exchange_frames_and_never_see_their_own() {
 
 #[test]
 fn frames_arrive_in_order() {
-    let port = common::free_port();
-    let mut a = UdpBus::open(port).unwrap();
-    let mut b = UdpBus::open(port).unwrap();
+    let (mut a, mut b) = two_buses();
     for i in 0..200u32 {
         a.send(&Frame::new(0x200 + (i % 16), &i.to_le_bytes()).unwrap())
             .unwrap();
@@ -124,9 +128,7 @@ fn garbage_datagrams_are_dropped_and_counted() {
 
 #[test]
 fn extended_remote_and_error_frames_are_carried() {
-    let port = common::free_port();
-    let mut a = UdpBus::open(port).unwrap();
-    let mut b = UdpBus::open(port).unwrap();
+    let (mut a, mut b) = two_buses();
     let ext = Frame::data(0x1ABC_DEF0, true, &[1, 2, 3, 4, 5, 6, 7, 8]).unwrap();
     let ext_small = Frame::data(0x5, true, &[]).unwrap();
     let rtr = Frame::remote(0x123, false, 4).unwrap();
@@ -207,9 +209,7 @@ fn recv_timeout_returns_none_in_time() {
 
 #[test]
 fn recv_wakes_up_when_a_frame_arrives() {
-    let port = common::free_port();
-    let mut a = UdpBus::open(port).unwrap();
-    let mut b = UdpBus::open(port).unwrap();
+    let (mut a, mut b) = two_buses();
     let sender = thread::spawn(move || {
         thread::sleep(Duration::from_millis(30));
         a.send(&frame(0x300, 5)).unwrap();
@@ -226,30 +226,21 @@ fn recv_wakes_up_when_a_frame_arrives() {
 #[test]
 fn send_refuses_invalid_frames() {
     let mut peer = UdpBus::open(common::free_port()).unwrap();
-    let bad_len = Frame {
-        id: 0x10,
-        len: 9,
-        data: [0; 8],
-        ..Frame::default()
-    };
-    assert!(matches!(
-        peer.send(&bad_len),
-        Err(TransportError::InvalidFrame(WireError::LengthTooLarge {
-            len: 9
-        }))
-    ));
-    let bad_id = Frame {
-        id: 0x800,
-        len: 0,
-        data: [0; 8],
-        ..Frame::default()
-    };
-    assert!(matches!(
-        peer.send(&bad_id),
-        Err(TransportError::InvalidFrame(WireError::IdTooLarge {
-            id: 0x800
-        }))
-    ));
+    for (id, len, refused) in [
+        (0x10, 9, WireError::LengthTooLarge { len: 9 }),
+        (0x800, 0, WireError::IdTooLarge { id: 0x800 }),
+    ] {
+        let bad = Frame {
+            id,
+            len,
+            data: [0; 8],
+            ..Frame::default()
+        };
+        assert!(
+            matches!(peer.send(&bad), Err(TransportError::InvalidFrame(e)) if e == refused),
+            "{bad:?}"
+        );
+    }
     assert_eq!(peer.stats().sent, 0);
 }
 
@@ -286,9 +277,7 @@ fn drain_ready(b: &mut UdpBus) -> Vec<Frame> {
 
 #[test]
 fn recv_ready_drains_every_waiting_frame_and_sees_later_ones() {
-    let port = common::free_port();
-    let mut a = UdpBus::open(port).unwrap();
-    let mut b = UdpBus::open(port).unwrap();
+    let (mut a, mut b) = two_buses();
     assert!(
         drain_ready(&mut b).is_empty(),
         "an empty bus drains to nothing"
@@ -320,9 +309,7 @@ fn recv_ready_drains_every_waiting_frame_and_sees_later_ones() {
 
 #[test]
 fn every_received_frame_carries_the_kernels_receive_time() {
-    let port = common::free_port();
-    let mut a = UdpBus::open(port).unwrap();
-    let mut b = UdpBus::open(port).unwrap();
+    let (mut a, mut b) = two_buses();
     assert_eq!(b.last_rx_time(), None);
     let before = std::time::SystemTime::now();
     a.send(&Frame::new(0x123, &[1, 2]).unwrap()).unwrap();

@@ -24,7 +24,6 @@ Usage: python make_cia402_golden.py [OUT.json]   (default: ../golden/cia402_fram
 
 from __future__ import annotations
 
-import json
 import random
 import sys
 from pathlib import Path
@@ -35,6 +34,9 @@ from canopen import objectdictionary as odt
 from canopen.sdo import SdoAbortedError
 
 HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+import golden_file  # noqa: E402  (beside this script)
+
 EDS_PATH = HERE.parent / "cia402_drive.eds"
 DEFAULT_OUT = HERE.parent / "golden" / "cia402_frames.json"
 DOC = HERE.parents[1] / "docs" / "cia402.md"
@@ -244,41 +246,30 @@ def pdo_cases(node_id: int, rng: random.Random) -> list[dict[str, Any]]:
     drive.tpdo.read(from_od=True)
     cases: list[dict[str, Any]] = []
 
-    rpdo = master.rpdo[1]
     rpdo_values = [(0x0006, 0), (0x0007, 0), (0x000F, 0), (0x000F, 123), (0x000F, -3000),
                    (0x000F, 32767), (0x000F, -32768), (0x0002, 0), (0x0080, 0), (0x0000, 0)]
     rpdo_values += [(rng.choice([0x06, 0x07, 0x0F]), rng.randint(-32768, 32767)) for _ in range(10)]
-    for cw, torque in rpdo_values:
-        rpdo["Controlword"].raw = cw
-        rpdo["Target torque"].raw = torque
-        rpdo.transmit()
-        (f,) = net.take()
-        cases.append({"kind": "rpdo1", "node": node_id, "controlword": cw, "target_torque": torque,
-                      "frame": _frame(*f)})
-
-    tpdo1, tpdo2 = drive.tpdo[1], drive.tpdo[2]
     t1_values = [(0x0240, 0, 0), (0x0231, 1, 1), (0x0233, -1, 2), (0x0237, 2**31 - 1, 240), (0x0A37, -(2**31), 255),
                  (0x0217, 1048576, 17), (0x0208, -524288, 128), (0x021F, 12345, 239)]
     t1_values += [(rng.choice([0x0237, 0x0A37, 0x0208]), rng.randint(-(2**31), 2**31 - 1), rng.randint(1, 240))
                   for _ in range(8)]
-    for sw, pos, echo in t1_values:
-        tpdo1["Statusword"].raw = sw
-        tpdo1["Position actual value"].raw = pos
-        tpdo1["SYNC counter echo"].raw = echo
-        tpdo1.transmit()
-        (f,) = net.take()
-        cases.append({"kind": "tpdo1", "node": node_id, "statusword": sw, "position": pos, "sync_counter": echo,
-                      "frame": _frame(*f)})
     t2_values = [(0, 0, 0), (1, -1, 1), (-(2**31), 32767, 240), (2**31 - 1, -32768, 255), (1398101, 3000, 99)]
     t2_values += [(rng.randint(-(2**31), 2**31 - 1), rng.randint(-32768, 32767), rng.randint(1, 240)) for _ in range(8)]
-    for vel, torque, echo in t2_values:
-        tpdo2["Velocity actual value"].raw = vel
-        tpdo2["Torque actual value"].raw = torque
-        tpdo2["SYNC counter echo"].raw = echo
-        tpdo2.transmit()
-        (f,) = net.take()
-        cases.append({"kind": "tpdo2", "node": node_id, "velocity": vel, "torque": torque, "sync_counter": echo,
-                      "frame": _frame(*f)})
+    echo = "SYNC counter echo"
+    pdos = [
+        ("rpdo1", master.rpdo[1], {"controlword": "Controlword", "target_torque": "Target torque"}, rpdo_values),
+        ("tpdo1", drive.tpdo[1], {"statusword": "Statusword", "position": "Position actual value", "sync_counter": echo},
+         t1_values),
+        ("tpdo2", drive.tpdo[2], {"velocity": "Velocity actual value", "torque": "Torque actual value",
+                                  "sync_counter": echo}, t2_values),
+    ]
+    for kind, pdo, variables, rows in pdos:
+        for row in rows:
+            for name, value in zip(variables.values(), row):
+                pdo[name].raw = value
+            pdo.transmit()
+            (f,) = net.take()
+            cases.append({"kind": kind, "node": node_id, **dict(zip(variables, row)), "frame": _frame(*f)})
     return cases
 
 
@@ -383,7 +374,7 @@ def spliced_doc(text: str) -> str:
 
 def render() -> str:
     """The exact text written to cia402_frames.json."""
-    return json.dumps(build(), indent=1, sort_keys=True) + "\n"
+    return golden_file.render(build())
 
 
 def main(argv: list[str]) -> int:
@@ -391,11 +382,7 @@ def main(argv: list[str]) -> int:
         DOC.write_text(spliced_doc(DOC.read_text()))
         print(f"wrote the object table into {DOC}", file=sys.stderr)
         return 0
-    out = Path(argv[1]) if len(argv) > 1 else DEFAULT_OUT
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(render())
-    print(f"wrote {out}", file=sys.stderr)
-    return 0
+    return golden_file.write(argv, DEFAULT_OUT, render())
 
 
 if __name__ == "__main__":

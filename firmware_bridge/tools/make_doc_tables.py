@@ -124,12 +124,11 @@ def main(argv: list[str]) -> int:
     doc_path = Path(args[0]) if args else DEFAULT_DOC
     doc = doc_path.read_text()
     fresh = render(doc, tables(cantools.database.load_file(str(DBC_PATH), strict=True)))
-    if check:
-        if fresh != doc:
-            print(f"{doc_path}: frame tables differ from hi5.dbc; run {Path(__file__).name}", file=sys.stderr)
-            return 1
-        return 0
-    doc_path.write_text(fresh)
+    if not check:
+        doc_path.write_text(fresh)
+    elif fresh != doc:
+        print(f"{doc_path}: frame tables differ from hi5.dbc; run {Path(__file__).name}", file=sys.stderr)
+        return 1
     return 0
 
 

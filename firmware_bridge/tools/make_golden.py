@@ -16,7 +16,6 @@ Usage: python make_golden.py [OUT.json]   (default: ../golden/frames.json)
 
 from __future__ import annotations
 
-import json
 import random
 import sys
 from pathlib import Path
@@ -26,6 +25,9 @@ import cantools
 from crc import Calculator, Crc16
 
 HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+import golden_file  # noqa: E402  (beside this script)
+
 DBC_PATH = HERE.parent / "hi5.dbc"
 DEFAULT_OUT = HERE.parent / "golden" / "frames.json"
 
@@ -285,15 +287,11 @@ def build() -> dict[str, Any]:
 
 def render() -> str:
     """The exact text written to frames.json."""
-    return json.dumps(build(), indent=1, sort_keys=True) + "\n"
+    return golden_file.render(build())
 
 
 def main(argv: list[str]) -> int:
-    out = Path(argv[1]) if len(argv) > 1 else DEFAULT_OUT
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(render())
-    print(f"wrote {out}", file=sys.stderr)
-    return 0
+    return golden_file.write(argv, DEFAULT_OUT, render())
 
 
 if __name__ == "__main__":

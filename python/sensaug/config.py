@@ -186,7 +186,7 @@ class ScenarioConfig(_ScenarioTables):
     @classmethod
     def _from_resolved(cls, resolved: _core.Config) -> ScenarioConfig:
         """The tables of a resolved configuration, keeping it (not resolved again)."""
-        config: ScenarioConfig = super().from_dict(resolved.to_dict())  # type: ignore[assignment]
+        config: ScenarioConfig = super().from_dict(resolved.to_dict())
         config._keep(resolved, config.to_dict())
         return config
 

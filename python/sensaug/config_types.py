@@ -8,8 +8,8 @@ bounds are enforced there (``sensaug.config`` validates through it).
 # ruff: noqa: E501
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any, Callable, ClassVar, Literal, Sequence, Union
+from dataclasses import dataclass, field, fields
+from typing import Any, Callable, ClassVar, Literal, Self, Sequence, Union
 
 import numpy as np
 
@@ -17,24 +17,36 @@ import numpy as np
 Covariance = Union[Sequence[float], Sequence[Sequence[float]], np.ndarray]
 
 
+class _Table:
+    """A table of the schema: built from a plain dict by :meth:`from_dict`."""
+
+    #: Field -> converter of the field's plain value (nested tables, shapes).
+    _nested: ClassVar[dict[str, Callable[[Any], Any]]] = {}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Self:
+        """From a plain dict as the schema describes it (already validated);
+        a shape's ``kind`` tag is dropped (it is the class, not a field)."""
+        kw = dict(d)
+        if "kind" not in {f.name for f in fields(cls)}:  # type: ignore[arg-type]
+            kw.pop("kind", None)
+        for name, convert in cls._nested.items():
+            if kw.get(name) is not None:
+                kw[name] = convert(kw[name])
+        return cls(**kw)
+
+
 @dataclass
-class Constant:
+class Constant(_Table):
     """A constant offset."""
 
     kind: ClassVar[str] = 'constant'
     value: float
     """Offset (position unit)."""
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> Constant:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        kw.pop("kind", None)
-        return cls(**kw)
-
 
 @dataclass
-class Square:
+class Square(_Table):
     """+amplitude for the first half of each period, -amplitude after."""
 
     kind: ClassVar[str] = 'square'
@@ -43,16 +55,9 @@ class Square:
     period_s: float
     """Period (s)."""
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> Square:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        kw.pop("kind", None)
-        return cls(**kw)
-
 
 @dataclass
-class RoundedSquare:
+class RoundedSquare(_Table):
     """amplitude * cbrt(sin(2 pi t / period)): the Hi5 target (8 deg, 4 s)."""
 
     kind: ClassVar[str] = 'rounded_square'
@@ -61,16 +66,9 @@ class RoundedSquare:
     period_s: float
     """Period (s)."""
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> RoundedSquare:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        kw.pop("kind", None)
-        return cls(**kw)
-
 
 @dataclass
-class Chirp:
+class Chirp(_Table):
     """Linear chirp from f0_hz to f1_hz over duration_s, then at f1_hz."""
 
     kind: ClassVar[str] = 'chirp'
@@ -83,16 +81,9 @@ class Chirp:
     duration_s: float
     """Sweep duration (s)."""
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> Chirp:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        kw.pop("kind", None)
-        return cls(**kw)
-
 
 @dataclass
-class Harmonics:
+class Harmonics(_Table):
     """amplitude * sum over k = 1..harmonics of sin(k omega t) (cos if cosine)."""
 
     kind: ClassVar[str] = 'harmonics'
@@ -105,16 +96,9 @@ class Harmonics:
     harmonics: int = 3
     """Number of harmonics."""
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> Harmonics:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        kw.pop("kind", None)
-        return cls(**kw)
-
 
 @dataclass
-class Sampled:
+class Sampled(_Table):
     """Samples every dt_s from t = 0, linearly interpolated, held at the ends."""
 
     kind: ClassVar[str] = 'sampled'
@@ -122,13 +106,6 @@ class Sampled:
     """The samples (position unit)."""
     dt_s: float
     """Sample spacing (s)."""
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> Sampled:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        kw.pop("kind", None)
-        return cls(**kw)
 
 
 Shape = Union[Constant, Square, RoundedSquare, Chirp, Harmonics, Sampled]
@@ -150,7 +127,7 @@ def _list_of(conv: Callable[[dict[str, Any]], Any]) -> Callable[[list[Any]], lis
 
 
 @dataclass
-class DisplayConfig:
+class DisplayConfig(_Table):
     """`[display]`: the participant's monitor (docs/person.md). Positions are in the controller's
     position unit (`rig.position_unit`).
     """
@@ -190,15 +167,9 @@ class DisplayConfig:
     width_px: int = 1280
     """Window width (px) when not full screen."""
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> DisplayConfig:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        return cls(**kw)
-
 
 @dataclass
-class GainDriftConfig:
+class GainDriftConfig(_Table):
     """`[partner.human.gain_drift]`: each gain is L (1 + delta), delta a mean-reverting random
     walk clipped at +-3 std.
     """
@@ -208,15 +179,9 @@ class GainDriftConfig:
     time_constant_s: float = 10.0
     """Its time constant (s)."""
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> GainDriftConfig:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        return cls(**kw)
-
 
 @dataclass
-class HumanConfig:
+class HumanConfig(_Table):
     """`[partner.human]`: a human-like virtual partner (docs/model.md, "The human-like partner"):
     it acts on what it perceived a sensorimotor delay ago, with signal-dependent motor noise
     and optionally drifting gains. Absent: the paper's virtual human, exactly.
@@ -237,17 +202,11 @@ class HumanConfig:
     both seen on the monitor that late).
     """
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> HumanConfig:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        if kw.get('gain_drift') is not None:
-            kw['gain_drift'] = GainDriftConfig.from_dict(kw['gain_drift'])
-        return cls(**kw)
+    _nested = {'gain_drift': GainDriftConfig.from_dict}
 
 
 @dataclass
-class PartnerIntegrationConfig:
+class PartnerIntegrationConfig(_Table):
     """`[partner.integration]`: the partner runs the robot's controller on the mirrored protocol
     (the robot's filter settings; needs estimates_robot): in integration phases it sees its
     own target through white noise and fuses the robot's estimated target with it.
@@ -262,15 +221,9 @@ class PartnerIntegrationConfig:
     (position unit).
     """
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> PartnerIntegrationConfig:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        return cls(**kw)
-
 
 @dataclass
-class PartnerConfig:
+class PartnerConfig(_Table):
     """`[partner]`: the virtual human, with imposed gains or LQR weights (give one, not both)."""
 
     acts_on: Literal["measured", "true"] = 'measured'
@@ -297,19 +250,11 @@ class PartnerConfig:
     torque_limit: float = 1000.0
     """Torque limit (model torque unit)."""
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> PartnerConfig:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        if kw.get('human') is not None:
-            kw['human'] = HumanConfig.from_dict(kw['human'])
-        if kw.get('integration') is not None:
-            kw['integration'] = PartnerIntegrationConfig.from_dict(kw['integration'])
-        return cls(**kw)
+    _nested = {'human': HumanConfig.from_dict, 'integration': PartnerIntegrationConfig.from_dict}
 
 
 @dataclass
-class PhaseConfig:
+class PhaseConfig(_Table):
     """One phase (`[[phases]]`)."""
 
     kind: Literal["gains", "trajectory", "integration"]
@@ -325,19 +270,11 @@ class PhaseConfig:
     integration phases.
     """
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> PhaseConfig:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        if 'robot_target' in kw:
-            kw['robot_target'] = _shapes(kw['robot_target'])
-        if 'partner_target' in kw:
-            kw['partner_target'] = _shapes(kw['partner_target'])
-        return cls(**kw)
+    _nested = {'robot_target': _shapes, 'partner_target': _shapes}
 
 
 @dataclass
-class PlantConfig:
+class PlantConfig(_Table):
     """`[plant]`: the handle, `M xdd + C xd = u + u_h + eps` (eq.dynamics)."""
 
     coulomb: float = 0.0
@@ -349,15 +286,9 @@ class PlantConfig:
     mass: float = 0.0035
     """Inertia M (model mass unit: 0.0035 for the Hi5 in degrees, kg in the simulation section)."""
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> PlantConfig:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        return cls(**kw)
-
 
 @dataclass
-class RigCia402Config:
+class RigCia402Config(_Table):
     """`[rig.cia402]`: settings of the CiA 402 profile (`rig.drive = "cia402"`; ignored on the
     Hi5).
     """
@@ -377,15 +308,9 @@ class RigCia402Config:
     multiple of it).
     """
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> RigCia402Config:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        return cls(**kw)
-
 
 @dataclass
-class RigRangeConfig:
+class RigRangeConfig(_Table):
     """`[rig.range]`: the handle's range of motion and speed, in degrees whatever
     `rig.position_unit` (like every `[rig]` field, the unit is in the name), enforced by
     `sensaug-rt` every tick (docs/safety.md, "Range of motion"; the defaults and their
@@ -433,15 +358,9 @@ class RigRangeConfig:
     rad per tick).
     """
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> RigRangeConfig:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        return cls(**kw)
-
 
 @dataclass
-class RealtimeConfig:
+class RealtimeConfig(_Table):
     """`[rig.realtime]`: thread settings of the loop; each falls back with a warning if the OS
     refuses it.
     """
@@ -464,15 +383,9 @@ class RealtimeConfig:
     half the loop period.
     """
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> RealtimeConfig:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        return cls(**kw)
-
 
 @dataclass
-class RigConfig:
+class RigConfig(_Table):
     """`[rig]`: the real-time loop, its CAN link, its safety limits and outputs."""
 
     can: str = 'udp:47100'
@@ -561,21 +474,11 @@ class RigConfig:
     consumer time 0x1016).
     """
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> RigConfig:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        if 'cia402' in kw:
-            kw['cia402'] = RigCia402Config.from_dict(kw['cia402'])
-        if 'range' in kw:
-            kw['range'] = RigRangeConfig.from_dict(kw['range'])
-        if 'realtime' in kw:
-            kw['realtime'] = RealtimeConfig.from_dict(kw['realtime'])
-        return cls(**kw)
+    _nested = {'cia402': RigCia402Config.from_dict, 'range': RigRangeConfig.from_dict, 'realtime': RealtimeConfig.from_dict}
 
 
 @dataclass
-class SigmaConfig:
+class SigmaConfig(_Table):
     """`[robot.sigma]`: Merwe scaled sigma points of every UKF."""
 
     alpha: float = 1.0
@@ -585,15 +488,9 @@ class SigmaConfig:
     kappa: float = 0.0
     """Secondary scaling kappa; n + kappa must be > 0."""
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> SigmaConfig:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        return cls(**kw)
-
 
 @dataclass
-class GainFilterConfig:
+class GainFilterConfig(_Table):
     """`[robot.stage1]`: the gain-estimation UKF (eq.system-extended; 6 states, measurements [x -
     tau, xdot, x - tau_h]). Covariances are per step.
     """
@@ -607,15 +504,9 @@ class GainFilterConfig:
     gains0: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     """Initial guesses of the partner gains [Lhx, Lhv, Lhh]."""
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> GainFilterConfig:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        return cls(**kw)
-
 
 @dataclass
-class TrajectoryFilterConfig:
+class TrajectoryFilterConfig(_Table):
     """`[robot.stage2]`: the trajectory-estimation UKF (6 states, measurements [x - tau, xdot]
     and the three gains as pseudo-measurements).
     """
@@ -631,15 +522,9 @@ class TrajectoryFilterConfig:
     stages.
     """
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> TrajectoryFilterConfig:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        return cls(**kw)
-
 
 @dataclass
-class ChannelConfig:
+class ChannelConfig(_Table):
     """`[robot.stage3.channel]`: how the partner channel's trust adapts (docs/model.md, stage 3).
     The defaults are the design's; the same for every preset.
     """
@@ -655,15 +540,9 @@ class ChannelConfig:
     only filter's.
     """
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> ChannelConfig:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        return cls(**kw)
-
 
 @dataclass
-class IntegratorConfig:
+class IntegratorConfig(_Table):
     """`[robot.stage3]`: goal integration on [x - tau, xdot]: a bank of Kalman filters over the
     partner channel's variance (docs/model.md, stage 3).
     """
@@ -682,17 +561,11 @@ class IntegratorConfig:
     channel: ChannelConfig = field(default_factory=lambda: ChannelConfig.from_dict({'gate': 4.0, 'hold_max_s': 0.25, 'window_n0': 80.0}))
     """The adaptive partner channel's settings."""
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> IntegratorConfig:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        if 'channel' in kw:
-            kw['channel'] = ChannelConfig.from_dict(kw['channel'])
-        return cls(**kw)
+    _nested = {'channel': ChannelConfig.from_dict}
 
 
 @dataclass
-class RobotConfig:
+class RobotConfig(_Table):
     """`[robot]`: LQR weights, estimators and the goal-integration switch."""
 
     gain_window_s: float = 8.0
@@ -728,23 +601,11 @@ class RobotConfig:
     torque_limit: float = 1000.0
     """Torque limit of the controller (model torque unit)."""
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> RobotConfig:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        if 'sigma' in kw:
-            kw['sigma'] = SigmaConfig.from_dict(kw['sigma'])
-        if 'stage1' in kw:
-            kw['stage1'] = GainFilterConfig.from_dict(kw['stage1'])
-        if 'stage2' in kw:
-            kw['stage2'] = TrajectoryFilterConfig.from_dict(kw['stage2'])
-        if 'stage3' in kw:
-            kw['stage3'] = IntegratorConfig.from_dict(kw['stage3'])
-        return cls(**kw)
+    _nested = {'sigma': SigmaConfig.from_dict, 'stage1': GainFilterConfig.from_dict, 'stage2': TrajectoryFilterConfig.from_dict, 'stage3': IntegratorConfig.from_dict}
 
 
 @dataclass
-class BlockConfig:
+class BlockConfig(_Table):
     """`[[session.blocks]]`: one condition, run `trials` times."""
 
     name: str
@@ -762,15 +623,9 @@ class BlockConfig:
     `sensaug sweep`), e.g. `{ "partner.gains.lhh" = 1.5, "display.sigma_v" = 2.0 }`.
     """
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> BlockConfig:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        return cls(**kw)
-
 
 @dataclass
-class SessionConfig:
+class SessionConfig(_Table):
     """`[session]`: a plan of blocks of trials for `sensaug session` (docs/person.md). The rest
     of the file is the base trial.
     """
@@ -793,17 +648,11 @@ class SessionConfig:
     sets a seed.
     """
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> SessionConfig:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        if 'blocks' in kw:
-            kw['blocks'] = _list_of(BlockConfig.from_dict)(kw['blocks'])
-        return cls(**kw)
+    _nested = {'blocks': _list_of(BlockConfig.from_dict)}
 
 
 @dataclass
-class WorldConfig:
+class WorldConfig(_Table):
     """`[world]`: simulation only (the rig is the world and ignores it)."""
 
     motor_noise_std: float = 0.001
@@ -819,15 +668,9 @@ class WorldConfig:
     x0: float = 0.0
     """Initial position (position unit)."""
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> WorldConfig:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        return cls(**kw)
-
 
 @dataclass
-class ScenarioConfig:
+class ScenarioConfig(_Table):
     """A whole trial: the protocol's phases, the handle, the simulated world, the robot, its
     partner and the real-time rig. Every table but `phases` may be left out (all defaults).
     """
@@ -851,24 +694,4 @@ class ScenarioConfig:
     world: WorldConfig = field(default_factory=lambda: WorldConfig.from_dict({'motor_noise_std': 0.001, 'position_noise_std': 0.00031622776601683794, 'seed': 0, 'v0': 0.0, 'velocity_noise_std': 0.00031622776601683794, 'x0': 0.0}))
     """Simulation only: noise, seed and initial state of the simulated world."""
 
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> ScenarioConfig:
-        """From a plain dict as the schema describes it (already validated)."""
-        kw = dict(d)
-        if 'phases' in kw:
-            kw['phases'] = _list_of(PhaseConfig.from_dict)(kw['phases'])
-        if 'display' in kw:
-            kw['display'] = DisplayConfig.from_dict(kw['display'])
-        if 'partner' in kw:
-            kw['partner'] = PartnerConfig.from_dict(kw['partner'])
-        if 'plant' in kw:
-            kw['plant'] = PlantConfig.from_dict(kw['plant'])
-        if 'rig' in kw:
-            kw['rig'] = RigConfig.from_dict(kw['rig'])
-        if 'robot' in kw:
-            kw['robot'] = RobotConfig.from_dict(kw['robot'])
-        if kw.get('session') is not None:
-            kw['session'] = SessionConfig.from_dict(kw['session'])
-        if 'world' in kw:
-            kw['world'] = WorldConfig.from_dict(kw['world'])
-        return cls(**kw)
+    _nested = {'phases': _list_of(PhaseConfig.from_dict), 'display': DisplayConfig.from_dict, 'partner': PartnerConfig.from_dict, 'plant': PlantConfig.from_dict, 'rig': RigConfig.from_dict, 'robot': RobotConfig.from_dict, 'session': SessionConfig.from_dict, 'world': WorldConfig.from_dict}

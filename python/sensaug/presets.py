@@ -83,15 +83,9 @@ def hi5_experiment(
     chirp = Chirp(amplitude=chirp_amplitude, f0_hz=0.0, f1_hz=2.0, duration_s=phase_s)
     # The handle, the sensors, the robot's Q and R and its filters' Q_k,
     # R_1, R_2, P0 are the schema's defaults (the paper's Hi5 numbers).
-    plant = PlantConfig()
-    return ScenarioConfig(
-        plant=plant,
+    cfg = ScenarioConfig(
         world=WorldConfig(motor_noise_std=motor_noise_std, seed=seed),
-        robot=RobotConfig(
-            integrate=integrate,
-            seed=seed + 1_000_003,
-            stage3=IntegratorConfig(Q=[1e-2, motor_velocity_variance(motor_noise_std, plant.dt_s, plant.mass)]),
-        ),
+        robot=RobotConfig(integrate=integrate, seed=seed + 1_000_003),
         partner=PartnerConfig(gains=[0.0, 0.0, lhh]),
         phases=[
             PhaseConfig("gains", phase_s, robot_target=[rounded, chirp], partner_target=[rounded]),
@@ -105,6 +99,8 @@ def hi5_experiment(
             ),
         ],
     )
+    cfg.robot.stage3 = IntegratorConfig(Q=[1e-2, motor_velocity_variance(motor_noise_std, cfg.plant.dt_s, cfg.plant.mass)])
+    return cfg
 
 
 def hi5_rig(lhh: float = 2.0, *, seed: int = 0, phase_s: float = 10.0) -> ScenarioConfig:

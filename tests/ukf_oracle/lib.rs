@@ -51,8 +51,10 @@ impl DemoUkf {
         };
         let (x0, P0) = (vector::<N>(x0, "x0")?, matrix::<N, N>(P0, "P0")?);
         let (Q, R) = (matrix::<N, N>(Q, "Q")?, matrix::<M, M>(R, "R")?);
+        // The model is validated first, then the filter.
         let ukf = model
-            .ukf(x0, P0, Q, R, MerweParams { alpha, beta, kappa })
+            .validate()
+            .and_then(|()| pendulum::DemoUkf::new(x0, P0, Q, R, MerweParams { alpha, beta, kappa }))
             .map_err(|e| py_err(EstimatorError::Ukf(e)))?;
         Ok(Self {
             inner: PendulumFilter { ukf, model },

@@ -76,25 +76,24 @@ pub fn replace(path: &Path) -> io::Result<()> {
     std::fs::rename(partial_path(path), path)
 }
 
+/// A file type's test (`FileType::is_file`, `FileTypeExt::is_fifo`, ...).
+type IsKind = fn(&FileType) -> bool;
+
 /// What a file type is called in messages ("a FIFO", "a character device").
 pub fn kind_name(t: FileType) -> &'static str {
-    if t.is_file() {
-        "a regular file"
-    } else if t.is_dir() {
-        "a directory"
-    } else if t.is_symlink() {
-        "a symbolic link"
-    } else if t.is_fifo() {
-        "a FIFO (named pipe)"
-    } else if t.is_char_device() {
-        "a character device"
-    } else if t.is_block_device() {
-        "a block device"
-    } else if t.is_socket() {
-        "a socket"
-    } else {
-        "not a regular file"
-    }
+    let kinds: [(IsKind, &str); 7] = [
+        (FileType::is_file, "a regular file"),
+        (FileType::is_dir, "a directory"),
+        (FileType::is_symlink, "a symbolic link"),
+        (FileTypeExt::is_fifo, "a FIFO (named pipe)"),
+        (FileTypeExt::is_char_device, "a character device"),
+        (FileTypeExt::is_block_device, "a block device"),
+        (FileTypeExt::is_socket, "a socket"),
+    ];
+    kinds
+        .iter()
+        .find(|(is, _)| is(&t))
+        .map_or("not a regular file", |&(_, name)| name)
 }
 
 /// What is at `path`, the last component not followed; `None` when nothing.

@@ -324,38 +324,48 @@ pub(crate) fn check_range(rig: &RigSpec, mass: f64, dt_s: f64) -> Result<(), Con
             );
         }
     }
-    if r.soft_min_deg >= r.soft_max_deg {
-        return err(
+    // The window's order, as (violated, field, its value, "above"/"below",
+    // the other field, its value, the fix).
+    let inside_hard = "the soft window must lie inside the hard limits";
+    for (violated, field, value, relation, other, bound, fix) in [
+        (
+            r.soft_min_deg >= r.soft_max_deg,
             "soft_max_deg",
-            format!(
-                "{} deg is not above rig.range.soft_min_deg ({} deg); the soft window needs \
-                 soft_min_deg < soft_max_deg",
-                num(r.soft_max_deg),
-                num(r.soft_min_deg)
-            ),
-        );
-    }
-    if r.hard_min_deg >= r.soft_min_deg {
-        return err(
+            r.soft_max_deg,
+            "above",
+            "soft_min_deg",
+            r.soft_min_deg,
+            "the soft window needs soft_min_deg < soft_max_deg".to_string(),
+        ),
+        (
+            r.hard_min_deg >= r.soft_min_deg,
             "hard_min_deg",
-            format!(
-                "{} deg is not below rig.range.soft_min_deg ({} deg); the soft window must lie \
-                 inside the hard limits: lower hard_min_deg or raise soft_min_deg",
-                num(r.hard_min_deg),
-                num(r.soft_min_deg)
-            ),
-        );
-    }
-    if r.hard_max_deg <= r.soft_max_deg {
-        return err(
+            r.hard_min_deg,
+            "below",
+            "soft_min_deg",
+            r.soft_min_deg,
+            format!("{inside_hard}: lower hard_min_deg or raise soft_min_deg"),
+        ),
+        (
+            r.hard_max_deg <= r.soft_max_deg,
             "hard_max_deg",
-            format!(
-                "{} deg is not above rig.range.soft_max_deg ({} deg); the soft window must lie \
-                 inside the hard limits: raise hard_max_deg or lower soft_max_deg",
-                num(r.hard_max_deg),
-                num(r.soft_max_deg)
-            ),
-        );
+            r.hard_max_deg,
+            "above",
+            "soft_max_deg",
+            r.soft_max_deg,
+            format!("{inside_hard}: raise hard_max_deg or lower soft_max_deg"),
+        ),
+    ] {
+        if violated {
+            return err(
+                field,
+                format!(
+                    "{} deg is not {relation} rig.range.{other} ({} deg); {fix}",
+                    num(value),
+                    num(bound)
+                ),
+            );
+        }
     }
     let half_window = 0.5 * (r.soft_max_deg - r.soft_min_deg);
     if r.ramp_width_deg > half_window {

@@ -309,16 +309,13 @@ pub fn care_with<const N: usize, const M: usize>(
     let gamma = cayley_shift(A, &p.G, &p.Q);
     let (A0, G0, H0) = care_sda_initial(A, &p.G, &p.Q, gamma).ok_or(RiccatiError::NoConvergence)?;
     let X = sda(&A0, &G0, &H0, options.max_iterations)?;
-    let relative = care_residual(A, B, &p.Q, &p.R, &X);
-    if relative.is_nan() || relative > RESIDUAL_TOL {
-        return Err(RiccatiError::ResidualTooLarge { relative });
-    }
     // Closed loop A - B K = A - G X with K = R^-1 B' X.
-    let closed = A - p.G * X;
-    if !is_stable(&closed, Domain::Continuous) {
-        return Err(RiccatiError::NotStabilizing);
-    }
-    Ok(X)
+    accepted(
+        X,
+        care_residual(A, B, &p.Q, &p.R, &X),
+        Domain::Continuous,
+        |X| Ok(A - p.G * X),
+    )
 }
 
 /// DARE `X = A'XA - A'XB (R + B'XB)^-1 B'XA + Q`: the stabilising solution.
@@ -347,12 +344,30 @@ pub fn dare_with<const N: usize, const M: usize>(
 ) -> Result<SMatrix<f64, N, N>, RiccatiError> {
     let p = prepare(A, B, Q, R, Domain::Discrete, options.check_preconditions)?;
     let X = sda(A, &p.G, &p.Q, options.max_iterations)?;
-    let relative = dare_residual(A, B, &p.Q, &p.R, &X);
+    accepted(
+        X,
+        dare_residual(A, B, &p.Q, &p.R, &X),
+        Domain::Discrete,
+        |X| {
+            let K = dare_gain(A, B, &p.R, X).ok_or(RiccatiError::NoConvergence)?;
+            Ok(A - B * K)
+        },
+    )
+}
+
+/// The acceptance of an SDA solution `X`, in this order: its relative
+/// residual at most `RESIDUAL_TOL`, then its closed loop (built only for a
+/// small residual) stable in `domain`.
+fn accepted<const N: usize>(
+    X: SMatrix<f64, N, N>,
+    relative: f64,
+    domain: Domain,
+    closed_loop: impl FnOnce(&SMatrix<f64, N, N>) -> Result<SMatrix<f64, N, N>, RiccatiError>,
+) -> Result<SMatrix<f64, N, N>, RiccatiError> {
     if relative.is_nan() || relative > RESIDUAL_TOL {
         return Err(RiccatiError::ResidualTooLarge { relative });
     }
-    let K = dare_gain(A, B, &p.R, &X).ok_or(RiccatiError::NoConvergence)?;
-    if !is_stable(&(A - B * K), Domain::Discrete) {
+    if !is_stable(&closed_loop(&X)?, domain) {
         return Err(RiccatiError::NotStabilizing);
     }
     Ok(X)
@@ -602,23 +617,21 @@ fn prepare<const N: usize, const M: usize>(
         assert!(N >= 1 && N <= MAX_STATES, "N must be in 1..=6");
         assert!(M >= 1 && M <= N, "M must be in 1..=N");
     };
-    if !all_finite(A) {
-        return Err(RiccatiError::NonFinite(Argument::A));
+    let finite = [
+        (Argument::A, all_finite(A)),
+        (Argument::B, all_finite(B)),
+        (Argument::Q, all_finite(Q)),
+        (Argument::R, all_finite(R)),
+    ];
+    if let Some(&(argument, _)) = finite.iter().find(|(_, ok)| !ok) {
+        return Err(RiccatiError::NonFinite(argument));
     }
-    if !all_finite(B) {
-        return Err(RiccatiError::NonFinite(Argument::B));
-    }
-    if !all_finite(Q) {
-        return Err(RiccatiError::NonFinite(Argument::Q));
-    }
-    if !all_finite(R) {
-        return Err(RiccatiError::NonFinite(Argument::R));
-    }
-    if !is_symmetric(Q) {
-        return Err(RiccatiError::NotSymmetric(Argument::Q));
-    }
-    if !is_symmetric(R) {
-        return Err(RiccatiError::NotSymmetric(Argument::R));
+    let symmetric = [
+        (Argument::Q, is_symmetric(Q)),
+        (Argument::R, is_symmetric(R)),
+    ];
+    if let Some(&(argument, _)) = symmetric.iter().find(|(_, ok)| !ok) {
+        return Err(RiccatiError::NotSymmetric(argument));
     }
     let Qs = symmetrize(Q);
     let Rs = symmetrize(R);

@@ -25,6 +25,28 @@ fn assert_sym_psd<const N: usize>(X: &SMatrix<f64, N, N>) {
     }
 }
 
+/// `X` solves its equation (relative residual `<= RESIDUAL_TOL`) and is
+/// symmetric PSD.
+fn assert_solution<const N: usize>(X: &SMatrix<f64, N, N>, residual: f64) {
+    assert!(residual <= RESIDUAL_TOL, "residual {residual:e}");
+    assert_sym_psd(X);
+}
+
+/// The scalar problem `(a, b, q, r)` as 1 x 1 matrices `(A, B, Q, R)`.
+fn scalar(
+    a: f64,
+    b: f64,
+    q: f64,
+    r: f64,
+) -> (Matrix1<f64>, Matrix1<f64>, Matrix1<f64>, Matrix1<f64>) {
+    (
+        Matrix1::new(a),
+        Matrix1::new(b),
+        Matrix1::new(q),
+        Matrix1::new(r),
+    )
+}
+
 fn max_re<const N: usize>(A: &SMatrix<f64, N, N>) -> f64 {
     eigenvalues(A)
         .expect("eigenvalues")
@@ -58,29 +80,22 @@ fn system3() -> (Matrix3<f64>, SMatrix<f64, 3, 2>, Matrix3<f64>, Matrix2<f64>) {
     (A, B, Q, R)
 }
 
+/// The 3-state, 2-input system through CARE and DARE: residual, symmetry,
+/// PSD and a stable closed loop for both.
 #[test]
-fn care_3x2_residual_symmetry_psd_stability() {
+fn system3_residual_symmetry_psd_stability() {
     let (A, B, Q, R) = system3();
     let X = care(&A, &B, &Q, &R).unwrap();
-    let res = care_residual(&A, &B, &Q, &R, &X);
-    assert!(res <= RESIDUAL_TOL, "residual {res:e}");
-    assert_sym_psd(&X);
+    assert_solution(&X, care_residual(&A, &B, &Q, &R, &X));
     let (K, X2) = lqr_continuous(&A, &B, &Q, &R).unwrap();
     assert_eq!(X, X2);
     let m = max_re(&(A - B * K));
     assert!(m < 0.0, "closed loop max Re {m}");
-}
-
-#[test]
-fn dare_3x2_residual_symmetry_psd_stability() {
-    let (A, B, Q, R) = system3();
-    let X = dare(&A, &B, &Q, &R).unwrap();
-    let res = dare_residual(&A, &B, &Q, &R, &X);
-    assert!(res <= RESIDUAL_TOL, "residual {res:e}");
-    assert_sym_psd(&X);
-    let (K, _) = lqr_discrete(&A, &B, &Q, &R).unwrap();
-    let m = max_abs(&(A - B * K));
-    assert!(m < 1.0, "closed loop spectral radius {m}");
+    let Xd = dare(&A, &B, &Q, &R).unwrap();
+    assert_solution(&Xd, dare_residual(&A, &B, &Q, &R, &Xd));
+    let (Kd, _) = lqr_discrete(&A, &B, &Q, &R).unwrap();
+    let rho = max_abs(&(A - B * Kd));
+    assert!(rho < 1.0, "closed loop spectral radius {rho}");
 }
 
 #[test]
@@ -98,11 +113,9 @@ fn six_states_three_inputs() {
     let Q = SMatrix::<f64, 6, 6>::identity();
     let R = Matrix3::identity() * 0.5;
     let X = care(&A, &B, &Q, &R).unwrap();
-    assert!(care_residual(&A, &B, &Q, &R, &X) <= RESIDUAL_TOL);
-    assert_sym_psd(&X);
+    assert_solution(&X, care_residual(&A, &B, &Q, &R, &X));
     let Xd = dare(&A, &B, &Q, &R).unwrap();
-    assert!(dare_residual(&A, &B, &Q, &R, &Xd) <= RESIDUAL_TOL);
-    assert_sym_psd(&Xd);
+    assert_solution(&Xd, dare_residual(&A, &B, &Q, &R, &Xd));
 }
 
 /// Scalar CARE `2 a x - (b^2 / r) x^2 + q = 0`: the positive root
@@ -118,13 +131,8 @@ fn scalar_care_closed_form() {
         (-1.0, 1.0, 0.0, 1.0), // stable a, q = 0: x = 0
     ] {
         let x = r * (a + (a * a + b * b * q / r).sqrt()) / (b * b);
-        let X = care(
-            &Matrix1::new(a),
-            &Matrix1::new(b),
-            &Matrix1::new(q),
-            &Matrix1::new(r),
-        )
-        .unwrap()[(0, 0)];
+        let (A, B, Q, R) = scalar(a, b, q, r);
+        let X = care(&A, &B, &Q, &R).unwrap()[(0, 0)];
         let err = (X - x).abs();
         assert!(
             err <= 1e-12 * x.abs().max(1e-300),
@@ -147,13 +155,8 @@ fn scalar_dare_closed_form() {
     ] {
         let p = r - a * a * r - q * b * b;
         let x = (-p + (p * p + 4.0 * b * b * q * r).sqrt()) / (2.0 * b * b);
-        let X = dare(
-            &Matrix1::new(a),
-            &Matrix1::new(b),
-            &Matrix1::new(q),
-            &Matrix1::new(r),
-        )
-        .unwrap()[(0, 0)];
+        let (A, B, Q, R) = scalar(a, b, q, r);
+        let X = dare(&A, &B, &Q, &R).unwrap()[(0, 0)];
         assert!(
             (X - x).abs() <= 1e-12 * x,
             "a={a} b={b} q={q} r={r}: {X} vs {x}"
@@ -214,50 +217,48 @@ fn agent_gains_reject_bad_parameters() {
 // One test per error variant
 // --------------------------------------------------------------------------
 
+/// `m` with its entry `at` set to `value`.
+fn with<const R: usize, const C: usize>(
+    mut m: SMatrix<f64, R, C>,
+    at: (usize, usize),
+    value: f64,
+) -> SMatrix<f64, R, C> {
+    m[at] = value;
+    m
+}
+
 #[test]
 fn err_non_finite_names_argument() {
     let (A, B, Q, R) = system3();
-    let mut An = A;
-    An[(1, 2)] = f64::NAN;
-    assert_eq!(
-        care(&An, &B, &Q, &R),
-        Err(RiccatiError::NonFinite(Argument::A))
-    );
-    let mut Bn = B;
-    Bn[(0, 1)] = f64::INFINITY;
-    assert_eq!(
-        dare(&A, &Bn, &Q, &R),
-        Err(RiccatiError::NonFinite(Argument::B))
-    );
-    let mut Qn = Q;
-    Qn[(0, 0)] = f64::NEG_INFINITY;
-    assert_eq!(
-        care(&A, &B, &Qn, &R),
-        Err(RiccatiError::NonFinite(Argument::Q))
-    );
-    let mut Rn = R;
-    Rn[(1, 1)] = f64::NAN;
-    assert_eq!(
-        care(&A, &B, &Q, &Rn),
-        Err(RiccatiError::NonFinite(Argument::R))
-    );
+    let solves = [
+        (care(&with(A, (1, 2), f64::NAN), &B, &Q, &R), Argument::A),
+        (
+            dare(&A, &with(B, (0, 1), f64::INFINITY), &Q, &R),
+            Argument::B,
+        ),
+        (
+            care(&A, &B, &with(Q, (0, 0), f64::NEG_INFINITY), &R),
+            Argument::Q,
+        ),
+        (care(&A, &B, &Q, &with(R, (1, 1), f64::NAN)), Argument::R),
+    ];
+    for (solved, argument) in solves {
+        assert_eq!(solved, Err(RiccatiError::NonFinite(argument)));
+    }
 }
 
 #[test]
 fn err_not_symmetric() {
     let (A, B, Q, R) = system3();
-    let mut Qa = Q;
-    Qa[(0, 1)] += 1e-3;
-    assert_eq!(
-        care(&A, &B, &Qa, &R),
-        Err(RiccatiError::NotSymmetric(Argument::Q))
-    );
-    let mut Ra = R;
-    Ra[(1, 0)] += 1e-3;
-    assert_eq!(
-        dare(&A, &B, &Q, &Ra),
-        Err(RiccatiError::NotSymmetric(Argument::R))
-    );
+    let Qa = with(Q, (0, 1), Q[(0, 1)] + 1e-3);
+    let Ra = with(R, (1, 0), R[(1, 0)] + 1e-3);
+    let solves = [
+        (care(&A, &B, &Qa, &R), Argument::Q),
+        (dare(&A, &B, &Q, &Ra), Argument::R),
+    ];
+    for (solved, argument) in solves {
+        assert_eq!(solved, Err(RiccatiError::NotSymmetric(argument)));
+    }
 }
 
 #[test]

@@ -37,6 +37,11 @@ fn P0() -> Matrix2<f64> {
 fn x0() -> Vector2<f64> {
     Vector2::new(0.2, -0.1)
 }
+/// The sigma-point parameters (alpha, beta, kappa) the special predicts are
+/// compared with the unscented one at: the paper's, a kappa > 0, a small
+/// alpha with beta 0.
+const PREDICT_PARAMS: [(f64, f64, f64); 3] = [(1.0, 2.0, 0.0), (0.5, 2.0, 1.0), (0.1, 0.0, 0.0)];
+
 fn params(alpha: f64, beta: f64, kappa: f64) -> MerweParams {
     MerweParams { alpha, beta, kappa }
 }
@@ -268,11 +273,7 @@ fn bilinear_predict_equals_full_predict() {
     };
     let shapes: [fn(f64) -> BilinearProcess<4, 2, 2>; 2] = [process4, process4_square];
     for (shape, process) in shapes.into_iter().enumerate() {
-        for p in [
-            params(1.0, 2.0, 0.0),
-            params(0.5, 2.0, 1.0),
-            params(0.1, 0.0, 0.0),
-        ] {
+        for p in PREDICT_PARAMS.map(|(a, b, k)| params(a, b, k)) {
             let mut a = filter4(p);
             let mut b = a.clone();
             let (mut step_worst, mut run_worst) = (0.0f64, 0.0f64);
@@ -343,11 +344,7 @@ fn bilinear_predict_refusals() {
 #[test]
 fn linear_predict_equals_unscented_predict() {
     let b = Vector2::new(0.01, -0.02);
-    for p in [
-        params(1.0, 2.0, 0.0),
-        params(0.5, 2.0, 1.0),
-        params(0.1, 0.0, 0.0),
-    ] {
+    for p in PREDICT_PARAMS.map(|(a, b, k)| params(a, b, k)) {
         let mut a = lin(p);
         let mut c = a.clone();
         let mut worst = 0.0f64;
@@ -705,15 +702,15 @@ fn covariance_reset_in_predict_and_update() {
 fn run_checks_slices_and_matches_stepping() {
     let model = Pendulum::default();
     let make = || -> DemoUkf {
-        model
-            .ukf(
-                SVector::<f64, 3>::new(0.3, 0.0, 0.0),
-                SMatrix::<f64, 3, 3>::from_diagonal(&SVector::<f64, 3>::new(0.1, 0.1, 0.5)),
-                SMatrix::<f64, 3, 3>::from_diagonal(&SVector::<f64, 3>::new(1e-8, 1e-6, 1e-6)),
-                SMatrix::<f64, 2, 2>::identity() * 1e-4,
-                params(0.5, 2.0, 0.0),
-            )
-            .expect("valid")
+        model.validate().expect("valid model");
+        DemoUkf::new(
+            SVector::<f64, 3>::new(0.3, 0.0, 0.0),
+            SMatrix::<f64, 3, 3>::from_diagonal(&SVector::<f64, 3>::new(0.1, 0.1, 0.5)),
+            SMatrix::<f64, 3, 3>::from_diagonal(&SVector::<f64, 3>::new(1e-8, 1e-6, 1e-6)),
+            SMatrix::<f64, 2, 2>::identity() * 1e-4,
+            params(0.5, 2.0, 0.0),
+        )
+        .expect("valid")
     };
     const T: usize = 200;
     let u: [f64; T] = core::array::from_fn(u_at);

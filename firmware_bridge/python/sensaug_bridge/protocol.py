@@ -29,7 +29,7 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Final, Optional
+from typing import Any, Callable, ClassVar, Final, Optional, Self
 
 import can
 import cantools
@@ -229,6 +229,51 @@ def _decode(name: str, data: bytes) -> dict[str, Any]:
     return values
 
 
+def _raw(value: Any) -> Any:
+    """A field's value as the DBC signal takes it (enums and flags as integers)."""
+    return int(value) if isinstance(value, (bool, enum.Enum)) else value
+
+
+class _Signals:
+    """A message whose fields are its DBC signals: ``_SIGNALS`` maps each
+    field to its signal and the field's type made from the decoded value."""
+
+    __slots__ = ()
+    _MESSAGE: ClassVar[str]
+    _SIGNALS: ClassVar[dict[str, tuple[str, Callable[[Any], Any]]]]
+
+    def encode(self, node: int) -> can.Message:
+        signals = {signal: _raw(getattr(self, name)) for name, (signal, _) in self._SIGNALS.items()}
+        return _encode(self._MESSAGE, node, signals)
+
+    @classmethod
+    def decode(cls, data: bytes) -> Self:
+        s = _decode(cls._MESSAGE, data)
+        return cls(**{name: kind(s[signal]) for name, (signal, kind) in cls._SIGNALS.items()})
+
+
+class _NoData:
+    """A command without data, named as its class."""
+
+    __slots__ = ()
+
+    def encode(self, node: int) -> can.Message:
+        return _encode(type(self).__name__, node, {})
+
+    @classmethod
+    def decode(cls, data: bytes) -> Self:
+        _decode(cls.__name__, data)
+        return cls()
+
+
+def _state(value: Any) -> State:
+    return State(int(value))
+
+
+def _fault_flags(value: Any) -> FaultFlag:
+    return FaultFlag(int(value))
+
+
 @dataclass(frozen=True, slots=True)
 class TorqueCommand:
     """Host -> drive, every control tick. ``torque_nm`` in N m (1e-6 steps), u8 ``sequence``."""
@@ -265,7 +310,7 @@ class TorqueCommand:
 
 
 @dataclass(frozen=True, slots=True)
-class Feedback:
+class Feedback(_Signals):
     """Drive -> host, one per accepted TorqueCommand, ``sequence`` echoed.
 
     ``position_rad`` in 1e-6 rad steps, ``velocity_rad_s`` in 1e-6 rad/s steps (int24, hi5.dbc).
@@ -278,31 +323,15 @@ class Feedback:
     torque_limited: bool
     fault_active: bool
 
-    def encode(self, node: int) -> can.Message:
-        return _encode(
-            "Feedback",
-            node,
-            {
-                "position": self.position_rad,
-                "velocity": self.velocity_rad_s,
-                "sequence": self.sequence,
-                "state": int(self.state),
-                "torque_limited": int(self.torque_limited),
-                "fault_active": int(self.fault_active),
-            },
-        )
-
-    @classmethod
-    def decode(cls, data: bytes) -> Feedback:
-        s = _decode("Feedback", data)
-        return cls(
-            position_rad=float(s["position"]),
-            velocity_rad_s=float(s["velocity"]),
-            sequence=int(s["sequence"]),
-            state=State(int(s["state"])),
-            torque_limited=bool(s["torque_limited"]),
-            fault_active=bool(s["fault_active"]),
-        )
+    _MESSAGE = "Feedback"
+    _SIGNALS = {
+        "position_rad": ("position", float),
+        "velocity_rad_s": ("velocity", float),
+        "sequence": ("sequence", int),
+        "state": ("state", _state),
+        "torque_limited": ("torque_limited", bool),
+        "fault_active": ("fault_active", bool),
+    }
 
 
 @dataclass(frozen=True, slots=True)
@@ -333,58 +362,29 @@ class SetState:
 
 
 @dataclass(frozen=True, slots=True)
-class ClearFaults:
+class ClearFaults(_NoData):
     """Host -> drive: clear latched faults, FAULT -> DISABLED. No data."""
 
-    def encode(self, node: int) -> can.Message:
-        return _encode("ClearFaults", node, {})
-
-    @classmethod
-    def decode(cls, data: bytes) -> ClearFaults:
-        _decode("ClearFaults", data)
-        return cls()
-
 
 @dataclass(frozen=True, slots=True)
-class EmergencyStop:
+class EmergencyStop(_NoData):
     """Host -> drive: zero torque now, latch FAULT(EMERGENCY_STOP). No data."""
 
-    def encode(self, node: int) -> can.Message:
-        return _encode("EmergencyStop", node, {})
-
-    @classmethod
-    def decode(cls, data: bytes) -> EmergencyStop:
-        _decode("EmergencyStop", data)
-        return cls()
-
 
 @dataclass(frozen=True, slots=True)
-class Fault:
+class Fault(_Signals):
     """Drive -> host whenever state or fault flags change; ``counter`` is a wrapping u8."""
 
     state: State
     fault_flags: FaultFlag
     counter: int
 
-    def encode(self, node: int) -> can.Message:
-        return _encode(
-            "Fault",
-            node,
-            {"state": int(self.state), "fault_flags": int(self.fault_flags), "counter": self.counter},
-        )
-
-    @classmethod
-    def decode(cls, data: bytes) -> Fault:
-        s = _decode("Fault", data)
-        return cls(
-            state=State(int(s["state"])),
-            fault_flags=FaultFlag(int(s["fault_flags"])),
-            counter=int(s["counter"]),
-        )
+    _MESSAGE = "Fault"
+    _SIGNALS = {"state": ("state", _state), "fault_flags": ("fault_flags", _fault_flags), "counter": ("counter", int)}
 
 
 @dataclass(frozen=True, slots=True)
-class Heartbeat:
+class Heartbeat(_Signals):
     """Drive -> host at about 10 Hz. Error counters saturate at 255; ``counter`` wraps."""
 
     state: State
@@ -396,35 +396,12 @@ class Heartbeat:
     unknown_ids: int = 0
     range_errors: int = 0
 
-    def encode(self, node: int) -> can.Message:
-        return _encode(
-            "Heartbeat",
-            node,
-            {
-                "state": int(self.state),
-                "fault_flags": int(self.fault_flags),
-                "counter": self.counter,
-                "crc_errors": self.crc_errors,
-                "length_errors": self.length_errors,
-                "sequence_errors": self.sequence_errors,
-                "unknown_ids": self.unknown_ids,
-                "range_errors": self.range_errors,
-            },
-        )
-
-    @classmethod
-    def decode(cls, data: bytes) -> Heartbeat:
-        s = _decode("Heartbeat", data)
-        return cls(
-            state=State(int(s["state"])),
-            fault_flags=FaultFlag(int(s["fault_flags"])),
-            counter=int(s["counter"]),
-            crc_errors=int(s["crc_errors"]),
-            length_errors=int(s["length_errors"]),
-            sequence_errors=int(s["sequence_errors"]),
-            unknown_ids=int(s["unknown_ids"]),
-            range_errors=int(s["range_errors"]),
-        )
+    _MESSAGE = "Heartbeat"
+    _SIGNALS = {
+        **Fault._SIGNALS,
+        **{counter: (counter, int) for counter in
+           ("crc_errors", "length_errors", "sequence_errors", "unknown_ids", "range_errors")},
+    }
 
 
 _CLASSES: Final[dict[str, Any]] = {

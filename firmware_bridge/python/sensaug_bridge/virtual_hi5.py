@@ -40,7 +40,7 @@ import signal
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any, Callable, Optional, Sequence
 
 import can
@@ -607,20 +607,21 @@ def _has_kernel_timestamps(bus: can.BusABC) -> bool:
 
 
 def add_drive_args(ap: argparse.ArgumentParser, d: DriveConfig) -> None:
-    """The options every virtual drive profile shares (bus, plant, encoder, limits, run)."""
+    """The options every virtual drive profile shares (bus, plant, encoder, limits, run);
+    a DriveConfig setting's option stores under the field's name."""
     ap.add_argument("-i", "--interface", default="sensaug_udp", help="python-can interface (default sensaug_udp)")
     ap.add_argument("-c", "--channel", default="47100", help="python-can channel; for sensaug_udp the UDP port (default 47100)")
-    ap.add_argument("--torque-limit", type=float, default=d.torque_limit_nm, help="N m (default 3)")
+    ap.add_argument("--torque-limit", dest="torque_limit_nm", type=float, default=d.torque_limit_nm, help="N m (default 3)")
     ap.add_argument("--mass", type=float, default=d.mass, help="inertia M, kg m^2 (default 0.0035)")
     ap.add_argument("--damping", type=float, default=d.damping, help="viscous C, N m s/rad (default 0)")
     ap.add_argument("--coulomb", type=float, default=d.coulomb, help="Coulomb friction, N m (default 0)")
-    ap.add_argument("--dt", type=float, default=d.dt_s, help="plant step per command, s (default 0.001)")
-    ap.add_argument("--x0", type=float, default=d.x0_rad, help="initial position, rad (default 0)")
+    ap.add_argument("--dt", dest="dt_s", type=float, default=d.dt_s, help="plant step per command, s (default 0.001)")
+    ap.add_argument("--x0", dest="x0_rad", type=float, default=d.x0_rad, help="initial position, rad (default 0)")
     ap.add_argument(
         "--encoder-counts-per-rev", type=int, default=d.encoder_counts_per_rev, help="default 2**20 = 1048576"
     )
     ap.add_argument(
-        "--max-velocity", type=float, default=d.max_velocity_rad_s, help="OVERSPEED fault above this, rad/s (default 8, inside the +-8.39 rad/s Feedback field)"
+        "--max-velocity", dest="max_velocity_rad_s", type=float, default=d.max_velocity_rad_s, help="OVERSPEED fault above this, rad/s (default 8, inside the +-8.39 rad/s Feedback field)"
     )
     ap.add_argument("--heartbeat-hz", type=float, default=1.0 / d.heartbeat_period_s, help="default 10")
     ap.add_argument(
@@ -640,20 +641,11 @@ def add_drive_args(ap: argparse.ArgumentParser, d: DriveConfig) -> None:
 
 
 def drive_config_fields(args: argparse.Namespace) -> dict[str, Any]:
-    """The DriveConfig fields from the options of :func:`add_drive_args` (plus ``--node``)."""
-    return dict(
-        node=args.node,
-        torque_limit_nm=args.torque_limit,
-        mass=args.mass,
-        damping=args.damping,
-        coulomb=args.coulomb,
-        dt_s=args.dt,
-        encoder_counts_per_rev=args.encoder_counts_per_rev,
-        max_velocity_rad_s=args.max_velocity,
-        heartbeat_period_s=1.0 / args.heartbeat_hz if args.heartbeat_hz > 0 else math.nan,
-        x0_rad=args.x0,
-        velocity_report_scale=args.velocity_report_scale,
-    )
+    """The DriveConfig fields from the options of :func:`add_drive_args` (plus
+    ``--node``): each under its field's name, but the heartbeat, given as a rate."""
+    config = {f.name: getattr(args, f.name) for f in fields(DriveConfig) if f.name != "heartbeat_period_s"}
+    config["heartbeat_period_s"] = 1.0 / args.heartbeat_hz if args.heartbeat_hz > 0 else math.nan
+    return config
 
 
 def serve(prog: str, args: argparse.Namespace, config: DriveConfig, make_drive: Callable[[can.BusABC], Any]) -> int:

@@ -103,48 +103,48 @@ pub fn ukf_step_5() -> Call {
     })
 }
 
+/// One Riccati solve (`care` or `dare`) of `(A, B)` with `Q = I`, `R = 1`
+/// per call; checked to succeed at set-up.
+fn riccati_solve<const N: usize, E: 'static>(
+    solve: impl Fn(
+            &SMatrix<f64, N, N>,
+            &SMatrix<f64, N, 1>,
+            &SMatrix<f64, N, N>,
+            &SMatrix<f64, 1, 1>,
+        ) -> Result<SMatrix<f64, N, N>, E>
+        + 'static,
+    A: SMatrix<f64, N, N>,
+    B: SMatrix<f64, N, 1>,
+) -> Call {
+    let R = SMatrix::<f64, 1, 1>::identity();
+    assert!(solve(&A, &B, &SMatrix::identity(), &R).is_ok());
+    Box::new(move || {
+        let _ = black_box(solve(black_box(&A), &B, &SMatrix::identity(), &R));
+    })
+}
+
 /// CARE, 2 states (the agents' reduced problem).
 pub fn care_2() -> Call {
     let A = Matrix2::new(0.0, 1.0, 0.0, -0.5);
-    let B = SMatrix::<f64, 2, 1>::new(0.0, 1.0 / MASS);
-    let R = SMatrix::<f64, 1, 1>::identity();
-    assert!(care(&A, &B, &Matrix2::identity(), &R).is_ok());
-    Box::new(move || {
-        let _ = black_box(care(black_box(&A), &B, &Matrix2::identity(), &R));
-    })
+    riccati_solve(care, A, SMatrix::<f64, 2, 1>::new(0.0, 1.0 / MASS))
 }
 
 /// CARE, 3 states.
 pub fn care_3() -> Call {
     let (A, B) = system3();
-    let R = SMatrix::<f64, 1, 1>::identity();
-    assert!(care(&A, &B, &Matrix3::identity(), &R).is_ok());
-    Box::new(move || {
-        let _ = black_box(care(black_box(&A), &B, &Matrix3::identity(), &R));
-    })
+    riccati_solve(care, A, B)
 }
 
 /// DARE, 2 states (the 1 kHz double integrator).
 pub fn dare_2() -> Call {
     let A = Matrix2::new(1.0, 1e-3, 0.0, 1.0);
-    let B = SMatrix::<f64, 2, 1>::new(5e-7, 1e-3);
-    let R = SMatrix::<f64, 1, 1>::identity();
-    assert!(dare(&A, &B, &Matrix2::identity(), &R).is_ok());
-    Box::new(move || {
-        let _ = black_box(dare(black_box(&A), &B, &Matrix2::identity(), &R));
-    })
+    riccati_solve(dare, A, SMatrix::<f64, 2, 1>::new(5e-7, 1e-3))
 }
 
 /// DARE, 3 states (the 3-state system discretised with step 1e-2).
 pub fn dare_3() -> Call {
     let (A3, B3) = system3();
-    let A = Matrix3::identity() + A3 * 1e-2;
-    let B = B3 * 1e-2;
-    let R = SMatrix::<f64, 1, 1>::identity();
-    assert!(dare(&A, &B, &Matrix3::identity(), &R).is_ok());
-    Box::new(move || {
-        let _ = black_box(dare(black_box(&A), &B, &Matrix3::identity(), &R));
-    })
+    riccati_solve(dare, Matrix3::identity() + A3 * 1e-2, B3 * 1e-2)
 }
 
 /// Length of each phase of the robot-tick workloads (s): longer than the

@@ -10,9 +10,9 @@
 //! `docs/ukf.md` states the same equations.
 #![allow(dead_code)]
 
-use nalgebra::{SMatrix, SVector};
+use nalgebra::SVector;
 use sensaug_core::replay::{row, write_posterior, Input, Replay};
-use sensaug_core::ukf::{MerweParams, RunReport, Status, Ukf, UkfError};
+use sensaug_core::ukf::{RunReport, Status, Ukf, UkfError};
 
 /// State size of the demo model.
 pub const N: usize = 3;
@@ -98,19 +98,6 @@ impl Pendulum {
             self.length_m * libm::sin(x[0]),
             -self.length_m * libm::cos(x[0]),
         )
-    }
-
-    /// Set-up: a UKF for this model (validates the model and the filter).
-    pub fn ukf(
-        &self,
-        x0: SVector<f64, N>,
-        P0: SMatrix<f64, N, N>,
-        Q: SMatrix<f64, N, N>,
-        R: SMatrix<f64, M, M>,
-        params: MerweParams,
-    ) -> Result<DemoUkf, UkfError> {
-        self.validate()?;
-        DemoUkf::new(x0, P0, Q, R, params)
     }
 
     /// Replay a trial through [`Ukf::run`] with this model: predict with
