@@ -920,6 +920,10 @@ pub struct RigSpec {
     /// soft end stops with a virtual wall, hard limits, a speed limit
     /// (docs/safety.md, "Range of motion").
     pub range: RangeSpec,
+    /// The handle's friction the loop compensates (`sensaug calibrate`
+    /// identifies it; docs/hardware.md, "Calibrating the handle"). Off by
+    /// default (both zero).
+    pub friction: FrictionSpec,
 }
 
 impl Default for RigSpec {
@@ -949,6 +953,7 @@ impl Default for RigSpec {
             realtime: RealtimeSpec::default(),
             cia402: Cia402Spec::default(),
             range: RangeSpec::default(),
+            friction: FrictionSpec::default(),
         }
     }
 }
@@ -1029,6 +1034,44 @@ impl Default for RangeSpec {
             soft_speed_deg_s: 200.0,
             hard_speed_deg_s: 400.0,
             speed_damping_nm_s_per_deg: None,
+        }
+    }
+}
+
+/// `[rig.friction]`: the handle's Coulomb and viscous friction, compensated
+/// by the loop before its model applies (the paper's Hi5 is modelled "after
+/// Coulomb and viscous friction compensation"): the command gains
+/// `viscous_nm_s_per_rad v + coulomb_nm clamp(v / coulomb_band_rad_s, -1, 1)`
+/// on the measured velocity `v` (rad/s), inside the torque limit
+/// (docs/hardware.md, "Calibrating the handle"). `sensaug calibrate`
+/// identifies both and writes this table. The simulation ignores it (its
+/// handle is `[plant]`).
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct FrictionSpec {
+    /// Coulomb friction to compensate (N m); 0: none. At most
+    /// `rig.torque_limit_nm`.
+    #[schemars(range(min = 0.0, max = TORQUE_NM_MAX))]
+    pub coulomb_nm: f64,
+    /// Viscous friction to compensate (N m s/rad); 0: none. Its gain per
+    /// tick, `viscous_nm_s_per_rad plant.dt_s / plant.mass`, at most 1/2.
+    #[schemars(range(min = 0.0, max = 10.0))]
+    pub viscous_nm_s_per_rad: f64,
+    /// The Coulomb term's velocity band (rad/s): below this speed its sign
+    /// is the linear ramp `v / coulomb_band_rad_s`, so the compensation is
+    /// continuous through zero velocity and never chatters on the velocity
+    /// report's noise; keep it above that noise.
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = 10.0))]
+    pub coulomb_band_rad_s: f64,
+}
+
+impl Default for FrictionSpec {
+    /// Off: no compensation (the presets run bit-identical).
+    fn default() -> Self {
+        FrictionSpec {
+            coulomb_nm: 0.0,
+            viscous_nm_s_per_rad: 0.0,
+            coulomb_band_rad_s: 0.05,
         }
     }
 }

@@ -236,6 +236,7 @@ schema! {
     u_h: Float, "trq", "partner (virtual human) torque; NaN outside the protocol";
     eps: Float, "trq", "motor noise added to the summed torque (simulation; NaN on the rig)";
     torque_nm: Float, "N m", "torque sent to the drive after its guard (rig; NaN in simulations)";
+    friction_nm: Float, "N m", "rig: the handle's friction compensation added to the controller's torque before the guard (rig.friction; 0 when off, NaN during the controlled stop and in simulations)";
     e: Float, "pos", "x - tau";
     e_meas: Float, "pos", "the robot's (noisy in integration phases) view of x - tau";
     Lhx_hat: Float, "trq/pos", "robot's estimate of the partner gain Lhx (stage 1 or 2)";

@@ -94,6 +94,8 @@ struct Command {
     tau: f64,
     tau_h: f64,
     u_h: f64,
+    /// The friction compensation in the command (N m, [`crate::friction`]).
+    friction_nm: f64,
     guard: Option<Guard>,
 }
 
@@ -110,6 +112,7 @@ impl Command {
             tau: f64::NAN,
             tau_h: f64::NAN,
             u_h: f64::NAN,
+            friction_nm: f64::NAN,
             guard: None,
         }
     }
@@ -664,11 +667,14 @@ impl<'a> Rig<'a> {
         // human sees it (measured, or predicted on a tick without fresh
         // feedback), before the limit (`crate::range::command_nm`).
         let unit = self.settings.rad_per_unit;
+        // The handle's friction, compensated as part of the controller's
+        // torque (ramped near the soft end stops, guarded with it).
+        let friction_nm = crate::friction::compensation_nm(&self.settings.friction, seen.v * unit);
         let (torque_nm, g) = crate::range::command_nm(
             &self.settings.range,
             seen.x * unit,
             seen.v * unit,
-            robot.u * unit,
+            robot.u * unit + friction_nm,
             u_h * unit,
             self.settings.torque_limit_nm,
         );
@@ -688,6 +694,7 @@ impl<'a> Rig<'a> {
             tau: sample.tau,
             tau_h: sample.tau_h,
             u_h,
+            friction_nm,
             guard: Some(g),
         }
     }
@@ -728,6 +735,7 @@ impl<'a> Rig<'a> {
             tau_h: command.tau_h,
             u_h: command.u_h,
             torque_nm: command.torque_nm,
+            friction_nm: command.friction_nm,
             robot: command.robot,
             wake_latency_us: wake.wake_latency_ns() as f64 / 1e3,
             sleep_latency_us: wake.sleep_latency_ns() as f64 / 1e3,

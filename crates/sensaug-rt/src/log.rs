@@ -66,6 +66,8 @@ pub struct LogRecord {
     pub u_h: f64,
     /// Torque sent to the drive (N m).
     pub torque_nm: f64,
+    /// The friction compensation in it (N m; NaN during the controlled stop).
+    pub friction_nm: f64,
     /// The controller's log line (its `u` is NaN during the controlled stop).
     pub robot: RobotTick,
     /// Wake-up latency: the tick's start after its deadline (us).
@@ -109,6 +111,7 @@ impl LogRecord {
             tau_h: self.tau_h,
             u_h: self.u_h,
             torque_nm: self.torque_nm,
+            friction_nm: self.friction_nm,
             e: self.x - self.tau,
             wake_latency_us: self.wake_latency_us,
             sleep_latency_us: self.sleep_latency_us,
@@ -316,6 +319,7 @@ fn touch_every_slot(producer: &mut Producer<LogRecord>, consumer: &mut Consumer<
         tau_h: 0.0,
         u_h: 0.0,
         torque_nm: 0.0,
+        friction_nm: 0.0,
         robot: RobotTick::NONE,
         wake_latency_us: 0.0,
         sleep_latency_us: 0.0,
@@ -407,6 +411,7 @@ mod tests {
             tau_h: 0.0,
             u_h: 0.1,
             torque_nm: 0.01,
+            friction_nm: 0.002,
             robot: RobotTick {
                 u: 0.2,
                 phase: 1.0,
