@@ -51,11 +51,15 @@ def main() -> int:
     ap.add_argument("--mass", type=float, default=0.0035, help="the handle's inertia, kg m^2 (default 0.0035)")
     ap.add_argument("--damping", type=float, default=0.01, help="the handle's viscous C, N m s/rad (default 0.01)")
     ap.add_argument("--coulomb", type=float, default=0.02, help="the handle's Coulomb F_c, N m (default 0.02)")
+    ap.add_argument("--band", type=float, default=None, help="rig.friction.coulomb_band_rad_s (default the schema's)")
+    ap.add_argument("--torque-band", type=float, default=None,
+                    help="rig.friction.coulomb_torque_band_nm (default the schema's)")
     ap.add_argument("--out", type=Path, default=Path("out/friction"))
     args = ap.parse_args()
     handle = (args.mass, args.damping, args.coulomb)
     print(f"hidden handle: M = {args.mass} kg m^2, C = {args.damping} N m s/rad, F_c = {args.coulomb} N m; "
-          f"hi5_rig preset, partner gains [0, 0, 2]; seeds {args.seeds}")
+          f"hi5_rig preset, partner gains [0, 0, 2]; seeds {args.seeds}; bands: {args.band or 'default'} rad/s, "
+          f"{args.torque_band or 'default'} N m")
     rows: dict[str, list[np.ndarray]] = {"frictionless": [], "uncompensated": [], "compensated": []}
     print(f"{'seed':>4} {'condition':>14} {'Lhx^':>9} {'Lhv^':>9} {'Lhh^':>9} {'Lhh err':>9}  stop")
     for seed in args.seeds:
@@ -64,6 +68,10 @@ def main() -> int:
         # limits on a loaded machine), the same for the three runs.
         base = stall_tolerant(presets.hi5_rig(seed=seed))
         base.rig.realtime.fifo_priority = RIG_TEST_FIFO_PRIORITY
+        if args.band is not None:
+            base.rig.friction.coulomb_band_rad_s = args.band
+        if args.torque_band is not None:
+            base.rig.friction.coulomb_torque_band_nm = args.torque_band
         est, _ = run_calibration(base, out=out / "calibration", seed=100 + seed, handle=handle)
         print(f"     identified: M = {est.mass.value:.6g}, C = {est.damping.value:.6g}, F_c = {est.coulomb.value:.6g}")
         runs = {

@@ -189,7 +189,8 @@ def test_calibration_identifies_the_hidden_handle_on_the_virtual_rig(seed: int, 
 
 def test_the_loop_compensates_the_friction_inside_the_torque_limit(tmp_path) -> None:
     """A short Hi5 trial on a frictional virtual handle with rig.friction
-    set: friction_nm is C v + F_c clamp(v / band, -1, 1) on the measured
+    set: friction_nm is C v + F_c s (s: the velocity's sign moving, the
+    asked torque's at rest, ramped over the two bands) on the measured
     velocity of every commanding tick with fresh feedback, NaN in the
     controlled stop, and the command never beyond the torque limit."""
     handle = (0.0035, 0.01, 0.02)
@@ -202,14 +203,28 @@ def test_the_loop_compensates_the_friction_inside_the_torque_limit(tmp_path) -> 
     running = (log["phase"] >= 0) & ~log["ramp"].astype(bool)
     fresh = running & log["fresh"].astype(bool)
     v = log["xdot"] * math.pi / 180.0
-    expected = 0.01 * v + 0.02 * np.clip(v / 0.05, -1.0, 1.0)
+    asked = (log["u"] + log["u_h"]) * math.pi / 180.0  # model torque units -> N m
+    band, torque_band = cfg.rig.friction.coulomb_band_rad_s, cfg.rig.friction.coulomb_torque_band_nm
+    moving = np.clip(v / band, -1.0, 1.0)
+    sign = moving + (1.0 - np.abs(moving)) * np.clip(asked / torque_band, -1.0, 1.0)
+    expected = 0.01 * v + 0.02 * sign
     np.testing.assert_allclose(log["friction_nm"][fresh], expected[fresh], rtol=0, atol=1e-12)
     assert np.abs(log["friction_nm"][running]).max() > 0.02  # it moved beyond the band
     assert np.isnan(log["friction_nm"][~running]).all()
     assert np.abs(log["torque_nm"][running]).max() <= cfg.rig.torque_limit_nm
-    # Calibrating that log's handle again gives the friction back (the log
-    # is a rig log with applied torques).
+    # That log is a rig log of applied torques: `sensaug calibrate --log`
+    # identifies its handle again and writes the fragment, the calibrated
+    # configuration and the fit's picture.
     assert identify_log(log).mass.value == pytest.approx(0.0035, rel=MASS_REL_TOL)
+    from sensaug import cli
+
+    out = tmp_path / "cal"
+    assert cli.main(["calibrate", str(tmp_path / "rig_config.toml"), "--log", str(tmp_path / "rig_log.csv"),
+                     "--out", str(out)]) == 0  # fmt: skip
+    calibrated = sensaug.ScenarioConfig.from_toml(out / "calibrated_config.toml")
+    assert calibrated.plant.mass == pytest.approx(0.0035, rel=MASS_REL_TOL)
+    assert calibrated.rig.friction.coulomb_nm == pytest.approx(0.02, abs=COULOMB_TOL)
+    assert (out / "calibration.toml").is_file() and (out / "calibration.png").stat().st_size > 10_000
 
 
 def test_calibrated_config_carries_the_estimate(tmp_path) -> None:
@@ -227,7 +242,8 @@ def test_calibrated_config_carries_the_estimate(tmp_path) -> None:
     fragment = tomllib.loads(path.read_text())
     assert fragment == {"plant": {"mass": 0.0041, "damping": 0.0},
                         "rig": {"friction": {"coulomb_nm": 0.021, "viscous_nm_s_per_rad": 0.0,
-                                             "coulomb_band_rad_s": 0.05}}}  # fmt: skip
+                                             "coulomb_band_rad_s": 0.002,
+                                             "coulomb_torque_band_nm": 0.0005}}}  # fmt: skip
     assert "compensated as 0" in path.read_text()
     # The fragment's tables over a configuration's give the calibrated one.
     d = presets.hi5_rig().to_dict()

@@ -46,7 +46,7 @@ from sensaug.logs import Log
 
 __all__ = [
     "Estimate", "HandleEstimate", "excitation_config", "identify", "identify_log", "regression_pairs",
-    "write_fragment", "calibrated_config", "Z95",
+    "write_fragment", "calibrated_config", "friction_points", "plot_fit", "Z95",
 ]  # fmt: skip
 
 #: The normal quantile of a two-sided 95% interval.
@@ -237,6 +237,61 @@ def excitation_config(config: ScenarioConfig, *, duration_s: float = 20.0, seed:
     return cfg
 
 
+def friction_points(log: Log, est: HandleEstimate, *, min_speed_rad_s: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+    """Each fitted pair's mean velocity over its tick, ``(v[k] + v[k+1]) /
+    2`` (rad/s), and the friction torque it implies (N m): the applied
+    torque less the identified inertia's share, ``u[k] - M (v[k+1] - v[k])
+    / dt``. Integrating the model over the tick, that is ``C`` times the
+    tick's mean velocity (the trapezoid's, to O(dt^2)) plus ``F_c
+    sign(v)``: the points lie on the identified line when the model holds."""
+    loop = log.meta["loop"]
+    v = log["xdot"] * float(loop["rad_per_unit"])
+    u = log["torque_nm"]
+    usable = log["fresh"].astype(bool) & ~log["ramp"].astype(bool) & (log["phase"] >= 0)
+    usable[1:] &= np.diff(log["tick"].astype(np.int64)) == 1
+    k = regression_pairs(v, u, usable, min_speed_rad_s=min_speed_rad_s)
+    return 0.5 * (v[k] + v[k + 1]), u[k] - est.mass.value * (v[k + 1] - v[k]) / est.dt_s
+
+
+def plot_fit(log: Log, est: HandleEstimate, path: str | Path) -> Path:
+    """``path`` (PNG): the friction each fitted pair implies against the
+    velocity, with the identified ``C v + F_c sign(v)`` (the model a lab
+    checks: a Stribeck dip or a position-dependent friction shows as points
+    off the line), and the excitation's position and torque over time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    v, friction = friction_points(log, est)
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
+    step = max(1, len(v) // 4000)
+    ax.plot(v[::step], friction[::step], ".", ms=2, alpha=0.5, color="tab:gray", label="each fitted tick pair")
+    grid = np.linspace(v.min(), v.max(), 400)
+    c, fc = est.damping.value, est.coulomb.value
+    model = c * grid + fc * np.sign(grid)
+    ax.plot(grid[grid < 0], model[grid < 0], color="tab:red", lw=1.6,
+            label=f"identified: C = {c:.4g} N m s/rad, F_c = {fc:.4g} N m")
+    ax.plot(grid[grid > 0], model[grid > 0], color="tab:red", lw=1.6)
+    ax.axhline(0.0, color="k", lw=0.5)
+    ax.set_xlabel("velocity, mean over the tick (rad/s)")
+    ax.set_ylabel("friction implied: u - M dv/dt (N m)")
+    ax.set_title(f"Friction of the handle (M = {est.mass.value:.4g} kg m^2)")
+    ax.legend(loc="upper left", fontsize=8)
+    t = log["t"]
+    bx.plot(t, log["x"], color="tab:blue", lw=0.8)
+    bx.set_xlabel("time (s)")
+    bx.set_ylabel(f"position ({log.units.get('x', 'pos')})", color="tab:blue")
+    tx = bx.twinx()
+    tx.plot(t, log["torque_nm"], color="tab:orange", lw=0.5)
+    tx.set_ylabel("torque applied (N m)", color="tab:orange")
+    bx.set_title("The excitation")
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def _compensation(est: HandleEstimate) -> tuple[float, float, list[str]]:
     """The compensation's (F_c, C) from the estimate: negative estimates
     (noise about zero) compensate nothing."""
@@ -274,7 +329,7 @@ def write_fragment(path: str | Path, est: HandleEstimate, *, source: str, config
     settings of a rig configuration (copy them over; or run the complete
     configuration :func:`calibrated_config` writes)."""
     fc, c, notes = _compensation(est)
-    band = config.rig.friction.coulomb_band_rad_s
+    band, torque_band = config.rig.friction.coulomb_band_rad_s, config.rig.friction.coulomb_torque_band_nm
     when = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     lines = [
         f"# The handle identified by sensaug calibrate, {when}, from {source}",
@@ -294,6 +349,7 @@ def write_fragment(path: str | Path, est: HandleEstimate, *, source: str, config
         f"coulomb_nm = {fc!r}",
         f"viscous_nm_s_per_rad = {c!r}",
         f"coulomb_band_rad_s = {band!r}",
+        f"coulomb_torque_band_nm = {torque_band!r}",
         "",
     ]
     path = Path(path)
@@ -357,6 +413,7 @@ def command(
     ``write_excitation``: only the excitation run's configuration, for
     ``sensaug-rt`` on a real rig."""
     from sensaug import presets
+    from sensaug.logs import load_log
 
     config = ScenarioConfig.from_toml(config_path) if config_path else presets.hi5_rig()
     if write_excitation is not None:
@@ -366,8 +423,6 @@ def command(
         return 0
     out.mkdir(parents=True, exist_ok=True)
     if log_path is not None:
-        from sensaug.logs import load_log
-
         est, source = identify_log(load_log(log_path)), str(log_path)
     else:
         truth = "the drive's defaults" if virtual_handle is None else (
@@ -378,8 +433,11 @@ def command(
                                  progress=progress)  # fmt: skip
         source = f"{out / 'rig_log.csv'} (virtual rig, seed {seed})"
     print(est.summary())
+    log = load_log(log_path) if log_path is not None else load_log(out / "rig_log.csv")
+    picture = plot_fit(log, est, out / "calibration.png")
     fragment = write_fragment(out / "calibration.toml", est, source=source, config=config)
     full = out / "calibrated_config.toml"
     calibrated_config(config, est).to_toml(full)
-    print(f"fragment: {fragment} ([plant] mass, [rig.friction]); the configuration with it: {full}")
+    print(f"fragment: {fragment} ([plant] mass, [rig.friction]); the configuration with it: {full}; "
+          f"the fit: {picture}")
     return 0

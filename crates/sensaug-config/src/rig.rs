@@ -91,6 +91,9 @@ pub struct FrictionSettings {
     /// The Coulomb term's velocity band (rad/s).
     #[serde(rename = "friction_coulomb_band_rad_s")]
     pub coulomb_band_rad_s: f64,
+    /// The Coulomb term's torque band at rest (N m).
+    #[serde(rename = "friction_coulomb_torque_band_nm")]
+    pub coulomb_torque_band_nm: f64,
 }
 
 impl FrictionSettings {
@@ -100,6 +103,7 @@ impl FrictionSettings {
             coulomb_nm: f.coulomb_nm,
             viscous_nm_s_per_rad: f.viscous_nm_s_per_rad,
             coulomb_band_rad_s: f.coulomb_band_rad_s,
+            coulomb_torque_band_nm: f.coulomb_torque_band_nm,
         }
     }
 }
@@ -496,6 +500,7 @@ pub(crate) fn check_friction(rig: &RigSpec, mass: f64, dt_s: f64) -> Result<(), 
         ("coulomb_nm", f.coulomb_nm),
         ("viscous_nm_s_per_rad", f.viscous_nm_s_per_rad),
         ("coulomb_band_rad_s", f.coulomb_band_rad_s),
+        ("coulomb_torque_band_nm", f.coulomb_torque_band_nm),
     ] {
         if !value.is_finite() {
             return err(

@@ -1041,11 +1041,13 @@ impl Default for RangeSpec {
 /// `[rig.friction]`: the handle's Coulomb and viscous friction, compensated
 /// by the loop before its model applies (the paper's Hi5 is modelled "after
 /// Coulomb and viscous friction compensation"): the command gains
-/// `viscous_nm_s_per_rad v + coulomb_nm clamp(v / coulomb_band_rad_s, -1, 1)`
-/// on the measured velocity `v` (rad/s), inside the torque limit
-/// (docs/hardware.md, "Calibrating the handle"). `sensaug calibrate`
-/// identifies both and writes this table. The simulation ignores it (its
-/// handle is `[plant]`).
+/// `viscous_nm_s_per_rad v + coulomb_nm s` on the measured velocity `v`
+/// (rad/s), the Coulomb term's sign `s` the velocity's while the handle
+/// moves and the asked torque's at rest, ramped over `coulomb_band_rad_s`
+/// and `coulomb_torque_band_nm` (docs/hardware.md, "Calibrating the
+/// handle"), inside the torque limit. `sensaug calibrate` identifies both
+/// and writes this table. The simulation ignores it (its handle is
+/// `[plant]`).
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct FrictionSpec {
@@ -1058,11 +1060,21 @@ pub struct FrictionSpec {
     #[schemars(range(min = 0.0, max = 10.0))]
     pub viscous_nm_s_per_rad: f64,
     /// The Coulomb term's velocity band (rad/s): below this speed its sign
-    /// is the linear ramp `v / coulomb_band_rad_s`, so the compensation is
-    /// continuous through zero velocity and never chatters on the velocity
-    /// report's noise; keep it above that noise.
+    /// blends linearly from the velocity's to the asked torque's, so the
+    /// compensation is continuous through zero velocity and never chatters
+    /// on the velocity report's noise; keep it above that noise (the
+    /// default is 2000 steps of the Hi5 report's 1e-6 rad/s; a drive that
+    /// reports the finite difference of its encoder needs several counts
+    /// per period).
     #[schemars(extend("exclusiveMinimum" = 0.0), range(max = 10.0))]
     pub coulomb_band_rad_s: f64,
+    /// The Coulomb term's torque band at rest (N m): at rest its sign is
+    /// `clamp(tau / coulomb_torque_band_nm, -1, 1)` of the torque `tau` the
+    /// controller and the partner ask, so a push breaks the handle's
+    /// stiction and a torque dithering about zero does not flip it; keep it
+    /// at a few of the drive's torque steps or more.
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = TORQUE_NM_MAX))]
+    pub coulomb_torque_band_nm: f64,
 }
 
 impl Default for FrictionSpec {
@@ -1071,7 +1083,8 @@ impl Default for FrictionSpec {
         FrictionSpec {
             coulomb_nm: 0.0,
             viscous_nm_s_per_rad: 0.0,
-            coulomb_band_rad_s: 0.05,
+            coulomb_band_rad_s: 0.002,
+            coulomb_torque_band_nm: 0.0005,
         }
     }
 }

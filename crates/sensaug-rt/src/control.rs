@@ -669,7 +669,11 @@ impl<'a> Rig<'a> {
         let unit = self.settings.rad_per_unit;
         // The handle's friction, compensated as part of the controller's
         // torque (ramped near the soft end stops, guarded with it).
-        let friction_nm = crate::friction::compensation_nm(&self.settings.friction, seen.v * unit);
+        let friction_nm = crate::friction::compensation_nm(
+            &self.settings.friction,
+            seen.v * unit,
+            (robot.u + u_h) * unit,
+        );
         let (torque_nm, g) = crate::range::command_nm(
             &self.settings.range,
             seen.x * unit,
