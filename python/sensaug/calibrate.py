@@ -266,13 +266,13 @@ def plot_fit(log: Log, est: HandleEstimate, path: str | Path) -> Path:
     v, friction = friction_points(log, est)
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
     step = max(1, len(v) // 4000)
-    ax.plot(v[::step], friction[::step], ".", ms=2, alpha=0.5, color="tab:gray", label="each fitted tick pair")
+    ax.plot(v[::step], friction[::step], ".", ms=3, alpha=0.6, color="tab:gray", label="each fitted tick pair", zorder=3)
     grid = np.linspace(v.min(), v.max(), 400)
     c, fc = est.damping.value, est.coulomb.value
     model = c * grid + fc * np.sign(grid)
-    ax.plot(grid[grid < 0], model[grid < 0], color="tab:red", lw=1.6,
+    ax.plot(grid[grid < 0], model[grid < 0], color="tab:red", lw=1.0, ls="--", zorder=4,
             label=f"identified: C = {c:.4g} N m s/rad, F_c = {fc:.4g} N m")
-    ax.plot(grid[grid > 0], model[grid > 0], color="tab:red", lw=1.6)
+    ax.plot(grid[grid > 0], model[grid > 0], color="tab:red", lw=1.0, ls="--", zorder=4)
     ax.axhline(0.0, color="k", lw=0.5)
     ax.set_xlabel("velocity, mean over the tick (rad/s)")
     ax.set_ylabel("friction implied: u - M dv/dt (N m)")
@@ -285,7 +285,7 @@ def plot_fit(log: Log, est: HandleEstimate, path: str | Path) -> Path:
     tx = bx.twinx()
     tx.plot(t, log["torque_nm"], color="tab:orange", lw=0.5)
     tx.set_ylabel("torque applied (N m)", color="tab:orange")
-    bx.set_title("The excitation")
+    bx.set_title("The run fitted (the excitation)")
     path = Path(path)
     fig.savefig(path, dpi=110)
     plt.close(fig)
