@@ -38,6 +38,7 @@ CLASS = {
     "RealtimeSpec": "RealtimeConfig",
     "Cia402Spec": "RigCia402Config",
     "RangeSpec": "RigRangeConfig",
+    "FrictionSpec": "RigFrictionConfig",
     "RigSpec": "RigConfig",
     "DisplaySpec": "DisplayConfig",
     "SessionSpec": "SessionConfig",

@@ -495,10 +495,23 @@ def _rig_kwargs(args: argparse.Namespace) -> dict:
             "feed": args.feed, "live": args.live}
 
 
+class _HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """argparse's, with the help column past the longest command's name:
+    argparse measures the commands at the group's indent but prints them 2
+    further in, so a name of 8 or more letters pushed its help to the next
+    line."""
+
+    def add_argument(self, action: argparse.Action) -> None:
+        super().add_argument(action)
+        if isinstance(action, argparse._SubParsersAction) and action.choices:
+            longest = max(len(name) for name in action.choices)
+            self._action_max_length = max(self._action_max_length, longest + self._current_indent + 2)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``sensaug`` command's parser: every subcommand, its options and help."""
     parser = argparse.ArgumentParser(
-        prog="sensaug", description=_DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter,
+        prog="sensaug", description=_DESCRIPTION, formatter_class=_HelpFormatter,
         epilog="Documentation: `sensaug docs` lists the pages that come with the package (messages name them "
                "docs/NAME.md; `sensaug docs NAME` prints one); in a checkout, bash scripts/build-docs.sh builds "
                "them with the API reference into a site.",
@@ -578,6 +591,25 @@ def build_parser() -> argparse.ArgumentParser:
     dr.add_argument("--bitrate", type=int, default=1_000_000, help="the bitrate expected, bit/s (default 1000000)")
     dr.add_argument("--sdo", action="store_true",
                     help="also ask the drive at rig.node_id (CiA 402: an SDO read of 0x1000; sends one frame)")
+    cal = sub.add_parser(
+        "calibrate", help="identify the handle's inertia, damping and Coulomb friction by a bounded excitation on "
+                          "the rig; write the configuration fragment that compensates them (docs/hardware.md)")
+    cal.add_argument("config", nargs="?", type=Path, default=None,
+                     help="the rig configuration: its drive, bus, torque limit and range bound the excitation "
+                          "(default: the hi5-rig preset)")
+    cal.add_argument("--out", type=Path, default=Path("out/calibration"),
+                     help="folder for the run, calibration.toml and calibrated_config.toml (default out/calibration)")
+    cal.add_argument("--duration", type=float, default=20.0, metavar="S", help="excitation length, s (default 20)")
+    cal.add_argument("--seed", type=int, default=0, help="world.seed of the excitation run (default 0)")
+    cal.add_argument("--virtual-handle", nargs=3, type=float, default=None, metavar=("M", "C", "FC"),
+                     help="the handle the virtual drive simulates: inertia kg m^2, viscous N m s/rad, Coulomb N m; "
+                          "given to the drive process only (default: the drive's own, 0.0035 0 0)")
+    cal.add_argument("--log", type=Path, default=None, metavar="RIG_LOG",
+                     help="identify from this rig log instead of running (a real rig's excitation run)")
+    cal.add_argument("--write-excitation", type=Path, default=None, metavar="FILE",
+                     help="write the excitation run's configuration (for sensaug-rt on a real rig) and exit")
+    cal.add_argument("--port", type=int, default=None, help="loopback CAN bus UDP port (default: a free one)")
+    cal.add_argument("--quiet", action="store_true", help="no progress bar")
     dc = sub.add_parser("docs", help="list the documentation pages, or print one (docs/NAME.md)")
     dc.add_argument("page", nargs="?", default=None, help="a page's name, e.g. logs or docs/logs.md")
     return parser
@@ -644,6 +676,17 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "rig":
             cfg = _with_drive(ScenarioConfig.from_toml(args.config), args)
             return rig_demo(cfg, args.out, True, command="rig", **_rig_kwargs(args))
+        if args.command == "calibrate":
+            from sensaug import calibrate
+
+            if args.duration <= 0:
+                parser.error("--duration: must be > 0 s")
+            return calibrate.command(
+                args.config, out=args.out, duration_s=args.duration, seed=args.seed, log_path=args.log,
+                write_excitation=args.write_excitation,
+                virtual_handle=None if args.virtual_handle is None else tuple(args.virtual_handle),
+                port=args.port, progress=_progress(args),
+            )
         if args.command == "session":
             from sensaug.session import load_session, run_session
 

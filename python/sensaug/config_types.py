@@ -310,6 +310,39 @@ class RigCia402Config(_Table):
 
 
 @dataclass
+class RigFrictionConfig(_Table):
+    """`[rig.friction]`: the handle's Coulomb and viscous friction, compensated by the loop
+    before its model applies (the paper's Hi5 is modelled "after Coulomb and viscous friction
+    compensation"): the command gains `viscous_nm_s_per_rad v + coulomb_nm s` on the measured
+    velocity `v` (rad/s), the Coulomb term's sign `s` the velocity's while the handle moves
+    and the asked torque's at rest, ramped over `coulomb_band_rad_s` and
+    `coulomb_torque_band_nm` (docs/hardware.md, "Calibrating the handle"), inside the torque
+    limit. `sensaug calibrate` identifies both and writes this table. The simulation ignores
+    it (its handle is `[plant]`).
+    """
+
+    coulomb_band_rad_s: float = 0.002
+    """The Coulomb term's velocity band (rad/s): below this speed its sign blends linearly from
+    the velocity's to the asked torque's, so the compensation is continuous through zero
+    velocity and never chatters on the velocity report's noise; keep it above that noise (the
+    default is 2000 steps of the Hi5 report's 1e-6 rad/s; a drive that reports the finite
+    difference of its encoder needs several counts per period).
+    """
+    coulomb_nm: float = 0.0
+    """Coulomb friction to compensate (N m); 0: none. At most `rig.torque_limit_nm`."""
+    coulomb_torque_band_nm: float = 0.0005
+    """The Coulomb term's torque band at rest (N m): at rest its sign is `clamp(tau /
+    coulomb_torque_band_nm, -1, 1)` of the torque `tau` the controller and the partner ask, so
+    a push breaks the handle's stiction and a torque dithering about zero does not flip it;
+    keep it at a few of the drive's torque steps or more.
+    """
+    viscous_nm_s_per_rad: float = 0.0
+    """Viscous friction to compensate (N m s/rad); 0: none. Its gain per tick,
+    `viscous_nm_s_per_rad plant.dt_s / plant.mass`, at most 1/2.
+    """
+
+
+@dataclass
 class RigRangeConfig(_Table):
     """`[rig.range]`: the handle's range of motion and speed, in degrees whatever
     `rig.position_unit` (like every `[rig]` field, the unit is in the name), enforced by
@@ -409,6 +442,10 @@ class RigConfig(_Table):
     over the time between the two feedbacks) plus this margin (rad/s: encoder quantisation, a
     drive's velocity filter) stops the loop ("implausible feedback", docs/safety.md).
     """
+    friction: RigFrictionConfig = field(default_factory=lambda: RigFrictionConfig.from_dict({'coulomb_band_rad_s': 0.002, 'coulomb_nm': 0.0, 'coulomb_torque_band_nm': 0.0005, 'viscous_nm_s_per_rad': 0.0}))
+    """The handle's friction the loop compensates (`sensaug calibrate` identifies it;
+    docs/hardware.md, "Calibrating the handle"). Off by default (both zero).
+    """
     log: str = 'out/rig_log.csv'
     """Log file (CSV with metadata, docs/logs.md)."""
     max_estimator_errors: int = 10
@@ -474,7 +511,7 @@ class RigConfig(_Table):
     consumer time 0x1016).
     """
 
-    _nested = {'cia402': RigCia402Config.from_dict, 'range': RigRangeConfig.from_dict, 'realtime': RealtimeConfig.from_dict}
+    _nested = {'cia402': RigCia402Config.from_dict, 'friction': RigFrictionConfig.from_dict, 'range': RigRangeConfig.from_dict, 'realtime': RealtimeConfig.from_dict}
 
 
 @dataclass
@@ -683,7 +720,7 @@ class ScenarioConfig(_Table):
     """The partner: the virtual human (simulation, and inside the rig loop)."""
     plant: PlantConfig = field(default_factory=lambda: PlantConfig.from_dict({'coulomb': 0.0, 'damping': 0.0, 'dt_s': 0.001, 'mass': 0.0035}))
     """The handle as the controller models it."""
-    rig: RigConfig = field(default_factory=lambda: RigConfig.from_dict({'can': 'udp:47100', 'cia402': {'freshness': 'auto', 'heartbeat_timeout_ms': 100}, 'drive': 'hi5', 'feedback_step_margin_rad': 0.01, 'feedback_timeout_ms': 20.0, 'feedback_velocity_margin_rad_s': 0.05, 'log': 'out/rig_log.csv', 'max_estimator_errors': 10, 'max_feedback_velocity_rad_s': 8.0, 'max_missing_feedback_fraction': 0.5, 'max_stale_feedback_ticks': 100, 'node_id': 1, 'position_unit': 'deg', 'range': {'hard_max_deg': 50.0, 'hard_min_deg': -50.0, 'hard_speed_deg_s': 400.0, 'ramp_width_deg': 5.0, 'soft_max_deg': 40.0, 'soft_min_deg': -40.0, 'soft_speed_deg_s': 200.0}, 'realtime': {'mlockall': True, 'spin_us': 0}, 'ring_capacity': 65536, 'stats': 'out/rig_stats.json', 'stop_rest_velocity_rad_s': 0.01, 'stop_time_constant_s': 0.004, 'stop_time_limit_s': 0.2, 'stop_torque_limit_nm': 3.0, 'torque_limit_nm': 3.0, 'virtual_human': True, 'watchdog_ms': 50}))
+    rig: RigConfig = field(default_factory=lambda: RigConfig.from_dict({'can': 'udp:47100', 'cia402': {'freshness': 'auto', 'heartbeat_timeout_ms': 100}, 'drive': 'hi5', 'feedback_step_margin_rad': 0.01, 'feedback_timeout_ms': 20.0, 'feedback_velocity_margin_rad_s': 0.05, 'friction': {'coulomb_band_rad_s': 0.002, 'coulomb_nm': 0.0, 'coulomb_torque_band_nm': 0.0005, 'viscous_nm_s_per_rad': 0.0}, 'log': 'out/rig_log.csv', 'max_estimator_errors': 10, 'max_feedback_velocity_rad_s': 8.0, 'max_missing_feedback_fraction': 0.5, 'max_stale_feedback_ticks': 100, 'node_id': 1, 'position_unit': 'deg', 'range': {'hard_max_deg': 50.0, 'hard_min_deg': -50.0, 'hard_speed_deg_s': 400.0, 'ramp_width_deg': 5.0, 'soft_max_deg': 40.0, 'soft_min_deg': -40.0, 'soft_speed_deg_s': 200.0}, 'realtime': {'mlockall': True, 'spin_us': 0}, 'ring_capacity': 65536, 'stats': 'out/rig_stats.json', 'stop_rest_velocity_rad_s': 0.01, 'stop_time_constant_s': 0.004, 'stop_time_limit_s': 0.2, 'stop_torque_limit_nm': 3.0, 'torque_limit_nm': 3.0, 'virtual_human': True, 'watchdog_ms': 50}))
     """The real-time loop and its CAN link (`sensaug-rt`; the simulation ignores it)."""
     robot: RobotConfig = field(default_factory=lambda: RobotConfig.from_dict({'gain_window_s': 8.0, 'integrate': True, 'q_pos': 1.0, 'q_vel': 0.0, 'seed': 1, 'sigma': {'alpha': 1.0, 'beta': 2.0, 'kappa': 0.0}, 'stage1': {'P0': [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0], 'Q': [0.01, 0.01, 0.01, 0.01, 0.01, 0.01], 'R': [1e-07, 1e-07, 1e-07], 'gains0': [0.0, 0.0, 0.0]}, 'stage2': {'P0': [0.0001, 0.0001, 0.0001, 1.0, 1.0, 1.0], 'Q': [0.01, 0.01, 0.01, 0.01, 0.01, 0.01], 'R': [1e-07, 1e-07, 1e-07, 1e-07, 1e-07], 'gains0': [0.0, 0.0, 0.0]}, 'stage3': {'P0': [0.01, 0.01], 'Q': [0.01, 0.01], 'R_sensor': [1e-07, 1e-07], 'channel': {'gate': 4.0, 'hold_max_s': 0.25, 'window_n0': 80.0}}, 'torque_limit': 1000.0}))
     """The robot's controller and estimators."""

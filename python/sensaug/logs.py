@@ -386,11 +386,13 @@ def _read(raw: bytes, verify: bool, edited_metadata_ok: bool) -> Log:
 
 #: Columns added to the schema after logs were written without them, and the
 #: value such a log means by their absence: the partner-delay columns (issue
-#: 24) are NaN, the paper's model (no delay assumed).
+#: 24) are NaN, the paper's model (no delay assumed); the friction
+#: compensation (issue 21) NaN, none recorded.
 ADDED_COLUMNS: dict[str, float] = {
     "partner_delay_visual_ms": np.nan,
     "partner_delay_proprioceptive_ms": np.nan,
     "partner_delay_margin_nats": np.nan,
+    "friction_nm": np.nan,
 }
 
 

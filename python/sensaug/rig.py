@@ -383,6 +383,7 @@ def run_virtual_rig(
     feed: Sequence[str] = (),
     display=None,
     stop_key: bool | None = None,
+    drive_args: Sequence[str] | None = None,
 ) -> RigRun:
     """Runs one trial on the virtual rig and returns its log and statistics.
 
@@ -414,6 +415,10 @@ def run_virtual_rig(
     key (:class:`StopKey`, :data:`STOP_KEYS`; the hint is printed on stderr
     when the trial starts); None: when stdin is the foreground terminal.
 
+    ``drive_args``: more options for the virtual drive's process (e.g. the
+    handle it simulates, ``--mass``, ``--damping``, ``--coulomb``: a truth
+    the loop's configuration does not see; ``sensaug calibrate``).
+
     Raises:
         ConfigError: an output path is refused (named).
         RuntimeError: ``sensaug-rt`` ended before reporting (set-up error).
@@ -442,7 +447,8 @@ def run_virtual_rig(
     key_event: Optional[dict] = None
     try:
         drive = start_drive(port, duration_s=budget + 5.0, drive=cfg.rig.drive,
-                            fifo_priority=cfg.rig.realtime.fifo_priority, standard=standard_drive(cfg))
+                            fifo_priority=cfg.rig.realtime.fifo_priority, standard=standard_drive(cfg),
+                            extra=list(drive_args or []))
         time.sleep(0.5)
         if display is not None:
             feed = [*feed, _show_trial(display, cfg, out)]

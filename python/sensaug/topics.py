@@ -47,8 +47,8 @@ TOPICS: tuple[Topic, ...] = (
           ("partner_delay_visual_ms", "partner_delay_proprioceptive_ms", "partner_delay_margin_nats")),
     Topic("/goal_integration", "stage 3: (x - tau) estimated from own sensing and fused with the partner channel",
           ("e_hat_own", "e_hat_fused", "e_hat_own_var", "e_hat_fused_var", "partner_var")),
-    Topic("/torque", "commanded torque (model units), the partner's, motor noise, torque sent to the drive",
-          ("u", "u_h", "eps", "torque_nm")),
+    Topic("/torque", "commanded torque (model units), the partner's, motor noise, torque sent to the drive, "
+          "its friction compensation", ("u", "u_h", "eps", "torque_nm", "friction_nm")),
     Topic("/safety", "drive state, the torque guard's outcome, feedback age",
           ("drive_state", "guard", "feedback_age_ticks")),
     Topic("/loop", "loop timing: wake-up and sleep latency, compute",

@@ -338,6 +338,15 @@ case("range_no_shapes", full(head=BASE.replace(
     'partner_target = [{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }]', "partner_target = []", 1)),
      "phases[0].partner_target")
 
+# --- rig.friction (the compensation sensaug calibrate writes) ----------------------
+case("valid_rig_friction", full({"rig.friction": "coulomb_nm = 0.02\nviscous_nm_s_per_rad = 0.01\n"}), "valid")
+case("rig_friction_coulomb_above_torque_limit", full({"rig.friction": "coulomb_nm = 5.0\n"}), "rig.friction.coulomb_nm")
+case("rig_friction_viscous_negative", full({"rig.friction": "viscous_nm_s_per_rad = -0.01\n"}),
+     "rig.friction.viscous_nm_s_per_rad")
+case("rig_friction_viscous_overcompensating", full({"rig.friction": "viscous_nm_s_per_rad = 2.0\n"}),
+     "rig.friction.viscous_nm_s_per_rad")
+case("rig_friction_band_nan", full({"rig.friction": "coulomb_band_rad_s = nan\n"}), "rig.friction.coulomb_band_rad_s")
+
 # --- bad URLs ------------------------------------------------------------------
 for value, name in [
     ('"tcp:1"', "tcp"), ('"udp:0"', "udp_zero"), ('"udp:70000"', "udp_70000"), ('"udp:abc"', "udp_abc"),

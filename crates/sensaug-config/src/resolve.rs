@@ -512,6 +512,7 @@ fn resolve(spec: ScenarioSpec) -> Result<Resolved, ConfigError> {
     partner_integration(&spec)?;
     rig_timing(&spec.rig, dt_s)?;
     crate::rig::check_range(&spec.rig, p.mass, dt_s)?;
+    crate::rig::check_friction(&spec.rig, p.mass, dt_s)?;
     crate::person::check(&spec)?;
 
     let w = &spec.world;

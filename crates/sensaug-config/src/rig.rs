@@ -9,7 +9,9 @@
 //! `sensaug-rt` (docs/realtime.md, "Adding a rig setting").
 
 use crate::error::{num, ConfigError};
-use crate::schema::{Cia402Freshness, DriveProfile, RangeSpec, RigSpec, ScenarioSpec};
+use crate::schema::{
+    Cia402Freshness, DriveProfile, FrictionSpec, RangeSpec, RigSpec, ScenarioSpec,
+};
 use sensaug_core::agent::HumanLike;
 use sensaug_core::plant::PlantParams;
 use sensaug_core::world::PartnerConfig;
@@ -74,6 +76,36 @@ pub struct RangeSettings {
     /// Damping on the speed above the soft speed (N m s/rad).
     #[serde(rename = "range_speed_damping_nm_s_per_rad")]
     pub speed_damping_nm_s_per_rad: f64,
+}
+
+/// The handle's friction the loop compensates (`rig.friction`, N m, N m
+/// s/rad, rad/s). Serialised flat, `friction_*` keys.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct FrictionSettings {
+    /// Coulomb friction to compensate (N m).
+    #[serde(rename = "friction_coulomb_nm")]
+    pub coulomb_nm: f64,
+    /// Viscous friction to compensate (N m s/rad).
+    #[serde(rename = "friction_viscous_nm_s_per_rad")]
+    pub viscous_nm_s_per_rad: f64,
+    /// The Coulomb term's velocity band (rad/s).
+    #[serde(rename = "friction_coulomb_band_rad_s")]
+    pub coulomb_band_rad_s: f64,
+    /// The Coulomb term's torque band at rest (N m).
+    #[serde(rename = "friction_coulomb_torque_band_nm")]
+    pub coulomb_torque_band_nm: f64,
+}
+
+impl FrictionSettings {
+    /// `rig.friction` (already in the loop's units).
+    pub fn new(f: &FrictionSpec) -> Self {
+        FrictionSettings {
+            coulomb_nm: f.coulomb_nm,
+            viscous_nm_s_per_rad: f.viscous_nm_s_per_rad,
+            coulomb_band_rad_s: f.coulomb_band_rad_s,
+            coulomb_torque_band_nm: f.coulomb_torque_band_nm,
+        }
+    }
 }
 
 /// rad per degree.
@@ -147,6 +179,9 @@ pub struct RigSettings {
     /// The handle's range of motion and speed.
     #[serde(flatten)]
     pub range: RangeSettings,
+    /// The friction compensation.
+    #[serde(flatten)]
+    pub friction: FrictionSettings,
     /// Virtual human gains over `xi` (zeros: no virtual human).
     pub partner_gains: [f64; 3],
     /// Virtual human torque limit (model units).
@@ -229,6 +264,7 @@ impl RigSettings {
             },
             stop_ticks: (rig.stop_time_limit_s / dt_s).round() as u64,
             range: RangeSettings::new(&rig.range, mass, dt_s),
+            friction: FrictionSettings::new(&rig.friction),
             partner_gains: if rig.virtual_human {
                 partner.gains
             } else {
@@ -455,6 +491,63 @@ pub(crate) fn check_range(rig: &RigSpec, mass: f64, dt_s: f64) -> Result<(), Con
                 ),
             );
         }
+    }
+    Ok(())
+}
+
+/// The cross-field rules of `rig.friction` (the fields' own bounds are the
+/// schema's): the Coulomb torque within `rig.torque_limit_nm`, and the
+/// viscous compensation's gain per tick, `C dt / M` on the handle
+/// (`plant.mass`, kg m^2), at most 1/2 like the brake's: over-compensating
+/// the damping is negative damping, and one tick of feedback delay makes
+/// more than that oscillate.
+pub(crate) fn check_friction(rig: &RigSpec, mass: f64, dt_s: f64) -> Result<(), ConfigError> {
+    let f = &rig.friction;
+    let err =
+        |field: &str, msg: String| Err(ConfigError::new(format!("rig.friction.{field}"), msg));
+    // Null in the JSON the bounds are checked on, so a nan or inf reaches here.
+    for (field, value) in [
+        ("coulomb_nm", f.coulomb_nm),
+        ("viscous_nm_s_per_rad", f.viscous_nm_s_per_rad),
+        ("coulomb_band_rad_s", f.coulomb_band_rad_s),
+        ("coulomb_torque_band_nm", f.coulomb_torque_band_nm),
+    ] {
+        if !value.is_finite() {
+            return err(
+                field,
+                "must be a finite number (nan and inf are not allowed); write a number, or \
+                 leave it out (no compensation)"
+                    .into(),
+            );
+        }
+    }
+    if f.coulomb_nm > rig.torque_limit_nm {
+        return err(
+            "coulomb_nm",
+            format!(
+                "{} N m is above rig.torque_limit_nm ({} N m): the compensation alone would \
+                 saturate the drive; check the calibration (sensaug calibrate) or its unit",
+                num(f.coulomb_nm),
+                num(rig.torque_limit_nm)
+            ),
+        );
+    }
+    let gain = f.viscous_nm_s_per_rad * dt_s / mass;
+    if gain > 0.5 {
+        return err(
+            "viscous_nm_s_per_rad",
+            format!(
+                "{} N m s/rad compensates {} of the speed per tick on the handle (plant.mass = \
+                 {} kg m^2, plant.dt_s = {} s), more than 1/2: over-compensated it would \
+                 oscillate with one tick of feedback delay; use at most {} N m s/rad, or \
+                 check plant.mass against the calibration",
+                num(f.viscous_nm_s_per_rad),
+                num(gain),
+                num(mass),
+                num(dt_s),
+                num(0.5 * mass / dt_s)
+            ),
+        );
     }
     Ok(())
 }

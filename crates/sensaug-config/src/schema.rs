@@ -920,6 +920,10 @@ pub struct RigSpec {
     /// soft end stops with a virtual wall, hard limits, a speed limit
     /// (docs/safety.md, "Range of motion").
     pub range: RangeSpec,
+    /// The handle's friction the loop compensates (`sensaug calibrate`
+    /// identifies it; docs/hardware.md, "Calibrating the handle"). Off by
+    /// default (both zero).
+    pub friction: FrictionSpec,
 }
 
 impl Default for RigSpec {
@@ -949,6 +953,7 @@ impl Default for RigSpec {
             realtime: RealtimeSpec::default(),
             cia402: Cia402Spec::default(),
             range: RangeSpec::default(),
+            friction: FrictionSpec::default(),
         }
     }
 }
@@ -1029,6 +1034,57 @@ impl Default for RangeSpec {
             soft_speed_deg_s: 200.0,
             hard_speed_deg_s: 400.0,
             speed_damping_nm_s_per_deg: None,
+        }
+    }
+}
+
+/// `[rig.friction]`: the handle's Coulomb and viscous friction, compensated
+/// by the loop before its model applies (the paper's Hi5 is modelled "after
+/// Coulomb and viscous friction compensation"): the command gains
+/// `viscous_nm_s_per_rad v + coulomb_nm s` on the measured velocity `v`
+/// (rad/s), the Coulomb term's sign `s` the velocity's while the handle
+/// moves and the asked torque's at rest, ramped over `coulomb_band_rad_s`
+/// and `coulomb_torque_band_nm` (docs/hardware.md, "Calibrating the
+/// handle"), inside the torque limit. `sensaug calibrate` identifies both
+/// and writes this table. The simulation ignores it (its handle is
+/// `[plant]`).
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct FrictionSpec {
+    /// Coulomb friction to compensate (N m); 0: none. At most
+    /// `rig.torque_limit_nm`.
+    #[schemars(range(min = 0.0, max = TORQUE_NM_MAX))]
+    pub coulomb_nm: f64,
+    /// Viscous friction to compensate (N m s/rad); 0: none. Its gain per
+    /// tick, `viscous_nm_s_per_rad plant.dt_s / plant.mass`, at most 1/2.
+    #[schemars(range(min = 0.0, max = 10.0))]
+    pub viscous_nm_s_per_rad: f64,
+    /// The Coulomb term's velocity band (rad/s): below this speed its sign
+    /// blends linearly from the velocity's to the asked torque's, so the
+    /// compensation is continuous through zero velocity and never chatters
+    /// on the velocity report's noise; keep it above that noise (the
+    /// default is 2000 steps of the Hi5 report's 1e-6 rad/s; a drive that
+    /// reports the finite difference of its encoder needs several counts
+    /// per period).
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = 10.0))]
+    pub coulomb_band_rad_s: f64,
+    /// The Coulomb term's torque band at rest (N m): at rest its sign is
+    /// `clamp(tau / coulomb_torque_band_nm, -1, 1)` of the torque `tau` the
+    /// controller and the partner ask, so a push breaks the handle's
+    /// stiction and a torque dithering about zero does not flip it; keep it
+    /// at a few of the drive's torque steps or more.
+    #[schemars(extend("exclusiveMinimum" = 0.0), range(max = TORQUE_NM_MAX))]
+    pub coulomb_torque_band_nm: f64,
+}
+
+impl Default for FrictionSpec {
+    /// Off: no compensation (the presets run bit-identical).
+    fn default() -> Self {
+        FrictionSpec {
+            coulomb_nm: 0.0,
+            viscous_nm_s_per_rad: 0.0,
+            coulomb_band_rad_s: 0.002,
+            coulomb_torque_band_nm: 0.0005,
         }
     }
 }

@@ -336,6 +336,7 @@ schema! {
     u_h: f64 => f64, "trq", World, "partner (virtual human) torque; NaN outside the protocol";
     eps: f64 => f64, "trq", World, "motor noise added to the summed torque (simulation; NaN on the rig)";
     torque_nm: f64 => f64, "N m", Rig, "torque sent to the drive after its guard (rig; NaN in simulations)";
+    friction_nm: f64 => f64, "N m", Rig, "rig: the handle's friction compensation added to the controller's torque before the guard (rig.friction; 0 when off, NaN during the controlled stop and in simulations)";
     e: f64 => f64, "pos", World, "x - tau";
     e_meas: f64 => f64, "pos", Controller, "the robot's (noisy in integration phases) view of x - tau";
     Lhx_hat: f64 => f64, "trq/pos", Controller, "robot's estimate of the partner gain Lhx (stage 1 or 2)";

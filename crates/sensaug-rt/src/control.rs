@@ -660,11 +660,18 @@ impl<'a> Rig<'a> {
         // human sees it (measured, or predicted on a tick without fresh
         // feedback), before the limit (`crate::range::command_nm`).
         let unit = self.settings.rad_per_unit;
+        // The handle's friction, compensated as part of the controller's
+        // torque (ramped near the soft end stops, guarded with it).
+        let friction_nm = crate::friction::compensation_nm(
+            &self.settings.friction,
+            seen.v * unit,
+            (row.u + u_h) * unit,
+        );
         let (torque_nm, g) = crate::range::command_nm(
             &self.settings.range,
             seen.x * unit,
             seen.v * unit,
-            row.u * unit,
+            row.u * unit + friction_nm,
             u_h * unit,
             self.settings.torque_limit_nm,
         );
@@ -679,7 +686,7 @@ impl<'a> Rig<'a> {
             Guard::NonFinite => self.non_finite += 1,
         }
         (row.tau, row.tau_h, row.u_h) = (sample.tau, sample.tau_h, u_h);
-        (row.torque_nm, row.guard) = (torque_nm, Some(g));
+        (row.torque_nm, row.friction_nm, row.guard) = (torque_nm, friction_nm, Some(g));
         Command { torque_nm, row }
     }
 

@@ -6,6 +6,7 @@
 pub mod config;
 pub mod control;
 pub mod feed;
+pub mod friction;
 pub mod log;
 pub mod os;
 pub mod range;
