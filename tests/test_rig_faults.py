@@ -560,19 +560,31 @@ def scenario_forged_velocity(tmp: Path, drive: str = "hi5", mode: str = "doubled
         code, stats, err = end_of_run(pr)
         stopped_s = time.monotonic() - start
         assert n > 0, ("nothing forged", code, stats["stop_reason"])
+        log = load_log(pr.log)
         if drive == STANDARD and code == EXIT_DEGRADED:
             # Standard mode: each forged answer in the window of the drive's
             # own makes it ambiguous, so no feedback is fresh: the run ends
             # as degraded (rig.max_stale_feedback_ticks), torque off at once.
+            # The log's position may jump there: the handle moved during the
+            # 300 ticks the loop went without fresh feedback.
             assert "consecutive ticks without fresh feedback" in stats["stop_reason"], stats["stop_reason"]
             assert stats["drive"]["feedback_duplicated"] > 0, stats["drive"]
+            assert log.complete and len(log) == stats["ticks"] and not log["ramp"].any()
+            assert stats["stop"]["kind"] == "torque_off" and stats["stop"]["braking_ticks"] == 0, stats["stop"]
             kind = "degraded"
         else:
             assert code == EXIT_IMPLAUSIBLE, (stats["stop_reason"], err)
             kind = implausible_kind(stats["stop_reason"])
-        assert_torque_off_at_once(load_log(pr.log), stats)
+            assert_torque_off_at_once(log, stats)
         assert_drive_disabled(pr, drive)
         record = drive_record(pr, record_path, coast_s=0.0)
+        if drive == STANDARD:
+            # Every fresh velocity the loop used is one the drive reported,
+            # never a forged one (the forger copies positions, not velocities).
+            per_rad = _increments_per_rad()
+            real = set(np.round(record["velocity_rad_s"] * per_rad).astype(int))
+            used = np.round(np.radians(log["xdot_meas"][log["fresh"]]) * per_rad).astype(int)
+            assert set(used) <= real, sorted(set(used) - real)[:5]
         # The drive never reached its own overspeed (8 rad/s): it stopped
         # because the controller did.
         assert np.abs(record["velocity_rad_s"]).max() < 8.0
