@@ -219,8 +219,14 @@ pub struct DriveEvents {
     /// did not get that far).
     pub freshness: Option<Freshness>,
     /// CiA 402 standard mode: TPDOs received before the last SYNC, read
-    /// after it (kernel receive time; SocketCAN only).
+    /// after it (kernel receive time: SocketCAN and the UDP bus), not
+    /// taken.
     pub feedback_late: u64,
+    /// CiA 402 standard mode: answers (TPDO1 + TPDO2) taken as the newest
+    /// feedback but not fresh, because they may answer an earlier SYNC:
+    /// the first answer after a SYNC without one in its window, or one
+    /// received more than half a period after its SYNC ([`Cia402Link`]).
+    pub feedback_out_of_step: u64,
     /// CiA 402 standard mode: second TPDOs of one kind after one SYNC.
     pub feedback_duplicated: u64,
     /// CiA 402: SYNCs the next SYNC followed without a TPDO1 and TPDO2
@@ -832,6 +838,98 @@ impl DriveLink for Hi5Link {
 
 // -- CiA 402 ----------------------------------------------------------------------------
 
+/// CiA 402 standard mode: whether the answer taken for the last SYNC
+/// surely answers it, judged from the bus alone (no SYNC counter echo).
+///
+/// A drive answers SYNCs in order, each at most once, and never before the
+/// SYNC; so once an answer landed in its SYNC's window, an answer in the
+/// next window answers the next SYNC, unless it came late. An answer can
+/// only be late (answer an earlier SYNC than the one it is placed on) if a
+/// SYNC since the last in-step answer went without one in its own window
+/// (docs/safety.md, "Standard CiA 402 drives"). So an answer is fresh only
+/// when the SYNC before it got exactly one answer, taken, and both came
+/// within `answer_window` of their SYNC (kernel receive time against the
+/// SYNC's send time; a drive answering more than one period late lands in
+/// a later window, and is told from a prompt answer only by its time or by
+/// the unanswered SYNC before it). An answer that fails this is still the
+/// newest feedback (the safety checks read it) but is not fresh: the
+/// estimators predict over that tick. Allocation-free.
+#[derive(Clone, Copy, Debug)]
+pub struct StepWatch {
+    answer_window: Duration,
+    /// The kernel receive time of the last TPDO since the last SYNC.
+    window_received: Option<SystemTime>,
+    /// The SYNC before the last one got one answer, taken, on time.
+    previous_in_step: bool,
+    /// The last SYNC's answer was taken, on time.
+    answered_on_time: bool,
+    /// The answer taken for the last SYNC is fresh.
+    in_step: bool,
+    /// Answers taken but not fresh.
+    out_of_step: u64,
+}
+
+impl StepWatch {
+    /// Answers later than `answer_window` after their SYNC are not fresh.
+    pub fn new(answer_window: Duration) -> Self {
+        Self {
+            answer_window,
+            window_received: None,
+            previous_in_step: false,
+            answered_on_time: false,
+            in_step: false,
+            out_of_step: 0,
+        }
+    }
+
+    /// The enable's last SYNC was answered (set-up waits for it): in step.
+    pub fn enabled(&mut self) {
+        *self = Self {
+            answered_on_time: true,
+            in_step: true,
+            ..Self::new(self.answer_window)
+        };
+    }
+
+    /// A TPDO was received (kernel time, if the bus gives one).
+    pub fn tpdo_received(&mut self, received: Option<SystemTime>) {
+        self.window_received = self.window_received.max(received);
+    }
+
+    /// The answer to the last SYNC (sent at `sync_at`) was taken.
+    pub fn answer_taken(&mut self, sync_at: Option<SystemTime>) {
+        self.answered_on_time = match (self.window_received, sync_at) {
+            (Some(r), Some(s)) => r.duration_since(s).is_ok_and(|d| d <= self.answer_window),
+            _ => true,
+        };
+        self.in_step = self.previous_in_step && self.answered_on_time;
+        self.out_of_step += u64::from(!self.in_step);
+    }
+
+    /// A TPDO received before the last SYNC went out was read after it:
+    /// the SYNC before got two answers, one of them late.
+    pub fn late_tpdo(&mut self) {
+        self.previous_in_step = false;
+    }
+
+    /// A SYNC goes out; `duplicated`: the last one got a second answer.
+    pub fn sync_sent(&mut self, duplicated: bool) {
+        self.previous_in_step = std::mem::take(&mut self.answered_on_time) && !duplicated;
+        self.in_step = false;
+        self.window_received = None;
+    }
+
+    /// The answer taken for the last SYNC is fresh.
+    pub fn in_step(&self) -> bool {
+        self.in_step
+    }
+
+    /// Answers taken but not fresh so far.
+    pub fn out_of_step(&self) -> u64 {
+        self.out_of_step
+    }
+}
+
 /// CiA 402 over CANopen: [`Master`], one RPDO + SYNC per tick. A tick's
 /// feedback is a TPDO1 (position) and a TPDO2 (velocity) echoing one SYNC
 /// counter; pairs are taken newest counter first ([`FeedbackOrder`]).
@@ -855,6 +953,8 @@ pub struct Cia402Link {
     /// until the drain is over ([`DriveLink::settle`]): (counter, position,
     /// velocity).
     candidate: Option<(u8, f64, f64)>,
+    /// Standard mode: whether the drive answers in step.
+    step_watch: StepWatch,
 }
 
 impl Cia402Link {
@@ -869,6 +969,7 @@ impl Cia402Link {
             tick0: None,
             window_duplicated: false,
             candidate: None,
+            step_watch: StepWatch::new(step / 2),
         })
     }
 
@@ -973,6 +1074,7 @@ impl DriveLink for Cia402Link {
         self.order.reset();
         self.pending_tpdo1 = None;
         self.window_duplicated = false;
+        self.step_watch.enabled();
         self.order.sent(counter);
         self.order
             .absorb(counter, fb.position_rad, fb.velocity_rad_s);
@@ -995,7 +1097,17 @@ impl DriveLink for Cia402Link {
     /// (discarded), a second one after it duplicated (discarded, and the
     /// SYNC's answer not fresh: [`DriveLink::sample`]).
     fn absorb_received(&mut self, f: &Frame, received: Option<SystemTime>) -> Absorbed {
-        match self.master.absorb_received(f, received) {
+        let node = self.master.settings().node;
+        if self.standard() && f.is_standard_data() && (f.id == node.tpdo1() || f.id == node.tpdo2())
+        {
+            self.step_watch.tpdo_received(received);
+        }
+        let late_before = self.master.feedback().tpdos_late;
+        let heard = self.master.absorb_received(f, received);
+        if self.master.feedback().tpdos_late > late_before {
+            self.step_watch.late_tpdo();
+        }
+        match heard {
             Heard::Tpdo2 => self.tpdo2(),
             Heard::Other if f.is_standard_data() && f.id == self.master.settings().node.tpdo1() => {
                 self.tpdo1()
@@ -1020,19 +1132,26 @@ impl DriveLink for Cia402Link {
 
     /// Standard mode: the last SYNC's answer, taken now unless a second
     /// TPDO of a kind came after that SYNC (then neither is: the answer is
-    /// ambiguous, maybe a late answer to the SYNC before).
+    /// ambiguous, maybe a late answer to the SYNC before). Taken but not
+    /// fresh (it may answer an earlier SYNC: counted in
+    /// [`DriveEvents::feedback_out_of_step`]) when it may be late
+    /// ([`StepWatch`]).
     fn settle(&mut self) -> Option<Absorbed> {
         let (counter, x, v) = self.candidate.take()?;
         if self.window_duplicated || counter != self.master.sync_counter() {
             return None;
         }
-        Some(self.order.absorb(counter, x, v))
+        let absorbed = self.order.absorb(counter, x, v);
+        if let Absorbed::Feedback { .. } = absorbed {
+            self.step_watch.answer_taken(self.master.last_sync_at());
+        }
+        Some(absorbed)
     }
 
     /// Fresh: the newest feedback taken echoes the counter of tick `k -
     /// 1`'s SYNC (a replayed or late TPDO arriving after it is not taken);
-    /// standard mode: it arrived after that SYNC, and no second TPDO of a
-    /// kind did.
+    /// standard mode: it arrived after that SYNC, no second TPDO of a kind
+    /// did, and the drive answered in step ([`StepWatch`]).
     fn sample(&mut self, k: u64) -> DriveSample {
         self.master.check_drive_heartbeat(Instant::now());
         let fb = self.master.feedback();
@@ -1043,7 +1162,10 @@ impl DriveLink for Cia402Link {
         DriveSample {
             position_rad,
             velocity_rad_s,
-            fresh: k == 0 || (self.order.up_to_date() && !self.window_duplicated),
+            fresh: k == 0
+                || (self.order.up_to_date()
+                    && !self.window_duplicated
+                    && (!self.standard() || self.step_watch.in_step())),
             status: fb.state.into(),
             alarm: self.alarm(),
         }
@@ -1060,6 +1182,7 @@ impl DriveLink for Cia402Link {
         }
         let sent = self.master.tick(bus, torque_nm);
         self.order.sent(self.master.sync_counter());
+        self.step_watch.sync_sent(self.window_duplicated);
         self.window_duplicated = false;
         self.candidate = None;
         sent?;
@@ -1087,6 +1210,7 @@ impl DriveLink for Cia402Link {
             feedback_discarded: fb.tpdos_discarded,
             freshness: self.master.freshness(),
             feedback_late: fb.tpdos_late,
+            feedback_out_of_step: self.step_watch.out_of_step(),
             feedback_duplicated: fb.tpdos_duplicated,
             syncs_unanswered: fb.syncs_unanswered,
             commands_clamped_at_drive_limit: self.master.commands_clamped(),
@@ -1281,6 +1405,54 @@ mod tests {
         assert_eq!(o.classify(45, 1.0, 1.0), Order::Newer(304));
         assert_eq!(o.absorb(45, 1.0, 1.0), fb(1.0, 1.0, 304));
         assert!(o.up_to_date());
+    }
+
+    /// Standard CiA 402: an answer is fresh only in step: on time, and the
+    /// SYNC before answered once, on time.
+    #[test]
+    fn a_standard_answer_is_fresh_only_when_the_sync_before_was_answered_in_step() {
+        let t0 = SystemTime::UNIX_EPOCH + Duration::from_secs(1_000_000);
+        let sync = |k: u64| t0 + Duration::from_millis(k);
+        // SYNC `k` sent (the one before duplicated or not), answered `us`
+        // after it (None: no receive time): fresh?
+        let answer = |w: &mut StepWatch, k: u64, duplicated: bool, us: Option<u64>| {
+            w.sync_sent(duplicated);
+            w.tpdo_received(us.map(|us| sync(k) + Duration::from_micros(us)));
+            w.answer_taken(us.map(|_| sync(k)));
+            w.in_step()
+        };
+        let mut w = StepWatch::new(Duration::from_micros(500));
+        w.enabled();
+        assert!(w.in_step(), "the enable's answer");
+        assert!(answer(&mut w, 1, false, Some(200)));
+        // SYNC 2 without answer: SYNC 3's prompt answer may be SYNC 2's,
+        // late: not fresh. SYNC 4's is fresh again.
+        w.sync_sent(false);
+        assert!(!w.in_step(), "no answer yet");
+        assert!(
+            !answer(&mut w, 3, false, Some(100)),
+            "after an unanswered SYNC"
+        );
+        assert!(answer(&mut w, 4, false, Some(100)));
+        // 600 us after its SYNC (window 500 us): not fresh, nor the next one.
+        assert!(!answer(&mut w, 5, false, Some(600)), "late in its window");
+        assert!(!answer(&mut w, 6, false, Some(50)), "after a late one");
+        // After a duplicated window: not fresh.
+        assert!(
+            !answer(&mut w, 7, true, Some(50)),
+            "after a duplicated window"
+        );
+        assert!(answer(&mut w, 8, false, Some(50)));
+        // A TPDO received before SYNC 9 and read after it (two answers in
+        // SYNC 8's window): SYNC 9's answer is not fresh.
+        w.sync_sent(false);
+        w.late_tpdo();
+        w.tpdo_received(Some(sync(9) + Duration::from_micros(50)));
+        w.answer_taken(Some(sync(9)));
+        assert!(!w.in_step(), "after a late TPDO");
+        // Without receive times only the unanswered SYNCs count.
+        assert!(answer(&mut w, 10, false, None));
+        assert_eq!(w.out_of_step(), 5);
     }
 
     #[test]

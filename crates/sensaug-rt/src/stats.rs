@@ -250,8 +250,12 @@ pub struct DriveReport {
     /// chose).
     pub freshness: Option<&'static str>,
     /// CiA 402 standard mode: TPDOs received before the last SYNC but read
-    /// after it (late; kernel receive times, SocketCAN only).
+    /// after it (late; kernel receive times, SocketCAN and the UDP bus).
     pub feedback_late: u64,
+    /// CiA 402 standard mode: answers taken but not fresh, as they may be
+    /// late (the first after a SYNC without answer, or one received more
+    /// than half a period after its SYNC).
+    pub feedback_out_of_step: u64,
     /// CiA 402 standard mode: second TPDOs of one kind after one SYNC
     /// (duplicated; that tick's feedback is not fresh).
     pub feedback_duplicated: u64,
@@ -286,6 +290,7 @@ impl DriveReport {
             feedback_discarded: events.feedback_discarded,
             freshness: events.freshness.map(|f| f.name()),
             feedback_late: events.feedback_late,
+            feedback_out_of_step: events.feedback_out_of_step,
             feedback_duplicated: events.feedback_duplicated,
             syncs_unanswered: events.syncs_unanswered,
             commands_clamped_at_drive_limit: events.commands_clamped_at_drive_limit,

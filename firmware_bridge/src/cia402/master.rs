@@ -216,7 +216,8 @@ pub struct Feedback {
     pub tpdos_discarded: u64,
     /// Standard mode: TPDOs received (kernel time) before the last SYNC was
     /// sent but read after it: a late answer to an earlier SYNC, not taken.
-    /// Needs receive timestamps (SocketCAN); 0 on the UDP bus.
+    /// Needs kernel receive timestamps (SocketCAN and the UDP bus both
+    /// give them).
     pub tpdos_late: u64,
     /// Standard mode: a second TPDO of one kind after one SYNC, not taken
     /// (a late answer to the SYNC before, a copy, a second sender); the
@@ -359,6 +360,13 @@ impl Master {
     /// The counter of the last SYNC sent (1..=240; 0 before the first).
     pub fn sync_counter(&self) -> u8 {
         self.sync_counter
+    }
+
+    /// When the last SYNC was sent (`CLOCK_REALTIME`, read just before the
+    /// send; the clock of [`Transport::last_rx_time`]): None before the
+    /// first.
+    pub fn last_sync_at(&self) -> Option<SystemTime> {
+        self.last_sync_at
     }
 
     /// How TPDOs are matched to SYNCs: chosen by [`Master::configure`]
@@ -686,8 +694,13 @@ impl Master {
         // the first error is returned.
         let rpdo = bus.send(&frames::rpdo1(self.settings.node, cw, per_mille));
         self.sync_counter = next_sync_counter(self.sync_counter);
+        // Taken before the send: a frame the kernel received before this
+        // time surely came before the SYNC (taken after, a preemption
+        // between the send and the clock read would date a prompt answer
+        // before its SYNC).
+        let sync_at = SystemTime::now();
         let sync = bus.send(&frames::sync(self.sync_counter));
-        self.last_sync_at = Some(SystemTime::now());
+        self.last_sync_at = Some(sync_at);
         self.syncs_sent += 1;
         let heartbeat = if Instant::now() >= self.next_heartbeat {
             self.send_heartbeat(bus, NmtState::Operational)
