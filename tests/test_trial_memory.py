@@ -11,6 +11,7 @@ and the fix. The finding: ``sensaug run`` of 3 phases x 3600 s at dt 1e-4
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 
@@ -20,9 +21,12 @@ from sensaug import _core, experiment, logs, presets
 from sensaug.config import ConfigError
 from sensaug.experiment import TrialTooLargeError, trial_memory
 
+#: The finding's log: 108,000,000 rows of logs.DTYPE (GB = 1e9 bytes, as the
+#: message says it), so a new log column moves it.
+NEEDS = f"{108_000_000 * logs.DTYPE.itemsize / 1e9:.2f} GB"
 MESSAGE = (
     r"^phases\[\*\]\.duration_s, plant\.dt_s: 3 phase\(s\) of 10800 s in all at plant\.dt_s = 0\.0001 s "
-    r"are 108000000 ticks, whose log needs 41\.69 GB of memory, "
+    rf"are 108000000 ticks, whose log needs {re.escape(NEEDS)} of memory, "
 )
 FIX = "shorten the phases, raise plant.dt_s, or split the trial into shorter runs"
 
@@ -82,7 +86,7 @@ def test_cli_run_refuses_the_finding_with_a_message(tmp_path):
     r = _run_cli("run", str(path), "--max-memory", "4")
     assert r.returncode == 2, r.stderr
     assert r.stderr.startswith("error: phases[*].duration_s, plant.dt_s: 3 phase(s) of 10800 s")
-    assert "41.69 GB of memory, more than the 4.00 GB this trial may take; " + FIX in r.stderr
+    assert f"{NEEDS} of memory, more than the 4.00 GB this trial may take; " + FIX in r.stderr
     assert not path.with_suffix(".csv").exists()
 
 
@@ -95,7 +99,7 @@ def test_cli_run_refuses_the_finding_on_this_machine(tmp_path):
     finding().to_toml(path)
     r = _run_cli("run", str(path))
     assert r.returncode == 2, r.stderr
-    assert "41.69 GB of memory, more than the" in r.stderr and FIX in r.stderr
+    assert f"{NEEDS} of memory, more than the" in r.stderr and FIX in r.stderr
 
 
 def test_cli_sweep_refuses_the_finding_before_any_trial(tmp_path):
@@ -103,7 +107,7 @@ def test_cli_sweep_refuses_the_finding_before_any_trial(tmp_path):
     finding().to_toml(path)
     r = _run_cli("sweep", str(path), "--seeds", "3", "--max-memory", "2", "--out", str(tmp_path / "out"), "--quiet")
     assert r.returncode == 2, r.stderr
-    assert "41.69 GB of memory, more than the 2.00 GB" in r.stderr
+    assert f"{NEEDS} of memory, more than the 2.00 GB" in r.stderr
     assert not (tmp_path / "out").exists()
 
 
