@@ -179,6 +179,23 @@ def identify(
                           residual_std_rad_s=math.sqrt(s2), a=a, b=b, dt_s=dt_s)  # fmt: skip
 
 
+def _log_signals(log: Log) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """A rig log's velocity (rad/s), applied torque ``torque_nm`` (N m), the
+    ticks usable for the fit (the controller commanding, not the controlled
+    stop, with fresh feedback, each row the tick after the one before) and
+    the tick (s).
+
+    Raises:
+        ValueError: not a rig log.
+    """
+    loop = log.meta.get("loop")
+    if not loop or "rad_per_unit" not in loop:
+        raise ValueError("log: not a rig log (no loop settings in its metadata); give the rig_log.csv of a rig run")
+    usable = log["fresh"].astype(bool) & ~log["ramp"].astype(bool) & (log["phase"] >= 0)
+    usable[1:] &= np.diff(log["tick"].astype(np.int64)) == 1
+    return log["xdot"] * float(loop["rad_per_unit"]), log["torque_nm"], usable, float(loop["dt_s"])
+
+
 def identify_log(log: Log, *, min_speed_rad_s: float = 0.02) -> HandleEstimate:
     """:func:`identify` on a rig log (``sensaug.load_log`` of ``rig_log.csv``):
     the applied torque ``torque_nm`` and the velocity ``xdot`` (controller
@@ -189,19 +206,8 @@ def identify_log(log: Log, *, min_speed_rad_s: float = 0.02) -> HandleEstimate:
     Raises:
         ValueError: not a rig log, or as :func:`identify`.
     """
-    loop = log.meta.get("loop")
-    if not loop or "rad_per_unit" not in loop:
-        raise ValueError("log: not a rig log (no loop settings in its metadata); give the rig_log.csv of a rig run")
-    dt_s = float(loop["dt_s"])
-    tick = log["tick"].astype(np.int64)
-    # Feedback fresh at k and the row is the next tick's (no lost rows).
-    consecutive = np.ones(len(tick), dtype=bool)
-    consecutive[1:] = np.diff(tick) == 1
-    usable = log["fresh"].astype(bool) & ~log["ramp"].astype(bool) & (log["phase"] >= 0)
-    usable[1:] &= consecutive[1:]
-    est = identify(log["xdot"] * float(loop["rad_per_unit"]), log["torque_nm"], dt_s, usable=usable,
-                   min_speed_rad_s=min_speed_rad_s)
-    return est
+    v, u, usable, dt_s = _log_signals(log)
+    return identify(v, u, dt_s, usable=usable, min_speed_rad_s=min_speed_rad_s)
 
 
 def excitation_config(config: ScenarioConfig, *, duration_s: float = 20.0, seed: int = 0) -> ScenarioConfig:
@@ -244,11 +250,7 @@ def friction_points(log: Log, est: HandleEstimate, *, min_speed_rad_s: float = 0
     / dt``. Integrating the model over the tick, that is ``C`` times the
     tick's mean velocity (the trapezoid's, to O(dt^2)) plus ``F_c
     sign(v)``: the points lie on the identified line when the model holds."""
-    loop = log.meta["loop"]
-    v = log["xdot"] * float(loop["rad_per_unit"])
-    u = log["torque_nm"]
-    usable = log["fresh"].astype(bool) & ~log["ramp"].astype(bool) & (log["phase"] >= 0)
-    usable[1:] &= np.diff(log["tick"].astype(np.int64)) == 1
+    v, u, usable, _ = _log_signals(log)
     k = regression_pairs(v, u, usable, min_speed_rad_s=min_speed_rad_s)
     return 0.5 * (v[k] + v[k + 1]), u[k] - est.mass.value * (v[k + 1] - v[k]) / est.dt_s
 
