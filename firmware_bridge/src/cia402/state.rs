@@ -150,32 +150,24 @@ mod tests {
     #[test]
     fn enabling_walks_the_transitions_and_resets_a_fault_on_an_edge() {
         use controlword::*;
-        let g = Goal::Enabled;
-        assert_eq!(next_controlword(DriveState::Fault, g, 0), FAULT_RESET);
-        assert_eq!(next_controlword(DriveState::Fault, g, FAULT_RESET), 0);
-        assert_eq!(
-            next_controlword(DriveState::SwitchOnDisabled, g, 0),
-            SHUTDOWN
-        );
-        assert_eq!(
-            next_controlword(DriveState::ReadyToSwitchOn, g, 6),
-            SWITCH_ON
-        );
-        assert_eq!(
-            next_controlword(DriveState::SwitchedOn, g, 7),
-            ENABLE_OPERATION
-        );
-        assert_eq!(
-            next_controlword(DriveState::OperationEnabled, g, 15),
-            ENABLE_OPERATION
-        );
-        assert_eq!(
-            next_controlword(DriveState::OperationEnabled, Goal::Disabled, 15),
-            SHUTDOWN
-        );
-        assert_eq!(
-            next_controlword(DriveState::OperationEnabled, Goal::QuickStop, 15),
-            QUICK_STOP
-        );
+        use DriveState::*;
+        // (state, goal, previous controlword, the next controlword)
+        let cases = [
+            (Fault, Goal::Enabled, 0, FAULT_RESET),
+            (Fault, Goal::Enabled, FAULT_RESET, 0),
+            (SwitchOnDisabled, Goal::Enabled, 0, SHUTDOWN),
+            (ReadyToSwitchOn, Goal::Enabled, 6, SWITCH_ON),
+            (SwitchedOn, Goal::Enabled, 7, ENABLE_OPERATION),
+            (OperationEnabled, Goal::Enabled, 15, ENABLE_OPERATION),
+            (OperationEnabled, Goal::Disabled, 15, SHUTDOWN),
+            (OperationEnabled, Goal::QuickStop, 15, QUICK_STOP),
+        ];
+        for (state, goal, previous, next) in cases {
+            assert_eq!(
+                next_controlword(state, goal, previous),
+                next,
+                "{state:?} towards {goal:?} after {previous:#06x}"
+            );
+        }
     }
 }
