@@ -15,6 +15,8 @@
 use core::fmt;
 use std::time::{Duration, Instant, SystemTime};
 
+use serde::Serialize;
+
 use crate::cia402::{
     Cia402Error, DriveState as Cia402State, Emcy, Freshness, Heard, Master, MasterSettings,
     NmtState,
@@ -212,14 +214,24 @@ pub struct DriveEvents {
     /// each with its time in seconds after tick 0's command (negative:
     /// during set-up).
     pub emcy: Vec<(Emcy, f64)>,
-    /// Feedback frames discarded as older than, or a repeat of, the
-    /// feedback already taken (CiA 402: the newest SYNC counter wins).
-    pub feedback_discarded: u64,
     /// CiA 402: how TPDOs were matched to SYNCs (None: the Hi5, or set-up
     /// did not get that far).
     pub freshness: Option<Freshness>,
+    /// What was discarded, not fresh or clamped, counted.
+    pub counts: LinkCounts,
+}
+
+/// A drive link's counts of feedback it did not take as fresh and of
+/// commands it changed: one set for the link and for `sensaug-rt`'s
+/// statistics (`stats.json` `drive`, serialised flat there). Zeros on the
+/// Hi5 profile but for `feedback_discarded`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct LinkCounts {
+    /// Feedback frames discarded as older than, or a repeat of, the
+    /// feedback already taken (CiA 402: the newest SYNC counter wins).
+    pub feedback_discarded: u64,
     /// CiA 402 standard mode: TPDOs received before the last SYNC, read
-    /// after it (kernel receive time: SocketCAN and the UDP bus), not
+    /// after it (late; kernel receive time: SocketCAN and the UDP bus), not
     /// taken.
     pub feedback_late: u64,
     /// CiA 402 standard mode: answers (TPDO1 + TPDO2) taken as the newest
@@ -227,14 +239,15 @@ pub struct DriveEvents {
     /// the first answer after a SYNC without one in its window, or one
     /// received more than half a period after its SYNC ([`Cia402Link`]).
     pub feedback_out_of_step: u64,
-    /// CiA 402 standard mode: second TPDOs of one kind after one SYNC.
+    /// CiA 402 standard mode: second TPDOs of one kind after one SYNC
+    /// (duplicated; that tick's feedback is not fresh).
     pub feedback_duplicated: u64,
     /// CiA 402: SYNCs the next SYNC followed without a TPDO1 and TPDO2
-    /// taken for them.
+    /// taken for them (missing; set-up's and the stop's included).
     pub syncs_unanswered: u64,
     /// Commands beyond the drive's own limit (0x6072) sent clamped to it.
     pub commands_clamped_at_drive_limit: u64,
-    /// Non-finite commands sent as zero torque.
+    /// Non-finite commands the link sent as zero torque.
     pub commands_non_finite: u64,
 }
 
@@ -1134,7 +1147,7 @@ impl DriveLink for Cia402Link {
     /// TPDO of a kind came after that SYNC (then neither is: the answer is
     /// ambiguous, maybe a late answer to the SYNC before). Taken but not
     /// fresh (it may answer an earlier SYNC: counted in
-    /// [`DriveEvents::feedback_out_of_step`]) when it may be late
+    /// [`LinkCounts::feedback_out_of_step`]) when it may be late
     /// ([`StepWatch`]).
     fn settle(&mut self) -> Option<Absorbed> {
         let (counter, x, v) = self.candidate.take()?;
@@ -1207,14 +1220,16 @@ impl DriveLink for Cia402Link {
                 .iter()
                 .map(|r| (r.emcy, seconds(r.at)))
                 .collect(),
-            feedback_discarded: fb.tpdos_discarded,
             freshness: self.master.freshness(),
-            feedback_late: fb.tpdos_late,
-            feedback_out_of_step: self.step_watch.out_of_step(),
-            feedback_duplicated: fb.tpdos_duplicated,
-            syncs_unanswered: fb.syncs_unanswered,
-            commands_clamped_at_drive_limit: self.master.commands_clamped(),
-            commands_non_finite: self.master.commands_non_finite(),
+            counts: LinkCounts {
+                feedback_discarded: fb.tpdos_discarded,
+                feedback_late: fb.tpdos_late,
+                feedback_out_of_step: self.step_watch.out_of_step(),
+                feedback_duplicated: fb.tpdos_duplicated,
+                syncs_unanswered: fb.syncs_unanswered,
+                commands_clamped_at_drive_limit: self.master.commands_clamped(),
+                commands_non_finite: self.master.commands_non_finite(),
+            },
         }
     }
 

@@ -305,7 +305,9 @@ fn cia402_link_runs_a_standard_drive_chosen_from_its_dictionary() {
     let events = link.events();
     println!(
         "standard: duplicated {}, late {}, unanswered SYNCs {}",
-        events.feedback_duplicated, events.feedback_late, events.syncs_unanswered
+        events.counts.feedback_duplicated,
+        events.counts.feedback_late,
+        events.counts.syncs_unanswered
     );
 }
 

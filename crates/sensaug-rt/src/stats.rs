@@ -3,6 +3,7 @@
 //! tick compute time, and the loop's error counters.
 
 use crate::safety::{BrakeEnd, StopKind};
+use sensaug_bridge::drive_link::{DriveEvents, LinkCounts};
 use serde::Serialize;
 
 /// A histogram of durations with 1 us bins up to `max_us`, plus an overflow
@@ -242,36 +243,21 @@ pub struct DriveReport {
     pub emcy_received: u64,
     /// The EMCYs, in the order received.
     pub emcy: Vec<EmcyEntry>,
-    /// Feedback frames discarded as older than, or a repeat of, the one
-    /// already taken (the newest SYNC counter wins).
-    pub feedback_discarded: u64,
     /// CiA 402: how TPDOs were matched to SYNCs, "sync_counter_echo" or
     /// "standard" (`rig.cia402.freshness`; none on the Hi5 or before set-up
     /// chose).
     pub freshness: Option<&'static str>,
-    /// CiA 402 standard mode: TPDOs received before the last SYNC but read
-    /// after it (late; kernel receive times, SocketCAN and the UDP bus).
-    pub feedback_late: u64,
-    /// CiA 402 standard mode: answers taken but not fresh, as they may be
-    /// late (the first after a SYNC without answer, or one received more
-    /// than half a period after its SYNC).
-    pub feedback_out_of_step: u64,
-    /// CiA 402 standard mode: second TPDOs of one kind after one SYNC
-    /// (duplicated; that tick's feedback is not fresh).
-    pub feedback_duplicated: u64,
-    /// CiA 402: SYNCs the next SYNC followed without their TPDO1 and TPDO2
-    /// (missing; set-up's and the stop's included).
-    pub syncs_unanswered: u64,
-    /// Commands beyond the drive's own limit (0x6072) sent clamped to it.
-    pub commands_clamped_at_drive_limit: u64,
-    /// Non-finite commands the link sent as zero torque.
-    pub commands_non_finite: u64,
+    /// The link's counts (feedback discarded, late, out of step,
+    /// duplicated; SYNCs unanswered; commands clamped or non-finite), as
+    /// keys of this table.
+    #[serde(flatten)]
+    pub counts: LinkCounts,
 }
 
 impl DriveReport {
     /// From the link's events, the EMCY times placed on the loop's ticks of
     /// `dt_s`.
-    pub fn new(events: &sensaug_bridge::drive_link::DriveEvents, dt_s: f64) -> Self {
+    pub fn new(events: &DriveEvents, dt_s: f64) -> Self {
         let emcy = events
             .emcy
             .iter()
@@ -287,14 +273,8 @@ impl DriveReport {
         DriveReport {
             emcy_received: events.emcy_received,
             emcy,
-            feedback_discarded: events.feedback_discarded,
             freshness: events.freshness.map(|f| f.name()),
-            feedback_late: events.feedback_late,
-            feedback_out_of_step: events.feedback_out_of_step,
-            feedback_duplicated: events.feedback_duplicated,
-            syncs_unanswered: events.syncs_unanswered,
-            commands_clamped_at_drive_limit: events.commands_clamped_at_drive_limit,
-            commands_non_finite: events.commands_non_finite,
+            counts: events.counts,
         }
     }
 }
