@@ -27,7 +27,8 @@ mod cia402_common;
 mod common;
 
 use cia402_common::{
-    next_cycle, spawn_eds_drive, spawn_standard_drive, standard_tpdo1, standard_tpdo2, tpdo1, tpdo2,
+    next_cycle, on_a_bus, spawn_eds_drive, spawn_standard_drive, standard_tpdo1, standard_tpdo2,
+    tpdo1, tpdo2,
 };
 
 const OPERATION_ENABLED: u16 = 0x0237;
@@ -35,10 +36,7 @@ const OPERATION_ENABLED: u16 = 0x0237;
 /// A master booted against the scripted drive (3 N m, 0x6072 = 3000 of
 /// 1 N m rated), and the drive's socket.
 fn booted(settings: impl FnOnce(&mut MasterSettings)) -> (Master, UdpBus, UdpBus, CanopenNode) {
-    let port = common::free_port();
-    let mut host = UdpBus::open(port).unwrap();
-    let node = CanopenNode::new(1).unwrap();
-    let drive = spawn_eds_drive(UdpBus::open(port).unwrap(), node, 3000);
+    let (mut host, node, drive) = on_a_bus(|bus, node| spawn_eds_drive(bus, node, 3000));
     let mut s = MasterSettings::new(node);
     settings(&mut s);
     let mut master = Master::new(s).unwrap();
@@ -46,6 +44,22 @@ fn booted(settings: impl FnOnce(&mut MasterSettings)) -> (Master, UdpBus, UdpBus
     let (drive, started) = drive.join().unwrap();
     assert!(started);
     (master, host, drive, node)
+}
+
+/// The drive sends a heartbeat in each of `states`; drains until the
+/// master has taken them all in.
+fn heartbeats(
+    master: &mut Master,
+    host: &mut UdpBus,
+    drive: &mut UdpBus,
+    node: CanopenNode,
+    states: &[NmtState],
+) {
+    let heard = master.feedback().heartbeats_received + states.len() as u64;
+    for &state in states {
+        drive.send(&frames::heartbeat(node, state)).unwrap();
+    }
+    drain_until(master, host, |m| m.feedback().heartbeats_received == heard);
 }
 
 /// Drains until `pred` holds for the master (bounded).
@@ -136,34 +150,27 @@ fn a_command_beyond_max_torque_is_sent_clamped_and_counted_never_dropped() {
 fn a_boot_up_after_nmt_start_is_a_reset_and_so_is_a_heartbeat_leaving_operational() {
     // A PRE-OPERATIONAL beat sent before the drive took the start is not.
     let (mut master, mut host, mut drive, node) = booted(|_| {});
-    drive
-        .send(&frames::heartbeat(node, NmtState::PreOperational))
-        .unwrap();
-    drive
-        .send(&frames::heartbeat(node, NmtState::Operational))
-        .unwrap();
-    drain_until(&mut master, &mut host, |m| {
-        m.feedback().heartbeats_received == 3
-    });
-    assert_eq!(master.feedback().reset, None);
-    drive
-        .send(&frames::heartbeat(node, NmtState::PreOperational))
-        .unwrap();
-    drain_until(&mut master, &mut host, |m| {
-        m.feedback().heartbeats_received == 4
-    });
-    assert_eq!(master.feedback().reset, Some(NmtState::PreOperational));
+    let mut beat = |states: &[NmtState]| {
+        heartbeats(&mut master, &mut host, &mut drive, node, states);
+        master.feedback().reset
+    };
+    assert_eq!(
+        beat(&[NmtState::PreOperational, NmtState::Operational]),
+        None
+    );
+    assert_eq!(
+        beat(&[NmtState::PreOperational]),
+        Some(NmtState::PreOperational)
+    );
 
     let (mut master, mut host, mut drive, node) = booted(|_| {});
-    drive
-        .send(&frames::heartbeat(node, NmtState::BootUp))
-        .unwrap();
-    drive
-        .send(&frames::heartbeat(node, NmtState::PreOperational))
-        .unwrap();
-    drain_until(&mut master, &mut host, |m| {
-        m.feedback().heartbeats_received == 3
-    });
+    heartbeats(
+        &mut master,
+        &mut host,
+        &mut drive,
+        node,
+        &[NmtState::BootUp, NmtState::PreOperational],
+    );
     assert_eq!(
         master.feedback().reset,
         Some(NmtState::BootUp),
@@ -220,12 +227,13 @@ fn the_drives_heartbeat_is_lost_after_the_consumer_time() {
     let (mut master, mut host, mut drive, node) =
         booted(|s| *s = s.with_drive_heartbeat_timeout(timeout));
     assert_eq!(master.settings().drive_producer_ms, 50);
-    drive
-        .send(&frames::heartbeat(node, NmtState::Operational))
-        .unwrap();
-    drain_until(&mut master, &mut host, |m| {
-        m.feedback().heartbeats_received == 2
-    });
+    heartbeats(
+        &mut master,
+        &mut host,
+        &mut drive,
+        node,
+        &[NmtState::Operational],
+    );
     let last_beat = Instant::now(); // received at or before this
     while !master.feedback().drive_heartbeat_lost {
         assert!(
@@ -249,10 +257,7 @@ fn the_drives_heartbeat_is_lost_after_the_consumer_time() {
 
 #[test]
 fn standard_mode_counts_duplicated_late_and_unanswered_tpdos() {
-    let port = common::free_port();
-    let mut host = UdpBus::open(port).unwrap();
-    let node = CanopenNode::new(1).unwrap();
-    let drive = spawn_standard_drive(UdpBus::open(port).unwrap(), node);
+    let (mut host, node, drive) = on_a_bus(spawn_standard_drive);
     let mut master = Master::new(MasterSettings::new(node)).unwrap();
     master.boot(&mut host).unwrap();
     let (mut drive, started) = drive.join().unwrap();

@@ -10,22 +10,16 @@
 
 use std::time::Duration;
 
-use sensaug_bridge::cia402::{
-    CanopenNode, Cia402Error, Freshness, FreshnessSetting, Master, MasterSettings,
-};
-use sensaug_bridge::transport::UdpBus;
+use sensaug_bridge::cia402::{Cia402Error, Freshness, FreshnessSetting, Master, MasterSettings};
 
 mod cia402_common;
 mod common;
 
-use cia402_common::{eds_value, serve_set_up, spawn_eds_drive, spawn_standard_drive};
+use cia402_common::{eds_value, on_a_bus, serve_set_up, spawn_eds_drive, spawn_standard_drive};
 
 #[test]
 fn a_drive_without_the_sync_counter_echo_runs_in_standard_mode_when_chosen_automatically() {
-    let port = common::free_port();
-    let mut host = UdpBus::open(port).unwrap();
-    let node = CanopenNode::new(1).unwrap();
-    let drive = spawn_standard_drive(UdpBus::open(port).unwrap(), node);
+    let (mut host, node, drive) = on_a_bus(spawn_standard_drive);
     let mut master = Master::new(MasterSettings::new(node)).unwrap();
     assert_eq!(master.freshness(), None);
     master.boot(&mut host).unwrap();
@@ -47,10 +41,7 @@ fn a_drive_with_the_echo_runs_with_it_unless_standard_is_forced() {
             Freshness::SyncCounterEcho,
         ),
     ] {
-        let port = common::free_port();
-        let mut host = UdpBus::open(port).unwrap();
-        let node = CanopenNode::new(1).unwrap();
-        let drive = spawn_eds_drive(UdpBus::open(port).unwrap(), node, 3000);
+        let (mut host, node, drive) = on_a_bus(|bus, node| spawn_eds_drive(bus, node, 3000));
         let mut s = MasterSettings::new(node);
         s.freshness = setting;
         let mut master = Master::new(s).unwrap();
@@ -61,10 +52,7 @@ fn a_drive_with_the_echo_runs_with_it_unless_standard_is_forced() {
     // Forced standard on the echo drive: its TPDOs must be remapped without
     // 0x2000; the scripted drive does not store writes, so the read-back
     // refuses it, naming the mapping (a real drive takes the writes).
-    let port = common::free_port();
-    let mut host = UdpBus::open(port).unwrap();
-    let node = CanopenNode::new(1).unwrap();
-    let drive = spawn_eds_drive(UdpBus::open(port).unwrap(), node, 3000);
+    let (mut host, node, drive) = on_a_bus(|bus, node| spawn_eds_drive(bus, node, 3000));
     let mut s = MasterSettings::new(node);
     s.freshness = FreshnessSetting::Standard;
     let mut master = Master::new(s).unwrap();
@@ -79,16 +67,14 @@ fn a_drive_with_the_echo_runs_with_it_unless_standard_is_forced() {
 
 #[test]
 fn a_drive_without_the_sync_counter_echo_is_refused_when_the_echo_is_required() {
-    let port = common::free_port();
-    let mut host = UdpBus::open(port).unwrap();
-    let drive_bus = UdpBus::open(port).unwrap();
-    let node = CanopenNode::new(1).unwrap();
-    let drive = std::thread::spawn(move || {
-        let value = |i, s| match (i, s) {
-            (0x2000, 0) => None,
-            _ => eds_value(node, 3000, i, s),
-        };
-        serve_set_up(drive_bus, node, value, Duration::from_secs(2)).1
+    let (mut host, node, drive) = on_a_bus(|bus, node| {
+        std::thread::spawn(move || {
+            let value = |i, s| match (i, s) {
+                (0x2000, 0) => None,
+                _ => eds_value(node, 3000, i, s),
+            };
+            serve_set_up(bus, node, value, Duration::from_secs(2)).1
+        })
     });
     let mut s = MasterSettings::new(node);
     s.freshness = FreshnessSetting::SyncCounterEcho;
@@ -112,10 +98,8 @@ fn a_drive_without_the_sync_counter_echo_is_refused_when_the_echo_is_required() 
 /// `max_torque_per_mille` in 0x6072 (1 N m rated): the result and whether
 /// the drive was NMT-started.
 fn boot_with_max_torque(max_torque_per_mille: u32) -> (Result<(), Cia402Error>, bool) {
-    let port = common::free_port();
-    let mut host = UdpBus::open(port).unwrap();
-    let node = CanopenNode::new(1).unwrap();
-    let drive = spawn_eds_drive(UdpBus::open(port).unwrap(), node, max_torque_per_mille);
+    let (mut host, node, drive) =
+        on_a_bus(|bus, node| spawn_eds_drive(bus, node, max_torque_per_mille));
     let mut settings = MasterSettings::new(node);
     settings.max_torque_nm = 3.0;
     let mut master = Master::new(settings).unwrap();

@@ -114,6 +114,20 @@ pub fn serve_set_up(
     (bus, false)
 }
 
+/// A fresh UDP bus with the master's socket on it and a scripted drive,
+/// node 1, on its own socket: `spawn` starts the drive's thread (e.g.
+/// [`spawn_standard_drive`]). Returns the master's socket, the node and the
+/// drive's thread.
+pub fn on_a_bus<T>(
+    spawn: impl FnOnce(UdpBus, CanopenNode) -> JoinHandle<T>,
+) -> (UdpBus, CanopenNode, JoinHandle<T>) {
+    let port = crate::common::free_port();
+    let host = UdpBus::open(port).unwrap();
+    let node = CanopenNode::new(1).unwrap();
+    let drive = spawn(UdpBus::open(port).unwrap(), node);
+    (host, node, drive)
+}
+
 /// [`serve_set_up`] with [`eds_value`] in a thread.
 pub fn spawn_eds_drive(
     bus: UdpBus,
