@@ -19,6 +19,8 @@ use std::time::Duration;
 #[cfg(feature = "transports")]
 use std::time::Instant;
 
+#[cfg(feature = "transports")]
+use crate::frame::WIRE_SIZE;
 use crate::frame::{Frame, WireError};
 
 #[cfg(all(feature = "transports", target_os = "linux"))]
@@ -266,6 +268,23 @@ pub fn open(url: &str) -> Result<Box<dyn Transport + Send>, TransportError> {
         BusUrl::SocketCan { .. } => Err(TransportError::Unsupported {
             url: url.to_owned(),
         }),
+    }
+}
+
+impl BusStats {
+    /// A send that wrote `written` bytes of a frame's wire form: counted as
+    /// sent when that is the whole frame ([`WIRE_SIZE`]), else the short
+    /// write is an error (`what`: what came out short, e.g. "short datagram").
+    #[cfg(feature = "transports")]
+    fn count_sent(&mut self, written: usize, what: &'static str) -> Result<(), TransportError> {
+        if written != WIRE_SIZE {
+            return Err(TransportError::Io {
+                op: "send",
+                source: io::Error::new(io::ErrorKind::WriteZero, what),
+            });
+        }
+        self.sent += 1;
+        Ok(())
     }
 }
 

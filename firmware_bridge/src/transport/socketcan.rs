@@ -297,14 +297,7 @@ impl Transport for SocketCan {
                 return Err(TransportError::Io { op: "send", source });
             }
         };
-        if n != WIRE_SIZE {
-            return Err(TransportError::Io {
-                op: "send",
-                source: io::Error::new(io::ErrorKind::WriteZero, "short CAN frame write"),
-            });
-        }
-        self.stats.sent += 1;
-        Ok(())
+        self.stats.count_sent(n, "short CAN frame write")
     }
 
     /// Read frames until a valid classic data frame turns up, sleeping in

@@ -350,14 +350,7 @@ impl Transport for UdpBus {
             .tx
             .send(&wire)
             .map_err(|source| TransportError::Io { op: "send", source })?;
-        if n != WIRE_SIZE {
-            return Err(TransportError::Io {
-                op: "send",
-                source: io::Error::new(io::ErrorKind::WriteZero, "short datagram"),
-            });
-        }
-        self.stats.sent += 1;
-        Ok(())
+        self.stats.count_sent(n, "short datagram")
     }
 
     /// Drain the receive socket until another peer's valid frame turns up,
