@@ -60,6 +60,20 @@ def setting(table: str, key: str, value: str) -> str:
     return full({table: "\n".join(lines) + "\n"})
 
 
+def edited(old: str, new: str) -> str:
+    """The base phases with their first `old` replaced by `new`, every table present."""
+    return full(head=BASE.replace(old, new, 1))
+
+
+#: The first phase's robot target in BASE, which the shape cases replace.
+SHAPE = '{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }'
+
+
+def shape(new: str) -> str:
+    """The base with the first phase's robot target shape `new`, every table present."""
+    return edited(SHAPE, new)
+
+
 CASES: dict[str, tuple[str, str]] = {}
 
 
@@ -105,11 +119,11 @@ case("valid_drive_cia402_node_15", full({"rig": 'drive = "cia402"\nnode_id = 15\
 case("cia402_node_0", full({"rig": 'drive = "cia402"\nnode_id = 0\n'}), "rig.node_id")
 case("valid_cia402_freshness_standard", full({"rig": 'drive = "cia402"\n', "rig.cia402": 'freshness = "standard"\n'}), "valid")
 case("cia402_freshness_unknown", full({"rig": 'drive = "cia402"\n', "rig.cia402": 'freshness = "counter"\n'}), "rig.cia402.freshness")
-case("valid_harmonics_defaults", BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
+case("valid_harmonics_defaults", BASE.replace(SHAPE,
      '{ kind = "harmonics", amplitude = 1e-4, omega_rad_s = 1.0 }', 1), "valid")
-case("valid_sampled", BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
+case("valid_sampled", BASE.replace(SHAPE,
      '{ kind = "sampled", samples = [0.0, 1.0, 0.5], dt_s = 0.5 }', 1), "valid")
-case("valid_three_parts", BASE.replace('robot_target = [{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }]',
+case("valid_three_parts", BASE.replace(f'robot_target = [{SHAPE}]',
      'robot_target = [{ kind = "constant", value = 1.0 }, { kind = "square", amplitude = 1.0, period_s = 2.0 },'
      ' { kind = "chirp", amplitude = 2.0, f0_hz = 0.0, f1_hz = 2.0, duration_s = 2.0 }]', 1), "valid")
 case("valid_four_phases", phases("gains", "trajectory", "integration", "integration"), "valid")
@@ -137,19 +151,19 @@ case("unknown_rig", setting("rig", "watchdog", "50"), "rig.watchdog")
 case("unknown_realtime", setting("rig.realtime", "priority", "50"), "rig.realtime.priority")
 case("unknown_partner", setting("partner", "gain", "[0.0, 0.0, 2.0]"), "partner.gain")
 case("unknown_world", setting("world", "sed", "1"), "world.sed")
-case("unknown_phase_field", full(head=BASE.replace("target_noise_std = 0.5", "target_noise = 0.5", 1)),
+case("unknown_phase_field", edited("target_noise_std = 0.5", "target_noise = 0.5"),
      "phases[0].target_noise")
-case("unknown_shape_field", full(head=BASE.replace("period_s = 4.0 }", "period_s = 4.0, phase = 1.0 }", 1)),
+case("unknown_shape_field", edited("period_s = 4.0 }", "period_s = 4.0, phase = 1.0 }"),
      "phases[0].robot_target[0].phase")
 case("unknown_table", full({"robots": "q_pos = 1.0\n"}), "robots")
 case("missing_phases", "\n".join(f"[{n}]\n{b}" for n, b in TABLES.items()), "phases")
-case("missing_phase_kind", full(head=BASE.replace('kind = "gains"\n', "", 1)), "phases[0].kind")
-case("missing_phase_duration", full(head=BASE.replace("duration_s = 2.0\n", "", 1)), "phases[0].duration_s")
-case("missing_robot_target", full(head=BASE.replace(
-    'robot_target = [{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }]\n', "", 1)), "phases[0].robot_target")
-case("missing_shape_kind", full(head=BASE.replace('{ kind = "rounded_square", amplitude', "{ amplitude", 1)),
+case("missing_phase_kind", edited('kind = "gains"\n', ""), "phases[0].kind")
+case("missing_phase_duration", edited("duration_s = 2.0\n", ""), "phases[0].duration_s")
+case("missing_robot_target", edited(
+    f'robot_target = [{SHAPE}]\n', ""), "phases[0].robot_target")
+case("missing_shape_kind", edited('{ kind = "rounded_square", amplitude', "{ amplitude"),
      "phases[0].robot_target[0].kind")
-case("missing_shape_period", full(head=BASE.replace(", period_s = 4.0 }", " }", 1)),
+case("missing_shape_period", edited(", period_s = 4.0 }", " }"),
      "phases[0].robot_target[0].period_s")
 case("missing_partner_law", full({"partner": "torque_limit = 10.0\n"}), "partner")
 
@@ -189,25 +203,22 @@ for table, key, value, name in [
     ("robot.sigma", "alpha", '"1"', "alpha_string"),
 ]:
     case(f"type_{name}", setting(table, key, value), f"{table}.{key}")
-case("type_plant_not_table", full({"plant": None}).replace("[rig]", "plant = 5\n[rig]", 1).replace("plant = 5\n[rig]", "[rig]", 1)
-     if False else "plant = 5\n" + BASE, "plant")
+case("type_plant_not_table", "plant = 5\n" + BASE, "plant")
 case("type_phases_table", "[phases]\nkind = \"gains\"\n", "phases")
-case("type_phase_kind_int", full(head=BASE.replace('kind = "gains"', "kind = 3", 1)), "phases[0].kind")
-case("type_target_not_list", full(head=BASE.replace(
-    'robot_target = [{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }]',
-    'robot_target = "square"', 1)), "phases[0].robot_target")
-case("type_shape_string", full(head=BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
-     '"rounded_square"', 1)), "phases[0].robot_target[0]")
-case("type_shape_amplitude_string", full(head=BASE.replace("amplitude = 8.0", 'amplitude = "8"', 1)),
+case("type_phase_kind_int", edited('kind = "gains"', "kind = 3"), "phases[0].kind")
+case("type_target_not_list", edited(
+    f'robot_target = [{SHAPE}]',
+    'robot_target = "square"'), "phases[0].robot_target")
+case("type_shape_string", shape('"rounded_square"'), "phases[0].robot_target[0]")
+case("type_shape_amplitude_string", edited("amplitude = 8.0", 'amplitude = "8"'),
      "phases[0].robot_target[0].amplitude")
-case("type_shape_kind_int", full(head=BASE.replace('kind = "rounded_square"', "kind = 2", 1)),
+case("type_shape_kind_int", edited('kind = "rounded_square"', "kind = 2"),
      "phases[0].robot_target[0].kind")
-case("type_shape_unknown_kind", full(head=BASE.replace('kind = "rounded_square"', 'kind = "triangle"', 1)),
+case("type_shape_unknown_kind", edited('kind = "rounded_square"', 'kind = "triangle"'),
      "phases[0].robot_target[0].kind")
-case("type_harmonics_float", full(head=BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
-     '{ kind = "harmonics", amplitude = 1.0, omega_rad_s = 1.0, harmonics = 2.5 }', 1)),
+case("type_harmonics_float", shape('{ kind = "harmonics", amplitude = 1.0, omega_rad_s = 1.0, harmonics = 2.5 }'),
      "phases[0].robot_target[0].harmonics")
-case("type_phase_kind_unknown", full(head=BASE.replace('kind = "trajectory"', 'kind = "trajectry"', 1)), "phases[1].kind")
+case("type_phase_kind_unknown", edited('kind = "trajectory"', 'kind = "trajectry"'), "phases[1].kind")
 case("type_json_string_number", json.dumps({"phases": [{"kind": "gains", "duration_s": "1",
      "robot_target": [{"kind": "square", "amplitude": 1.0, "period_s": 2.0}],
      "partner_target": [{"kind": "square", "amplitude": 1.0, "period_s": 2.0}]}]}), "phases[0].duration_s", "json")
@@ -310,32 +321,28 @@ case("range_spin_half_period", setting("rig.realtime", "spin_us", "500"), "rig.r
 case("range_spin_over_half_period", setting("rig.realtime", "spin_us", "600"), "rig.realtime.spin_us")
 case("range_spin_901_at_500_hz", full({"plant": "dt_s = 0.002\n", "rig.realtime": "spin_us = 901\n"}),
      "rig.realtime.spin_us")
-case("range_phase_duration_zero", full(head=BASE.replace("duration_s = 2.0", "duration_s = 0.0", 1)), "phases[0].duration_s")
-case("range_phase_duration_subtick", full(head=BASE.replace("duration_s = 2.0", "duration_s = 0.0001", 1)),
+case("range_phase_duration_zero", edited("duration_s = 2.0", "duration_s = 0.0"), "phases[0].duration_s")
+case("range_phase_duration_subtick", edited("duration_s = 2.0", "duration_s = 0.0001"),
      "phases[0].duration_s")
-case("range_phase_duration_day", full(head=BASE.replace("duration_s = 2.0", "duration_s = 86400.0", 1)), "phases[0].duration_s")
-case("range_phase_duration_nan", full(head=BASE.replace("duration_s = 2.0", "duration_s = nan", 1)), "phases[0].duration_s")
-case("range_target_noise_negative", full(head=BASE.replace("target_noise_std = 0.5", "target_noise_std = -1.0", 1)),
+case("range_phase_duration_day", edited("duration_s = 2.0", "duration_s = 86400.0"), "phases[0].duration_s")
+case("range_phase_duration_nan", edited("duration_s = 2.0", "duration_s = nan"), "phases[0].duration_s")
+case("range_target_noise_negative", edited("target_noise_std = 0.5", "target_noise_std = -1.0"),
      "phases[0].target_noise_std")
-case("range_amplitude_inf", full(head=BASE.replace("amplitude = 8.0", "amplitude = inf", 1)),
+case("range_amplitude_inf", edited("amplitude = 8.0", "amplitude = inf"),
      "phases[0].robot_target[0].amplitude")
-case("range_period_negative", full(head=BASE.replace("period_s = 4.0", "period_s = -4.0", 1)),
+case("range_period_negative", edited("period_s = 4.0", "period_s = -4.0"),
      "phases[0].robot_target[0].period_s")
-case("range_chirp_negative_f0", full(head=BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
-     '{ kind = "chirp", amplitude = 2.0, f0_hz = -1.0, f1_hz = 2.0, duration_s = 2.0 }', 1)),
+case("range_chirp_negative_f0", shape('{ kind = "chirp", amplitude = 2.0, f0_hz = -1.0, f1_hz = 2.0, duration_s = 2.0 }'),
      "phases[0].robot_target[0].f0_hz")
-case("range_harmonics_zero", full(head=BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
-     '{ kind = "harmonics", amplitude = 1.0, omega_rad_s = 1.0, harmonics = 0 }', 1)),
+case("range_harmonics_zero", shape('{ kind = "harmonics", amplitude = 1.0, omega_rad_s = 1.0, harmonics = 0 }'),
      "phases[0].robot_target[0].harmonics")
-case("range_sampled_empty", full(head=BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
-     '{ kind = "sampled", samples = [], dt_s = 0.1 }', 1)), "phases[0].robot_target[0].samples")
-case("range_sampled_nan", full(head=BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
-     '{ kind = "sampled", samples = [0.0, nan], dt_s = 0.1 }', 1)), "phases[0].robot_target[0].samples[1]")
-case("range_four_shapes", full(head=BASE.replace(
-    'robot_target = [{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }]',
-    "robot_target = [" + ", ".join(['{ kind = "constant", value = 1.0 }'] * 4) + "]", 1)), "phases[0].robot_target")
-case("range_no_shapes", full(head=BASE.replace(
-    'partner_target = [{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }]', "partner_target = []", 1)),
+case("range_sampled_empty", shape('{ kind = "sampled", samples = [], dt_s = 0.1 }'), "phases[0].robot_target[0].samples")
+case("range_sampled_nan", shape('{ kind = "sampled", samples = [0.0, nan], dt_s = 0.1 }'), "phases[0].robot_target[0].samples[1]")
+case("range_four_shapes", edited(
+    f'robot_target = [{SHAPE}]',
+    "robot_target = [" + ", ".join(['{ kind = "constant", value = 1.0 }'] * 4) + "]"), "phases[0].robot_target")
+case("range_no_shapes", edited(
+    f'partner_target = [{SHAPE}]', "partner_target = []"),
      "phases[0].partner_target")
 
 # --- rig.friction (the compensation sensaug calibrate writes) ----------------------
@@ -427,10 +434,10 @@ case("range_wall_at_10_ms", full({"plant": "dt_s = 0.01\n",
 
 # --- sizes ------------------------------------------------------------------------
 big = ", ".join(["0.0"] * 250_000)
-case("size_over_1mib", BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
+case("size_over_1mib", BASE.replace(SHAPE,
      f'{{ kind = "sampled", samples = [{big}], dt_s = 0.001 }}', 1), "(file)")
 
-case("size_many_samples", BASE.replace('{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }',
+case("size_many_samples", BASE.replace(SHAPE,
      "{ kind = \"sampled\", samples = [" + ", ".join(["1.0"] * 100_001) + "], dt_s = 0.001 }", 1),
      "phases[0].robot_target[0].samples")
 
