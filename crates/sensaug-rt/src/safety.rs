@@ -953,47 +953,44 @@ mod tests {
 
     #[test]
     fn standard_cia402_steps_may_be_off_but_a_misreported_velocity_is_still_refused() {
-        // 1 rad/s, 2 ms of motion between two feedbacks placed 1 SYNC apart
-        // (a late answer): refused with exact steps, taken when inexact.
         let inexact = |p: Option<Previous>| {
             p.map(|p| Previous {
                 steps_exact: false,
                 ..p
             })
         };
-        let late = prev(0.0, 1.0, 1, 1);
-        assert!(LIMITS.check(at(0.002, 1.0), late).is_err());
-        assert!(LIMITS.check(at(0.002, 1.0), inexact(late)).is_ok());
-        // One step fewer (the previous one was the late one).
-        assert!(LIMITS
-            .check(at(0.002, 1.0), inexact(prev(0.0, 1.0, 3, 3)))
-            .is_ok());
-        // A velocity reported twice over, 1 step apart: neither 1 nor 2
-        // steps explain it (0 is not a step).
-        assert!(LIMITS
-            .check(at(0.001, 2.0), inexact(prev(0.0, 2.0, 1, 1)))
-            .is_err());
-        // The price (docs/safety.md): 2 steps apart, a doubled velocity
-        // looks like 1 step; the echo mode refuses it.
-        assert!(LIMITS.check(at(0.004, 4.0), prev(0.0, 4.0, 2, 2)).is_err());
-        assert!(LIMITS
-            .check(at(0.004, 4.0), inexact(prev(0.0, 4.0, 2, 2)))
-            .is_ok());
-        // A stalled drive's late answer after a gap (a CI run: 1.44 rad/s
-        // reported, 0.48 rad/s implied over 3 ticks): one step of motion
-        // placed 3 SYNCs after the previous feedback.
-        let gap = prev(0.0, 1.44, 3, 3);
-        assert!(LIMITS.check(at(0.00144, 1.44), gap).is_err());
-        assert!(LIMITS.check(at(0.00144, 1.44), inexact(gap)).is_ok());
-        // Running on, one SYNC apart, a velocity reported 1.5 times over is
-        // explained by neither 1 nor 2 steps: refused.
-        assert!(LIMITS
-            .check(at(0.001, 1.5), inexact(prev(0.0, 1.5, 1, 1)))
-            .is_err());
-        // Nor does any step count explain a velocity of the wrong sign.
-        assert!(LIMITS
-            .check(at(0.002, -1.0), inexact(prev(0.0, -1.0, 3, 3)))
-            .is_err());
+        // (feedback, the previous one, taken with exact steps (None: not
+        // asserted), taken with inexact steps)
+        let cases = [
+            // 1 rad/s, 2 ms of motion between two feedbacks placed 1 SYNC
+            // apart (a late answer): refused with exact steps, taken when
+            // inexact.
+            (at(0.002, 1.0), prev(0.0, 1.0, 1, 1), Some(false), true),
+            // One step fewer (the previous one was the late one).
+            (at(0.002, 1.0), prev(0.0, 1.0, 3, 3), None, true),
+            // A velocity reported twice over, 1 step apart: neither 1 nor 2
+            // steps explain it (0 is not a step).
+            (at(0.001, 2.0), prev(0.0, 2.0, 1, 1), None, false),
+            // The price (docs/safety.md): 2 steps apart, a doubled velocity
+            // looks like 1 step; the echo mode refuses it.
+            (at(0.004, 4.0), prev(0.0, 4.0, 2, 2), Some(false), true),
+            // A stalled drive's late answer after a gap (a CI run: 1.44
+            // rad/s reported, 0.48 rad/s implied over 3 ticks): one step of
+            // motion placed 3 SYNCs after the previous feedback.
+            (at(0.00144, 1.44), prev(0.0, 1.44, 3, 3), Some(false), true),
+            // Running on, one SYNC apart, a velocity reported 1.5 times over
+            // is explained by neither 1 nor 2 steps: refused.
+            (at(0.001, 1.5), prev(0.0, 1.5, 1, 1), None, false),
+            // Nor does any step count explain a velocity of the wrong sign.
+            (at(0.002, -1.0), prev(0.0, -1.0, 3, 3), None, false),
+        ];
+        for (i, (now, before, exact, inexact_taken)) in cases.into_iter().enumerate() {
+            if let Some(taken) = exact {
+                assert_eq!(LIMITS.check(now, before).is_ok(), taken, "case {i}");
+            }
+            let taken = LIMITS.check(now, inexact(before)).is_ok();
+            assert_eq!(taken, inexact_taken, "case {i}, inexact steps");
+        }
     }
 
     #[test]
