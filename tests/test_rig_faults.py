@@ -411,6 +411,17 @@ class Forger:
                              + (f", {self.pr.controller.stderr.read()}" if ended is not None else ""))
 
 
+def forging_on_a_running_controller(pr: Processes, drive: str) -> Forger:
+    """Starts the controller, lets it run 1 s, and returns a forger on the
+    bus with everything received so far drained."""
+    pr.start_controller()
+    wait_running(pr, drive=drive)
+    time.sleep(1.0)
+    forger = Forger(pr, drive)
+    _drain(pr)
+    return forger
+
+
 def forge_jump(pr: Processes, drive: str, jump_rad: float, commands: int = 50) -> tuple[float, float | None, int]:
     """Sends a feedback ``jump_rad`` away from the latest one answering
     each of the controller's next ``commands`` commands, as soon as the
@@ -544,11 +555,7 @@ def scenario_forged_velocity(tmp: Path, drive: str = "hi5", mode: str = "doubled
     pr = Processes(tmp, cfg, drive_args=["--log", str(record_path)])
     try:
         time.sleep(0.5)
-        pr.start_controller()
-        wait_running(pr, drive=drive)
-        time.sleep(1.0)
-        forger = Forger(pr, drive)
-        _drain(pr)
+        forger = forging_on_a_running_controller(pr, drive)
         start = time.monotonic()
         n = 0
         while time.monotonic() - start < forge_s and pr.controller.poll() is None:
@@ -649,11 +656,7 @@ def scenario_replayed_feedback(tmp: Path, drive: str = "hi5", replay_s: float = 
     on with fresh feedback until SIGTERM, and its log never jumps back."""
     pr = rig_processes(tmp, stall_tolerant(short_config(gain_s=10.0)), drive)
     try:
-        pr.start_controller()
-        wait_running(pr, drive=drive)
-        time.sleep(1.0)
-        forger = Forger(pr, drive)
-        _drain(pr)
+        forger = forging_on_a_running_controller(pr, drive)
         start = time.monotonic()
         n = 0
         while time.monotonic() - start < replay_s and pr.controller.poll() is None:
@@ -767,23 +770,31 @@ def scenario_stalled_drive(tmp: Path, drive: str = "hi5", stall_s: float = 0.25)
         pr.close()
 
 
-@pytest.mark.parametrize("drive", [*PROFILES, STANDARD])
-def test_a_second_controller_refuses_to_start_and_the_first_runs_on(tmp_path, drive):
-    figures = scenario_second_controller(tmp_path, drive)
-    print(f"\nsecond controller refused after {figures['refused_after_ms']:.0f} ms")
+#: The bus faults run on every profile, the standard CiA 402 drive too
+#: (replayed feedback has its own outcome there when a replay lands alone in
+#: a SYNC's window: scenario_replayed_feedback; docs/safety.md's fault
+#: table): what each shows, its scenario, and the line it prints.
+BUS_FAULTS = {
+    "a_second_controller_refuses_to_start_and_the_first_runs_on": (
+        scenario_second_controller, lambda f: f"second controller refused after {f['refused_after_ms']:.0f} ms"),
+    "a_foreign_command_frame_stops_a_running_controller_with_an_emergency_stop": (
+        scenario_foreign_command,
+        lambda f: f"foreign command -> emergency stop on the bus after {f['emergency_stop_after_ms']:.1f} ms"),
+    "a_forged_feedback_jump_turns_the_torque_off_at_once": (
+        scenario_forged_jump, lambda f: f"forged 0.5 rad jump -> drive disabled after {f['disabled_after_ms']:.0f} ms "
+                                        f"(refused as a position step: {bool(f['refused_as_step'])})"),
+    "replayed_and_copied_feedback_is_discarded_counted_and_never_used": (
+        scenario_replayed_feedback, lambda f: f"replayed feedback: {f}"),
+    "a_stalled_drive_ends_the_run_as_degraded_with_the_torque_off": (
+        scenario_stalled_drive, lambda f: f"stalled drive: {f}"),
+}
 
 
 @pytest.mark.parametrize("drive", [*PROFILES, STANDARD])
-def test_a_foreign_command_frame_stops_a_running_controller_with_an_emergency_stop(tmp_path, drive):
-    figures = scenario_foreign_command(tmp_path, drive)
-    print(f"\nforeign command -> emergency stop on the bus after {figures['emergency_stop_after_ms']:.1f} ms")
-
-
-@pytest.mark.parametrize("drive", [*PROFILES, STANDARD])
-def test_a_forged_feedback_jump_turns_the_torque_off_at_once(tmp_path, drive):
-    figures = scenario_forged_jump(tmp_path, drive)
-    print(f"\nforged 0.5 rad jump -> drive disabled after {figures['disabled_after_ms']:.0f} ms "
-          f"(refused as a position step: {bool(figures['refused_as_step'])})")
+@pytest.mark.parametrize("fault", BUS_FAULTS)
+def test_a_bus_fault_ends_safely(tmp_path, fault, drive):
+    scenario, line = BUS_FAULTS[fault]
+    print("\n" + line(scenario(tmp_path, drive)))
 
 
 @pytest.mark.parametrize("drive", [*PROFILES, STANDARD])
@@ -799,20 +810,6 @@ def test_a_forged_velocity_stops_the_run_before_the_drives_overspeed(tmp_path, d
 def test_a_velocity_inconsistent_with_the_position_is_refused_before_overspeed(tmp_path, drive, scale):
     figures = scenario_misscaled_velocity(tmp_path, drive, scale)
     print(f"\nvelocity reported x{scale}: {figures}")
-
-
-# The standard drive too, with its own outcome when a replay lands alone in a
-# SYNC's window (scenario_replayed_feedback; docs/safety.md's fault table).
-@pytest.mark.parametrize("drive", [*PROFILES, STANDARD])
-def test_replayed_and_copied_feedback_is_discarded_counted_and_never_used(tmp_path, drive):
-    figures = scenario_replayed_feedback(tmp_path, drive)
-    print(f"\nreplayed feedback: {figures}")
-
-
-@pytest.mark.parametrize("drive", [*PROFILES, STANDARD])
-def test_a_stalled_drive_ends_the_run_as_degraded_with_the_torque_off(tmp_path, drive):
-    figures = scenario_stalled_drive(tmp_path, drive)
-    print(f"\nstalled drive: {figures}")
 
 
 # --- 4. the controlled stop ----------------------------------------------------
