@@ -54,12 +54,11 @@ from canopen.sdo import SdoAbortedError
 
 from sensaug_bridge.virtual_hi5 import (
     DriveConfig,
-    DriveLog,
+    VirtualDrive,
     add_drive_args,
     coast,
     drive_config_fields,
     encoder_counts,
-    new_plant,
     read_backlog,
     serve,
 )
@@ -208,30 +207,21 @@ class _DriveNetwork(canopen.Network):
         return _LoopTask(self._owner, can_id, data, period)
 
 
-class VirtualCia402:
+class VirtualCia402(VirtualDrive):
     """The drive on a python-can bus. Not thread-safe: one thread calls
     :meth:`start`, :meth:`run` (or :meth:`handle`/:meth:`poll`), :meth:`stop`.
     The bus is owned by the caller and not closed here."""
 
-    def __init__(
-        self,
-        bus: can.BusABC,
-        config: Optional[Cia402Config] = None,
-        *,
-        log: bool = False,
-        clock: Callable[[], float] = time.monotonic,
-    ) -> None:
-        self.config = config or Cia402Config()
-        self.config.validate()
-        cfg = self.config
-        self.bus = bus
-        self._clock = clock
+    config: Cia402Config
+
+    def __init__(self, bus: can.BusABC, config: Optional[Cia402Config] = None, *, log: bool = False,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        cfg = config or Cia402Config()
+        super().__init__(bus, cfg, log, clock)
         self._tasks: list[_LoopTask] = []
         self.network = _DriveNetwork(bus, self)
         self.node = canopen.LocalNode(cfg.node, load_od(cfg.node, cfg.standard))
         self.network.add_node(self.node)
-        self.plant = new_plant(cfg)
-        self._rad_per_count = 2.0 * math.pi / cfg.encoder_counts_per_rev
         self._max_per_mille = cfg.max_torque_per_mille()
         self._store_config()
         self.node.add_write_callback(self._on_write)
@@ -260,7 +250,6 @@ class VirtualCia402:
         self._consumer_id: Optional[int] = None
         self._consumer_s = 0.0
         self._last_master_hb: Optional[float] = None
-        self._t0 = 0.0
         self.syncs = 0
         #: The counter of the SYNC being answered (0x2000; 0: the SYNC had none).
         self.sync_counter = 0
@@ -271,9 +260,6 @@ class VirtualCia402:
         self.unknown_frames = 0
         #: Frames for this drive with a length its handler cannot take.
         self.length_errors = 0
-        #: Resets done (:meth:`reset`: NMT reset node, or SIGUSR1 to the CLI).
-        self.resets = 0
-        self._reset_requested = False
         n = cfg.node
         self._lengths = {
             0x000: (2,),  # NMT command
@@ -283,9 +269,6 @@ class VirtualCia402:
         }
         #: What only this drive sends: EMCY, TPDO1, TPDO2, SDO response, heartbeat.
         self._own_ids = {0x080 + n, 0x180 + n, 0x280 + n, 0x580 + n, 0x700 + n}
-        self.log: Optional[DriveLog] = DriveLog() if log else None
-        #: The handle coasts (zero torque, real time) from here while not OPERATION_ENABLED.
-        self._coast_s = 0.0
 
     # -- dictionary --------------------------------------------------------------------
 
@@ -385,11 +368,6 @@ class VirtualCia402:
         self.node.nmt.state = "PRE-OPERATIONAL"  # restarts the heartbeat (0x1017)
         self._set_state(Cia402State.SWITCH_ON_DISABLED)
 
-    def request_reset(self) -> None:
-        """Asks :meth:`run` to :meth:`reset` at its next iteration (safe from
-        a signal handler)."""
-        self._reset_requested = True
-
     def stop(self) -> None:
         """Torque 0; leave OPERATION_ENABLED for SWITCH_ON_DISABLED; a last TPDO1 with
         the final statusword and a last heartbeat (NMT STOPPED)."""
@@ -412,13 +390,7 @@ class VirtualCia402:
         the master after that later SYNC, stale, and would only delay the
         answer it waits for (docs/cia402.md, "Backlog")."""
         end = math.inf if duration_s is None else self._clock() + duration_s
-        while stop is None or not stop.is_set():
-            now = self._clock()
-            if now >= end:
-                break
-            if self._reset_requested:
-                self._reset_requested = False
-                self.reset()
+        for now in self._iterations(stop, end):
             self.poll(now)
             due = min([end, now + 0.01] + [t.next_s for t in self._tasks])
             if self._last_master_hb is not None:
@@ -619,10 +591,6 @@ class VirtualCia402:
             self.log.add(timestamp - self._t0, self.syncs & 0xFF, self._to_nm(cmd), self._to_nm(applied),
                          self._encoder(x), v, time.perf_counter() - t_rx)
 
-    def _encoder(self, x_rad: float) -> float:
-        """The encoder's reading of ``x_rad``: whole increments."""
-        return encoder_counts(x_rad, self.config.encoder_counts_per_rev) * self._rad_per_count
-
     def _to_nm(self, per_mille: int) -> float:
         """Per-mille of the rated torque 0x6076 (mN m) to N m."""
         return per_mille * self.config.rated_torque_mnm * 1e-6
@@ -648,7 +616,8 @@ class VirtualCia402:
             tpdo.transmit()
 
     def summary(self) -> dict[str, Any]:
-        out: dict[str, Any] = {
+        """Counts for a one-line report at exit."""
+        return self._with_latency({
             "state": self.state.name,
             "faults": int(self.faults),
             "nmt": self.node.nmt.state,
@@ -660,10 +629,7 @@ class VirtualCia402:
             "unknown_frames": self.unknown_frames,
             "length_errors": self.length_errors,
             "resets": self.resets,
-        }
-        if self.log is not None:
-            out.update(self.log.latency_summary())
-        return out
+        })
 
 
 class _PdoLayouts:

@@ -41,7 +41,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field, fields
-from typing import Any, Callable, Optional, Sequence
+from typing import Any, Callable, Iterator, Optional, Sequence
 
 import can
 
@@ -211,7 +211,65 @@ def coast(plant: Plant, since_s: float, now_s: float, dt_s: float, log: Optional
     return since_s + steps * dt_s
 
 
-class VirtualHi5:
+class VirtualDrive:
+    """What every virtual drive profile shares: the bus (the caller's, not
+    closed here), its validated configuration, the clock, the plant and its
+    encoder, the record of its steps (``log``), and resets asked for from a
+    signal handler. A profile adds its protocol: :meth:`start`,
+    :meth:`reset`, :meth:`run`, :meth:`stop`, :meth:`summary`.
+    """
+
+    def __init__(self, bus: can.BusABC, config: DriveConfig, log: bool, clock: Callable[[], float]) -> None:
+        config.validate()
+        self.config = config
+        self.bus = bus
+        self._clock = clock
+        self.plant = new_plant(config)
+        self._rad_per_count = 2.0 * math.pi / config.encoder_counts_per_rev
+        #: The clock at :meth:`start`: the log's time origin.
+        self._t0 = 0.0
+        #: Resets done (:meth:`reset`).
+        self.resets = 0
+        self._reset_requested = False
+        self.log: Optional[DriveLog] = DriveLog() if log else None
+        #: The handle coasts (zero torque, real time) from here while the
+        #: drive is not enabled.
+        self._coast_s = 0.0
+
+    def reset(self) -> None:
+        """A restart of the drive's electronics; each profile its own."""
+        raise NotImplementedError
+
+    def request_reset(self) -> None:
+        """Asks :meth:`run` to :meth:`reset` at its next iteration (safe from
+        a signal handler)."""
+        self._reset_requested = True
+
+    def _iterations(self, stop: Optional[threading.Event], end: float) -> Iterator[float]:
+        """The serve loop's iterations: each one's clock time, until ``stop``
+        is set or the clock reaches ``end``; a reset asked for is done first."""
+        while stop is None or not stop.is_set():
+            now = self._clock()
+            if now >= end:
+                break
+            if self._reset_requested:
+                self._reset_requested = False
+                self.reset()
+            yield now
+
+    def _encoder(self, x_rad: float) -> float:
+        """The encoder's reading of ``x_rad``: whole counts (increments)."""
+        return encoder_counts(x_rad, self.config.encoder_counts_per_rev) * self._rad_per_count
+
+    def _with_latency(self, counts: dict[str, Any]) -> dict[str, Any]:
+        """``counts`` for the report at exit, with the log's command-to-answer
+        latencies when there is a log."""
+        if self.log is not None:
+            counts.update(self.log.latency_summary())
+        return counts
+
+
+class VirtualHi5(VirtualDrive):
     """The drive's state machine on a python-can bus.
 
     Not thread-safe: one thread calls :meth:`start`, then :meth:`run` (or
@@ -219,25 +277,14 @@ class VirtualHi5:
     by the caller and is not closed here.
     """
 
-    def __init__(
-        self,
-        bus: can.BusABC,
-        config: Optional[DriveConfig] = None,
-        *,
-        log: bool = False,
-        clock: Callable[[], float] = time.monotonic,
-    ) -> None:
-        self.config = config or DriveConfig()
-        self.config.validate()
-        self.bus = bus
-        self._clock = clock
+    def __init__(self, bus: can.BusABC, config: Optional[DriveConfig] = None, *, log: bool = False,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        super().__init__(bus, config or DriveConfig(), log, clock)
         #: On SocketCAN python-can's ``Message.timestamp`` is the kernel's
         #: arrival time (``SO_TIMESTAMPNS``, wall clock): the watchdog is then
         #: measured from when a frame arrived, not from when this process read it.
         self.kernel_timestamps = _has_kernel_timestamps(bus)
-        self.plant = new_plant(self.config)
         cfg = self.config
-        self._rad_per_count = 2.0 * math.pi / cfg.encoder_counts_per_rev
         self._ids = {name: p.frame_id(name, cfg.node) for name in p.BASE_IDS}
         self._handlers: dict[int, Callable[[can.Message, float], None]] = {
             self._ids["TorqueCommand"]: self._on_torque,
@@ -256,7 +303,6 @@ class VirtualHi5:
         self._fault_counter = 0
         self._hb_counter = 0
         self._next_hb_s = 0.0
-        self._t0 = 0.0
         # Error counts (unbounded here; the Heartbeat saturates them at 255).
         self.crc_errors = 0
         self.length_errors = 0
@@ -268,15 +314,9 @@ class VirtualHi5:
         #: change while ENABLED. Not in the Heartbeat.
         self.ignored = 0
         self.accepted = 0
-        #: Resets done (:meth:`reset`).
-        self.resets = 0
-        self._reset_requested = False
         #: Answer the TorqueCommand being handled (False for one a later
         #: command in the same backlog supersedes).
         self._answer = True
-        self.log: Optional[DriveLog] = DriveLog() if log else None
-        #: The handle coasts (zero torque, real time) from here while not ENABLED.
-        self._coast_s = 0.0
 
     # -- set-up --------------------------------------------------------------------
 
@@ -307,11 +347,6 @@ class VirtualHi5:
         self._send_heartbeat()
         self._next_hb_s = self._clock() + self.config.heartbeat_period_s
 
-    def request_reset(self) -> None:
-        """Asks :meth:`run` to :meth:`reset` at its next iteration (safe from
-        a signal handler)."""
-        self._reset_requested = True
-
     def stop(self) -> None:
         """Zero torque, leave ENABLED for DISABLED, send a final Fault and Heartbeat."""
         self.torque_nm = 0.0
@@ -337,13 +372,7 @@ class VirtualHi5:
         # command still queued in the socket after a stall of this process
         # is not a missed command.
         read_until = self._clock()
-        while stop is None or not stop.is_set():
-            now = self._clock()
-            if now >= end:
-                break
-            if self._reset_requested:
-                self._reset_requested = False
-                self.reset()
+        for now in self._iterations(stop, end):
             self.poll(now, read_until if self.kernel_timestamps else None)
             due = min(self._next_hb_s, end, now + 0.01)
             if self.state == State.ENABLED:
@@ -462,10 +491,6 @@ class VirtualHi5:
         if self.log is not None:
             self.log.add(now - self._t0, cmd.sequence, cmd.torque_nm, torque, x_q, v, time.perf_counter() - t_rx)
 
-    def _encoder(self, x_rad: float) -> float:
-        """The encoder's reading of ``x_rad``: whole counts."""
-        return encoder_counts(x_rad, self.config.encoder_counts_per_rev) * self._rad_per_count
-
     def _on_set_state(self, msg: can.Message, now: float) -> None:
         try:
             req = p.SetState.decode(bytes(msg.data[: msg.dlc]))
@@ -577,7 +602,7 @@ class VirtualHi5:
     def summary(self) -> dict[str, Any]:
         """Counts for a one-line report at exit."""
         hb = self.heartbeat()
-        out: dict[str, Any] = {
+        return self._with_latency({
             "state": self.state.name,
             "fault_flags": int(self.fault_flags),
             "accepted": self.accepted,
@@ -588,10 +613,7 @@ class VirtualHi5:
             "unknown_ids": hb.unknown_ids,
             "range_errors": self.range_errors,
             "resets": self.resets,
-        }
-        if self.log is not None:
-            out.update(self.log.latency_summary())
-        return out
+        })
 
 
 def _has_kernel_timestamps(bus: can.BusABC) -> bool:
