@@ -2,7 +2,8 @@
 and whether it follows the CiA 402 torque resolution (docs/cia402.md quotes
 its output).
 
-Usage: .venv/bin/python scripts/measure_cia402_gap.py [RUNS]   (default 3)
+Usage: .venv/bin/python scripts/measure_cia402_gap.py [RUNS] [--seed S] [--lhh L]
+(default 3 runs, seed 0, Lhh 2: the test's configuration)
 
 RUNS times, the configuration of tests/test_rig_cia402.py (3 s per phase,
 stall-tolerant; its seeds, so the runs differ only in timing: which ticks
@@ -17,9 +18,16 @@ Lhh minus the Hi5 run's, the partner-target RMSE, the integrated RMSE and the
 missing feedbacks; a run that did not complete prints its stop reason. Every
 process is started and stopped here. Since issue 21 the loop's estimators use
 the torque as the drive applies it (docs/cia402.md, "The Lhh difference").
+
+``--seed S`` runs the same configuration with the preset's trial seed S (the
+preset's ``world.seed = S``, ``robot.seed = S + 1000003``; on the virtual rig
+that seed draws the robot's target-view noise of the integration phase, the
+virtual drive being noise-free); ``--lhh L`` gives the virtual human
+``L_h = [0, 0, L]`` (another partner: other torques to round).
 """
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 import tempfile
@@ -43,9 +51,18 @@ VARIANTS = [
 ]
 
 
-def one_run(drive: str, drive_args: list[str]) -> rig.RigRun | str:
-    """The completed run, or why it did not complete."""
+def configured(drive: str, seed: int, lhh: float):
+    """The test's configuration on `drive`, with trial seed `seed` (as
+    ``presets.hi5_rig(seed=...)`` sets it) and partner gain `lhh`."""
     cfg = experiment_config(drive)
+    cfg.world.seed, cfg.robot.seed = seed, seed + 1_000_003
+    cfg.partner.gains = [0.0, 0.0, lhh]
+    return cfg
+
+
+def one_run(drive: str, drive_args: list[str], seed: int, lhh: float) -> rig.RigRun | str:
+    """The completed run, or why it did not complete."""
+    cfg = configured(drive, seed, lhh)
     with tempfile.TemporaryDirectory() as d:
         pr = Processes(Path(d), cfg, drive_args=drive_args)
         try:
@@ -62,13 +79,14 @@ def one_run(drive: str, drive_args: list[str]) -> rig.RigRun | str:
     return rig.RigRun(config=cfg, log=log, stats=stats, returncode=code, drive_returncode=0, stderr="")
 
 
-def main(runs: int) -> None:
+def main(runs: int, seed: int, lhh: float) -> None:
+    print(f"seed {seed}, Lhh {lhh}")
     print("| run | drive (torque step) | gains estimate | Lhh - Lhh(hi5) | partner-target RMSE | integrated RMSE | missing feedback |")
     print("|---|---|---|---|---|---|---|")
     for i in range(runs):
         lhh_hi5 = None
         for label, drive, args in VARIANTS:
-            run = one_run(drive, args)
+            run = one_run(drive, args, seed, lhh)
             if isinstance(run, str):
                 print(f"| {i} | {label} | not completed: {run} | | | | |", flush=True)
                 continue
@@ -82,4 +100,9 @@ def main(runs: int) -> None:
 
 
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 3)
+    ap = argparse.ArgumentParser(description="The Lhh difference between the drive profiles (docs/cia402.md).")
+    ap.add_argument("runs", nargs="?", type=int, default=3, help="repetitions (default 3)")
+    ap.add_argument("--seed", type=int, default=0, help="the preset's trial seed (default 0, the test's)")
+    ap.add_argument("--lhh", type=float, default=2.0, help="the virtual human's Lhh (default 2, the test's)")
+    a = ap.parse_args()
+    main(a.runs, a.seed, a.lhh)

@@ -133,6 +133,30 @@ def test_cia402_gives_the_hi5_outcomes(runs, drive):
     assert integ["cia402"]["integrated"] < 1.5 * integ["hi5"]["integrated"] + 0.02, integ
 
 
+@pytest.mark.parametrize("drive", ("hi5", *CIA402_RUNS))
+def test_the_estimators_predict_with_the_torque_the_drive_applies(runs, drive):
+    """The drive applies the sum sent rounded to its step (CiA 402: 1 mN m,
+    the Hi5: 1 uN m); the rounding is the robot's: its ``u`` (what its
+    estimators predicted with) plus the virtual human's exact ``u_h`` is the
+    torque sent, so the partner they identify is the virtual human, not its
+    torque quantised (docs/cia402.md, "The Lhh difference between the
+    profiles"). Rounding the robot's command alone (the drive then applying
+    ``u + round(u_h)``) misses by up to half a step: this fails."""
+    log = runs[drive].log
+    unit = log.meta["resolved"]["rad_per_unit"]
+    step_nm = log.meta["end"]["robot_torque_step"] * unit
+    assert step_nm == pytest.approx(1e-3 if drive != "hi5" else 1e-6)
+    ctl = log.data[(log["phase"] >= 0) & (log["guard"] == 0)]
+    assert len(ctl) > 0.99 * len(log)
+    sent = ctl["torque_nm"]
+    np.testing.assert_allclose(sent / step_nm, np.round(sent / step_nm), rtol=0, atol=1e-6)
+    implied = (ctl["u"] + ctl["u_h"]) * unit + ctl["friction_nm"]
+    np.testing.assert_allclose(implied, sent, rtol=0, atol=1e-3 * step_nm)
+    # The partner's torque is its own: mostly off the grid.
+    off_grid = np.abs(ctl["u_h"] * unit / step_nm - np.round(ctl["u_h"] * unit / step_nm)) > 1e-3
+    assert off_grid.mean() > 0.5
+
+
 def test_demo_and_rig_commands_take_the_drive_profile(tmp_path):
     """``sensaug rig --drive cia402`` overrides the file's profile and says
     which drive it runs."""

@@ -394,11 +394,13 @@ def replay_robot(
     xdot_meas: NDArray[np.float64],
     fresh: NDArray[np.bool_],
     /,
-    torque_step: float | None = None,
+    applied_u: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.uint8], dict[str, int]]:
     """Re-runs the robot's controller over recorded measurements: tick ``k``
     fuses ``(x_meas[k], xdot_meas[k])`` when ``fresh[k]``, else only
-    predicts, exactly as online.
+    predicts, exactly as online; the estimators predict with ``applied_u[k]``
+    when given (a rig log's ``u``: the torque the drive applied for the
+    robot), else with the replayed command.
 
     Returns ``(records, counters)``: the rows as packed records, as
     ``run_scenario`` returns them (``sensaug.logs.from_records``; the

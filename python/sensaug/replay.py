@@ -6,8 +6,9 @@ each was ``fresh``) with the configuration it was recorded with, and returns
 the log with the controller's columns (:data:`ESTIMATE_COLUMNS`) replaced by
 the replayed ones. The core makes the very call the rig loop and the
 simulation make online (``Robot::tick_at``: update with the measurement,
-command, predict), so a replay reproduces the online columns bit for bit
-(``docs/logs.md``, "Replay").
+command, predict; on a rig's log the prediction takes the torque the drive
+applied for the robot, its ``u``), so a replay reproduces the online columns
+bit for bit (``docs/logs.md``, "Replay").
 
 The recorded configuration is checked before it is used: the log's
 metadata carries the SHA-256 of the configuration the run had
@@ -167,8 +168,9 @@ def replay(log: str | Path | Log, config: ScenarioConfig | None = None, *, allow
         np.ascontiguousarray(d["x_meas"], dtype=np.float64),
         np.ascontiguousarray(d["xdot_meas"], dtype=np.float64),
         np.ascontiguousarray(d["fresh"], dtype=np.bool_),
-        # A rig run's robot rounded its commands to the drive's torque step.
-        torque_step=(log.meta.get("end") or {}).get("robot_torque_step"),
+        # A rig run's estimators predicted with the robot's part of the torque
+        # the drive applied (its `u`), which no replayed command changes.
+        applied_u=np.ascontiguousarray(d["u"], dtype=np.float64) if log.meta.get("source") == "rig" else None,
     )
     columns = from_records(records)
     beyond = np.flatnonzero(columns["phase"] == UNKNOWN_INT)

@@ -1,6 +1,9 @@
 //! The robot's controller, the piece the real-time loop runs: one
 //! [`Robot::tick_at`] per sample updates the estimators with the
-//! measurement, computes the guarded command, then predicts with it.
+//! measurement, computes the guarded command, then predicts with it. A
+//! caller whose actuator changes the command (a drive's torque step) splits
+//! the tick: [`Robot::decide`], then [`Robot::predict`] with the torque the
+//! actuator applies for the robot.
 //!
 //! The partner identification (stages 1 and 2) is an [`Identifier`]; the
 //! goal integration (stage 3) and the control law are here. Everything is
@@ -101,10 +104,6 @@ pub struct Robot<'a> {
     counters: RobotCounters,
     stage3_tally: FilterTally,
     last_measurement: (f64, f64),
-    /// The drive's torque resolution (model units; None: exact, as in
-    /// simulation): the command is the torque as the drive applies it
-    /// ([`Robot::set_torque_step`]).
-    torque_step: Option<f64>,
     /// Stage 2's measurement covariance with the integration phase's
     /// target-view noise added, set when that phase starts.
     stage2_R_noisy: SMatrix<f64, 5, 5>,
@@ -161,19 +160,8 @@ impl<'a> Robot<'a> {
             counters: RobotCounters::default(),
             stage3_tally: FilterTally::default(),
             last_measurement: (0.0, 0.0),
-            torque_step: None,
             stage2_R_noisy: cfg.stage2.R,
         })
-    }
-
-    /// The drive applies torque in steps of `step` (model units; a rig's
-    /// drive profile: CiA 402 one per-mille of its rated torque, the Hi5 the
-    /// DBC's scale): from now on each command is rounded to it
-    /// ([`applied_torque`]), so the estimators predict with, and the log
-    /// records, the torque the drive applies. None, or a step that is not
-    /// finite and positive: exact (simulation).
-    pub fn set_torque_step(&mut self, step: Option<f64>) {
-        self.torque_step = step.filter(|s| s.is_finite() && *s > 0.0);
     }
 
     /// The protocol this robot follows.
@@ -214,8 +202,26 @@ impl<'a> Robot<'a> {
     /// [`Robot::tick_at`] for tick `k` (samples the protocol itself); after
     /// the protocol's end every controller column is unknown but `u`, 0.
     pub fn tick_with(&mut self, k: u64, measurement: Option<(f64, f64)>, row: &mut Row) {
+        self.tick_applied(k, measurement, None, row)
+    }
+
+    /// [`Robot::tick_with`], the estimators predicting with `applied` (the
+    /// torque a recorded run applied for the robot, the log's `u`) instead
+    /// of the command when given; `row.u` is the torque predicted with.
+    pub fn tick_applied(
+        &mut self,
+        k: u64,
+        measurement: Option<(f64, f64)>,
+        applied: Option<f64>,
+        row: &mut Row,
+    ) {
         match self.protocol.sample(k) {
-            Some(sample) => self.tick_at(&sample, measurement, row),
+            Some(sample) => {
+                let decision = self.decide(&sample, measurement, row);
+                let u = applied.unwrap_or(decision.u);
+                self.predict(decision, u);
+                row.u = u;
+            }
             None => {
                 row.clear(ColumnSource::Controller);
                 row.u = 0.0;
@@ -231,6 +237,20 @@ impl<'a> Robot<'a> {
     /// controller column of `row` (the guarded command in `row.u`, the
     /// estimates, unknown where the phase has none) and nothing else.
     pub fn tick_at(&mut self, sample: &Sample<'_>, measurement: Option<(f64, f64)>, row: &mut Row) {
+        let decision = self.decide(sample, measurement, row);
+        self.predict(decision, decision.u);
+    }
+
+    /// The first half of [`Robot::tick_at`]: the estimators' update with the
+    /// measurement and the guarded command (in `row.u` and the returned
+    /// [`Decision`]), every controller column of `row` written. The tick is
+    /// complete after [`Robot::predict`].
+    pub fn decide(
+        &mut self,
+        sample: &Sample<'_>,
+        measurement: Option<(f64, f64)>,
+        row: &mut Row,
+    ) -> Decision {
         let fresh = measurement.filter(|(x, v)| x.is_finite() && v.is_finite());
         if let Some(m) = fresh {
             self.last_measurement = m;
@@ -242,41 +262,65 @@ impl<'a> Robot<'a> {
         row.clear(ColumnSource::Controller);
         row.phase = Some(sample.phase.kind);
         row.e_meas = x - sample.tau;
-        row.u = match sample.phase.kind {
+        let decision = match sample.phase.kind {
             PhaseKind::Gains | PhaseKind::Trajectory => {
                 self.identification_tick(sample, fresh, (x, v), row)
             }
             PhaseKind::Integration => self.integration_tick(sample, fresh, (x, v), row),
         };
+        row.u = decision.u;
+        decision
+    }
+
+    /// The second half of [`Robot::tick_at`]: every estimator propagates
+    /// with `applied`, the robot's torque as the handle receives it (model
+    /// units): `decision.u` in simulation; on a rig, the command plus the
+    /// drive's rounding of the torque sent (`docs/cia402.md`, "The Lhh
+    /// difference between the profiles").
+    pub fn predict(&mut self, decision: Decision, applied: f64) {
+        let Decision {
+            kind, dtau, dtau_h, ..
+        } = decision;
+        // Stage 3's partner torque is stage 2's estimate before it predicts.
+        let u_h_hat =
+            (kind == PhaseKind::Integration).then(|| self.identifier.trajectory().partner_torque());
+        self.identifier.predict(kind, applied, dtau, dtau_h);
+        if let Some(u_h_hat) = u_h_hat {
+            let r = self.stage3.predict(applied + u_h_hat, 0.0);
+            self.stage3_tally.note(r);
+        }
     }
 
     /// Stages 1 and 2: update the identifier, the command on the true
-    /// targets, predict.
+    /// targets; the prediction reads the targets' increments.
     fn identification_tick(
         &mut self,
         s: &Sample<'_>,
         fresh: bool,
         (x, v): (f64, f64),
         out: &mut Row,
-    ) -> f64 {
+    ) -> Decision {
         let y = fresh.then(|| Vector3::new(x - s.tau, v, x - s.tau_h));
         out.set_partner_estimate(&self.identifier.update(s, y, x, None));
-        let u = self.guard(feedback_torque(&self.cfg.gains, &xi(x, v, s.tau, s.tau_h)));
-        self.identifier.predict(s.phase.kind, u, s.dtau, s.dtau_h);
-        u
+        Decision {
+            u: self.guard(feedback_torque(&self.cfg.gains, &xi(x, v, s.tau, s.tau_h))),
+            kind: s.phase.kind,
+            dtau: s.dtau,
+            dtau_h: s.dtau_h,
+        }
     }
 
     /// Stage 3: the robot sees its target through noise; stage 2 keeps
     /// running (its `x - tau_h^` is the partner channel), both stage-3
-    /// filters update, the command uses the own or the integrated estimate,
-    /// and everything predicts with the target motion unknown (0).
+    /// filters update, the command uses the own or the integrated estimate;
+    /// everything predicts with the target motion unknown (0).
     fn integration_tick(
         &mut self,
         s: &Sample<'_>,
         fresh: bool,
         (x, v): (f64, f64),
         out: &mut Row,
-    ) -> f64 {
+    ) -> Decision {
         let std = s.phase.target_noise_std;
         let e_meas = x - (s.tau + self.noise.normal(std));
         out.e_meas = e_meas;
@@ -299,13 +343,13 @@ impl<'a> Robot<'a> {
         out.e_hat_fused_var = self.stage3.variance(true)[0];
         out.partner_var = self.stage3.partner_variance();
         let e_hat = self.stage3.estimate(self.cfg.integrate)[0];
-        let u = self.guard(feedback_torque(&self.cfg.gains, &[e_hat, v, 0.0]));
-        let u_h_hat = self.identifier.trajectory().partner_torque();
         // The target is unknown to the robot here: its increments are 0.
-        self.identifier.predict(s.phase.kind, u, 0.0, 0.0);
-        let r = self.stage3.predict(u + u_h_hat, 0.0);
-        self.stage3_tally.note(r);
-        u
+        Decision {
+            u: self.guard(feedback_torque(&self.cfg.gains, &[e_hat, v, 0.0])),
+            kind: s.phase.kind,
+            dtau: 0.0,
+            dtau_h: 0.0,
+        }
     }
 
     /// Start of an integration phase: the phase's target-view noise enters
@@ -334,11 +378,23 @@ impl<'a> Robot<'a> {
             Guard::Clamped => self.counters.clamped += 1,
             Guard::NonFinite => self.counters.non_finite += 1,
         }
-        match self.torque_step {
-            Some(step) => applied_torque(u, step, self.cfg.torque_limit),
-            None => u,
-        }
+        u
     }
+}
+
+/// What [`Robot::decide`] leaves for [`Robot::predict`]: the tick's guarded
+/// command and the inputs the estimators' prediction reads besides the
+/// torque.
+#[must_use = "the tick is complete after Robot::predict"]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Decision {
+    /// The robot's command after its torque guard (model units).
+    pub u: f64,
+    kind: PhaseKind,
+    /// The targets' increments the prediction takes (0 where the robot
+    /// does not know its target: integration phases).
+    dtau: f64,
+    dtau_h: f64,
 }
 
 /// The torque a drive applies for command `u` (already within `limit`):

@@ -374,26 +374,33 @@ pub fn simulate(
 }
 
 /// Re-runs the robot's controller offline over a recorded trial: for each
-/// tick `k`, `robot.tick_with(k, measurements[k], &mut out[k])`, the very call
-/// (and so the same step order: update with the measurement, command,
-/// predict) that the rig loop and the simulation make online. `None` is a
-/// tick without a fresh measurement (predict only, the command on the last
-/// one), as online. `robot` must be new (built from the recording's
-/// configuration, its protocol and seed) for the numbers to repeat bit for
-/// bit. Only the controller's columns of `out` are written (the caller's
-/// other columns are kept); after the protocol's end they are unknown and
-/// `u` is 0.
+/// tick `k`, `robot.tick_applied(k, measurements[k], applied[k], &mut out[k])`,
+/// the very calls (and so the same step order: update with the measurement,
+/// command, predict) that the rig loop and the simulation make online. `None`
+/// is a tick without a fresh measurement (predict only, the command on the
+/// last one), as online. `applied` (a rig's log: its `u`, the robot's part of
+/// the torque the drive applied) is what the estimators predict with, as
+/// they did online; without it, the replayed command (a simulation's log).
+/// `robot` must be new (built from the recording's configuration, its
+/// protocol and seed) for the numbers to repeat bit for bit. Only the
+/// controller's columns of `out` are written (the caller's other columns
+/// are kept); after the protocol's end they are unknown and `u` is 0.
 ///
 /// Returns the robot's counters after the last tick; a length mismatch is
 /// reported before anything runs. Allocation-free.
 pub fn replay_robot(
     robot: &mut Robot<'_>,
     measurements: &[Option<(f64, f64)>],
+    applied: Option<&[f64]>,
     out: &mut [Row],
 ) -> Result<RobotCounters, ReplayError> {
     check_len(ReplayArg::Rows, measurements.len(), out.len())?;
+    if let Some(a) = applied {
+        check_len(ReplayArg::U, measurements.len(), a.len())?;
+    }
     for (k, (m, o)) in measurements.iter().zip(out.iter_mut()).enumerate() {
-        robot.tick_with(k as u64, *m, o);
+        let u = applied.map(|a| a[k]);
+        robot.tick_applied(k as u64, *m, u, o);
     }
     Ok(robot.counters())
 }

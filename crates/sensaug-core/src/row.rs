@@ -332,7 +332,7 @@ schema! {
     fresh: bool => bool, "1", World, "the measurement was new this tick (else the estimators only predicted)";
     tau: f64 => f64, "pos", World, "robot target; NaN outside the protocol";
     tau_h: f64 => f64, "pos", World, "partner target; NaN outside the protocol";
-    u: f64 => f64, "trq", Controller, "robot command after its torque guard; NaN outside the protocol";
+    u: f64 => f64, "trq", Controller, "robot command after its torque guard; on the rig plus the drive's rounding of the torque sent (the robot's part of the torque applied: what its estimators predict with); NaN outside the protocol";
     u_h: f64 => f64, "trq", World, "partner (virtual human) torque; NaN outside the protocol";
     eps: f64 => f64, "trq", World, "motor noise added to the summed torque (simulation; NaN on the rig)";
     torque_nm: f64 => f64, "N m", Rig, "torque sent to the drive after its guard (rig; NaN in simulations)";

@@ -66,7 +66,7 @@ fn a_simulated_trial_replays_bit_for_bit() {
     let protocol = Protocol::new(&phases, common::DT).unwrap();
     let mut robot = Robot::new(common::robot(), protocol).unwrap();
     let mut out = vec![Row::UNKNOWN; recs.len()];
-    let counters = replay_robot(&mut robot, &measurements, &mut out).unwrap();
+    let counters = replay_robot(&mut robot, &measurements, None, &mut out).unwrap();
     let online = recs;
     assert!(online.iter().any(|t| t.e_hat_fused.is_finite()));
     assert_identical(&out, &online);
@@ -98,7 +98,7 @@ fn missing_measurements_replay_as_the_online_predict_only_ticks() {
         .collect();
     let mut robot = Robot::new(common::robot(), protocol).unwrap();
     let mut out = vec![Row::UNKNOWN; recs.len()];
-    let counters = replay_robot(&mut robot, &measurements, &mut out).unwrap();
+    let counters = replay_robot(&mut robot, &measurements, None, &mut out).unwrap();
     assert_identical(&out, &online);
     assert_eq!(counters, online_robot.counters());
     let lost = measurements.iter().filter(|m| m.is_none()).count() as u64 + 1;
@@ -115,7 +115,7 @@ fn lengths_are_checked_and_ticks_after_the_protocol_are_none() {
     let mut robot = Robot::new(common::robot(), protocol).unwrap();
     let mut out = vec![Row::UNKNOWN; 3];
     assert_eq!(
-        replay_robot(&mut robot, &[None; 4], &mut out),
+        replay_robot(&mut robot, &[None; 4], None, &mut out),
         Err(ReplayError::Length {
             which: ReplayArg::Rows,
             needed: 4,
@@ -124,7 +124,7 @@ fn lengths_are_checked_and_ticks_after_the_protocol_are_none() {
     );
     let n = protocol.total_ticks() as usize;
     let mut out = vec![Row::UNKNOWN; n + 2];
-    replay_robot(&mut robot, &vec![Some((0.0, 0.0)); n + 2], &mut out).unwrap();
+    replay_robot(&mut robot, &vec![Some((0.0, 0.0)); n + 2], None, &mut out).unwrap();
     assert_eq!(
         out[n - 1].phase,
         Some(sensaug_core::protocol::PhaseKind::Integration)
@@ -143,7 +143,7 @@ fn a_robot_replay_does_not_allocate() {
         .collect();
     let mut out = vec![Row::UNKNOWN; n];
     let mut result = None;
-    let a = allocations(|| result = Some(replay_robot(&mut robot, &measurements, &mut out)));
+    let a = allocations(|| result = Some(replay_robot(&mut robot, &measurements, None, &mut out)));
     assert_eq!(a, 0);
     assert!(result.unwrap().is_ok());
     assert!(out.iter().all(|t| t.u.is_finite()));

@@ -15,19 +15,27 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
 }
 
 #[pyfunction]
-#[pyo3(signature = (config, x_meas, xdot_meas, fresh, /, torque_step=None))]
+#[pyo3(signature = (config, x_meas, xdot_meas, fresh, /, applied_u=None))]
 fn replay_robot<'py>(
     py: Python<'py>,
     config: &Config,
     x_meas: PyReadonlyArray1<'py, f64>,
     xdot_meas: PyReadonlyArray1<'py, f64>,
     fresh: PyReadonlyArray1<'py, bool>,
-    torque_step: Option<f64>,
+    applied_u: Option<PyReadonlyArray1<'py, f64>>,
 ) -> PyResult<(Bound<'py, numpy::PyArray1<u8>>, Bound<'py, PyDict>)> {
     let resolved = &config.resolved;
     let (x, v) = (slice(&x_meas, "x_meas")?, slice(&xdot_meas, "xdot_meas")?);
     let fresh = slice(&fresh, "fresh")?;
-    for (name, len) in [("xdot_meas", v.len()), ("fresh", fresh.len())] {
+    let applied = applied_u
+        .as_ref()
+        .map(|a| slice(a, "applied_u"))
+        .transpose()?;
+    let lengths = [("xdot_meas", v.len()), ("fresh", fresh.len())];
+    for (name, len) in lengths
+        .into_iter()
+        .chain(applied.map(|a| ("applied_u", a.len())))
+    {
         if len != x.len() {
             let msg = format!(
                 "{name}: {len} values, but x_meas has {}; pass one value per tick",
@@ -39,7 +47,6 @@ fn replay_robot<'py>(
     let phases = resolved.phases();
     let mut robot =
         Robot::new(resolved.robot, protocol(resolved, &phases)?).map_err(|_| rejected())?;
-    robot.set_torque_step(torque_step);
     let measurements: Vec<_> = (0..x.len())
         .map(|k| fresh[k].then_some((x[k], v[k])))
         .collect();
@@ -54,7 +61,9 @@ fn replay_robot<'py>(
         })
         .collect();
     let counters = py
-        .detach(|| sensaug_core::replay::replay_robot(&mut robot, &measurements, &mut rows))
+        .detach(|| {
+            sensaug_core::replay::replay_robot(&mut robot, &measurements, applied, &mut rows)
+        })
         .map_err(|e| PyValueError::new_err(e.to_string()))?;
     let d = [("ticks", rows.len() as u64)]
         .into_iter()

@@ -234,6 +234,27 @@ impl HandleView {
     }
 }
 
+/// The torque the drive applies for the sum `asked_nm` (N m, guarded at
+/// `limit_nm`): rounded to its step `step_nm` ([`applied_torque`]); and the
+/// robot's part of it (model units): its command `u` plus that rounding.
+///
+/// The drive rounds the sum of the robot's and the virtual human's torques;
+/// the rounding is the robot's, so the virtual human's torque reaches the
+/// handle exact, as a person's does on a real rig, and the estimators,
+/// predicting with the robot's part, identify the virtual human itself, not
+/// its torque quantised to the step (`docs/cia402.md`, "The Lhh difference
+/// between the profiles").
+pub fn drive_torque(
+    asked_nm: f64,
+    u: f64,
+    step_nm: f64,
+    limit_nm: f64,
+    rad_per_unit: f64,
+) -> (f64, f64) {
+    let torque_nm = applied_torque(asked_nm, step_nm, limit_nm);
+    (torque_nm, u + (torque_nm - asked_nm) / rad_per_unit)
+}
+
 /// The loop's state: everything allocated at set-up.
 pub struct Rig<'a> {
     settings: LoopSettings,
@@ -259,7 +280,8 @@ pub struct Rig<'a> {
     deadline_misses: u64,
     torque_clamped: u64,
     /// The drive's torque resolution (N m; [`DriveLink::torque_step_nm`],
-    /// known after the enable): commands are rounded to it.
+    /// known after the enable): the torque sent is rounded to it
+    /// ([`drive_torque`]).
     torque_step_nm: f64,
     non_finite: u64,
     ticks_run: u64,
@@ -352,10 +374,9 @@ impl<'a> Rig<'a> {
             .map_err(|e| StartError::Drive(e.to_string()))?;
         // Commands seen while the link alone read the bus: tick 0 stops on them.
         rig.can.foreign_commands += rig.link.foreign_commands_in_setup() - seen_connecting;
-        // The estimators and the log see the torque as the drive applies it.
+        // The estimators and the log see the torque as the drive applies it
+        // (`Rig::control`).
         rig.torque_step_nm = rig.link.torque_step_nm();
-        rig.robot
-            .set_torque_step(Some(rig.torque_step_nm / settings.rad_per_unit));
         rig.times.enable_ns = instant_ns(times.enable);
         rig.times.first_command_ns = instant_ns(times.first_command);
         // The enable's feedback: the first one, seen by tick 0.
@@ -643,14 +664,16 @@ impl<'a> Rig<'a> {
         }
     }
 
-    /// Decide, while running: the robot's tick (predict-only without fresh
-    /// feedback), the virtual human's torque, their sum in N m guarded at the
-    /// drive's limit.
+    /// Decide, while running: the robot's command (its estimators updated
+    /// when the feedback is fresh), the virtual human's torque, their sum in
+    /// N m guarded at the drive's limit and rounded to the drive's torque
+    /// step; then the robot's estimators predict with its part of that sum.
     fn control(&mut self, sample: &Sample<'_>, sensed: &Sensed) -> Command {
         let (x, v) = (sensed.x, sensed.v);
         let mut row = Row::UNKNOWN;
-        self.robot
-            .tick_at(sample, sensed.fresh.then_some((x, v)), &mut row);
+        let decision = self
+            .robot
+            .decide(sample, sensed.fresh.then_some((x, v)), &mut row);
         let seen = self.handle_view.see(PlantState { x, v }, sensed.fresh);
         let (u_h, _) = self
             .partner
@@ -675,11 +698,15 @@ impl<'a> Rig<'a> {
             u_h * unit,
             self.settings.torque_limit_nm,
         );
-        let torque_nm = applied_torque(
+        let (torque_nm, u) = drive_torque(
             torque_nm,
+            row.u,
             self.torque_step_nm,
             self.settings.torque_limit_nm,
+            unit,
         );
+        self.robot.predict(decision, u);
+        row.u = u;
         match g {
             Guard::Passed => {}
             Guard::Clamped => self.torque_clamped += 1,
@@ -747,8 +774,8 @@ impl<'a> Rig<'a> {
         }
     }
 
-    /// The step the robot's commands were rounded to (model units; the
-    /// drive's torque step over rad per unit), None before the enable.
+    /// The step the torque sent was rounded to (model units; the drive's
+    /// torque step over rad per unit), None before the enable.
     pub fn robot_torque_step(&self) -> Option<f64> {
         let step = self.torque_step_nm / self.settings.rad_per_unit;
         step.is_finite().then_some(step)

@@ -336,8 +336,8 @@ fn run(resolved: &Resolved, feed_to: &[SocketAddr]) -> Result<StopReason, RunErr
     end.insert("realtime".into(), report.realtime.clone().into());
     end.insert("exit_code".into(), reason.exit_code().into());
     end.insert("drive_status".into(), rig_loop.drive_status().name().into());
-    // The robot's commands were rounded to the drive's torque step (model
-    // units; null: not set up): a replay rounds the same way.
+    // The drive's torque step (model units; null: not set up): the torque
+    // sent was rounded to it, the rounding carried by the robot's `u`.
     end.insert(
         "robot_torque_step".into(),
         rig_loop.robot_torque_step().into(),

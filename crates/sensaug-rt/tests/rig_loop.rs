@@ -4,8 +4,10 @@
 //! counted only on the loop's thread), with or without the sleep-then-spin
 //! wake-up. No timing is asserted.
 
+use sensaug_bridge::protocol::TORQUE_SCALE_NM;
 use sensaug_bridge::transport::UdpBus;
 use sensaug_config::{load_str, Format};
+use sensaug_core::agent::Guard;
 use sensaug_core::controller::Robot;
 use sensaug_core::protocol::Protocol;
 use sensaug_log::Row;
@@ -26,27 +28,10 @@ mod drive;
 
 use drive::{drive, free_port};
 
-const CONFIG: &str = r#"
-[[phases]]
-kind = "gains"
-duration_s = 3.0
-robot_target = [{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 },
-                { kind = "chirp", amplitude = 2.0, f0_hz = 0.0, f1_hz = 2.0, duration_s = 3.0 }]
-partner_target = [{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }]
+#[path = "common/trial.rs"]
+mod trial;
 
-[[phases]]
-kind = "integration"
-duration_s = 0.5
-robot_target = [{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }]
-partner_target = [{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }]
-target_noise_std = 1.0
-
-[robot]
-gain_window_s = 0.5
-
-[partner]
-gains = [0.0, 0.0, 2.0]
-"#;
+use trial::CONFIG;
 
 struct Outcome {
     reason: StopReason,
@@ -140,6 +125,39 @@ fn a_whole_trial_completes_without_allocating_and_logs_every_tick() {
     // phase, 0.5 s window) gives Lhh = 1.99929; 0.02 leaves room for the
     // ticks a noisy VM loses feedback (predict-only there).
     assert!((o.estimate[2] - 2.0).abs() < 0.02, "{:?}", o.estimate);
+    assert_the_model_sees_the_torque_applied(&o);
+}
+
+/// Every controller tick: the torque sent is on the drive's grid, and the
+/// robot's `u` (what its estimators predicted with) plus the virtual
+/// human's exact `u_h` is that torque (no friction, ramp or clamp here), so
+/// the drive's rounding is the robot's and the partner the estimators see
+/// is the virtual human itself. Rounding the robot's command alone (the
+/// drive then applying `u + round(u_h)`) misses by up to half a step, more
+/// than the tolerance's thousand times.
+fn assert_the_model_sees_the_torque_applied(o: &Outcome) {
+    let unit = load_str(CONFIG, Format::Toml).unwrap().rad_per_unit;
+    let mut residuals = 0;
+    for r in &o.rows {
+        assert_eq!(
+            (r.friction_nm, r.guard),
+            (0.0, Some(Guard::Passed)),
+            "tick {}",
+            r.tick
+        );
+        let steps = r.torque_nm / TORQUE_SCALE_NM;
+        assert!((steps - steps.round()).abs() < 1e-6, "tick {}", r.tick);
+        let implied_nm = (r.u + r.u_h) * unit;
+        assert!(
+            (implied_nm - r.torque_nm).abs() < 1e-3 * TORQUE_SCALE_NM,
+            "tick {}: (u + u_h) unit = {implied_nm} N m, sent {} N m",
+            r.tick,
+            r.torque_nm
+        );
+        // The partner's torque is its own, never on the grid by construction.
+        residuals += usize::from((r.u_h * unit / TORQUE_SCALE_NM).fract().abs() > 1e-3);
+    }
+    assert!(residuals > o.rows.len() / 2, "{residuals}");
 }
 
 #[test]
