@@ -207,7 +207,8 @@ impl<'a> Robot<'a> {
 
     /// [`Robot::tick_with`], the estimators predicting with `applied` (the
     /// torque a recorded run applied for the robot, the log's `u`) instead
-    /// of the command when given; `row.u` is the torque predicted with.
+    /// of the command when given and finite; `row.u` is the torque
+    /// predicted with.
     pub fn tick_applied(
         &mut self,
         k: u64,
@@ -218,7 +219,7 @@ impl<'a> Robot<'a> {
         match self.protocol.sample(k) {
             Some(sample) => {
                 let decision = self.decide(&sample, measurement, row);
-                let u = applied.unwrap_or(decision.u);
+                let u = applied.filter(|a| a.is_finite()).unwrap_or(decision.u);
                 self.predict(decision, u);
                 row.u = u;
             }

@@ -58,11 +58,19 @@ fn simulated(phases: &[sensaug_core::protocol::Phase<'static>]) -> Vec<Row> {
     out
 }
 
+/// A noisy simulated trial and every tick's measurement of it.
+fn measured(
+    phases: &[sensaug_core::protocol::Phase<'static>],
+) -> (Vec<Row>, Vec<Option<(f64, f64)>>) {
+    let recs = simulated(phases);
+    let measurements = recs.iter().map(|r| Some((r.x_meas, r.xdot_meas))).collect();
+    (recs, measurements)
+}
+
 #[test]
 fn a_simulated_trial_replays_bit_for_bit() {
     let phases = common::phases(1.5, 1.0);
-    let recs = simulated(&phases);
-    let measurements: Vec<_> = recs.iter().map(|r| Some((r.x_meas, r.xdot_meas))).collect();
+    let (recs, measurements) = measured(&phases);
     let protocol = Protocol::new(&phases, common::DT).unwrap();
     let mut robot = Robot::new(common::robot(), protocol).unwrap();
     let mut out = vec![Row::UNKNOWN; recs.len()];
@@ -71,6 +79,49 @@ fn a_simulated_trial_replays_bit_for_bit() {
     assert!(online.iter().any(|t| t.e_hat_fused.is_finite()));
     assert_identical(&out, &online);
     assert_eq!(counters.missing_measurements, 0);
+}
+
+/// A rig's robot predicts with its command plus the drive's rounding (the
+/// log's `u`, `Robot::decide` then `Robot::predict`): a replay given that
+/// torque repeats it bit for bit; without it, the replay predicts with its
+/// own command and differs.
+#[test]
+fn a_rig_trial_replays_with_the_torque_the_drive_applied() {
+    let phases = common::phases(1.5, 1.0);
+    let (recs, measurements) = measured(&phases);
+    let protocol = Protocol::new(&phases, common::DT).unwrap();
+    let mut online_robot = Robot::new(common::robot(), protocol).unwrap();
+    let step = 0.05;
+    let online: Vec<Row> = measurements
+        .iter()
+        .enumerate()
+        .map(|(k, m)| {
+            let s = protocol.sample(k as u64).unwrap();
+            let mut row = Row::UNKNOWN;
+            let decision = online_robot.decide(&s, *m, &mut row);
+            // The sum with a partner's torque, rounded, the rounding the robot's.
+            let u_h = recs[k].u_h;
+            row.u = ((decision.u + u_h) / step).round_ties_even() * step - u_h;
+            online_robot.predict(decision, row.u);
+            row
+        })
+        .collect();
+    let applied: Vec<f64> = online.iter().map(|r| r.u).collect();
+    let mut robot = Robot::new(common::robot(), protocol).unwrap();
+    let mut out = vec![Row::UNKNOWN; recs.len()];
+    replay_robot(&mut robot, &measurements, Some(&applied), &mut out).unwrap();
+    assert_identical(&out, &online);
+    let mut robot = Robot::new(common::robot(), protocol).unwrap();
+    replay_robot(&mut robot, &measurements, None, &mut out).unwrap();
+    assert!(out.iter().zip(&online).any(|(a, b)| a.Lhh_hat != b.Lhh_hat));
+    assert_eq!(
+        replay_robot(&mut robot, &measurements, Some(&applied[1..]), &mut out),
+        Err(ReplayError::Length {
+            which: ReplayArg::U,
+            needed: applied.len(),
+            got: applied.len() - 1
+        })
+    );
 }
 
 #[test]
