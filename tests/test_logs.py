@@ -169,13 +169,20 @@ def test_bad_files_and_bad_data_are_named(trial, tmp_path):
         load_log(bad_row, verify=False)
     data = trial.data[["tick", "t"]]
     with pytest.raises(ValueError, match=r"data\.phase: missing column"):
-        _core.write_log(str(tmp_path / "x.csv"), data, meta_json="{}")
+        logs.to_records(data)
     wrong = {n: trial[n] for n in logs.COLUMNS} | {"phase": trial["phase"].astype(float)}
     with pytest.raises(ValueError, match=r"data\.phase: expected a 1-D int64 array"):
-        _core.write_log(str(tmp_path / "x.csv"), wrong, meta_json="{}")
+        logs.to_records(wrong)
     short = {n: trial[n] for n in logs.COLUMNS} | {"x": trial["x"][:10]}
     with pytest.raises(ValueError, match=r"data\.x: 10 values"):
-        _core.write_log(str(tmp_path / "x.csv"), short, meta_json="{}")
+        logs.to_records(short)
+    # The Rust writer takes packed records and checks each value's code.
+    bad_phase = trial.data.copy()
+    bad_phase["phase"][3] = 99
+    with pytest.raises(ValueError, match=r"data\.phase: expected int, got Int\(99\) \(row 3\)"):
+        _core.write_log(str(tmp_path / "x.csv"), logs.to_records(bad_phase), meta_json="{}", end_json=None)
+    with pytest.raises(ValueError, match=r"records: 7 bytes is not a whole number"):
+        _core.write_log(str(tmp_path / "x.csv"), np.zeros(7, np.uint8), meta_json="{}", end_json=None)
 
 
 def test_packed_records_view_and_bad_bytes_are_named(trial):

@@ -440,12 +440,14 @@ def git_commit(dir: str) -> str | None:
     """``git rev-parse HEAD`` of the checkout containing ``dir`` (``-dirty`` if
     modified), or ``None``."""
 
-def write_log(path: str, data: Any, /, *, meta_json: str, end_json: str | None = None) -> None:
-    """Writes a log file: metadata line, one line per row of ``data`` (every
-    schema column as ``data[name]`` with its dtype), then the end status.
+def write_log(path: str, records: NDArray[np.uint8], /, *, meta_json: str, end_json: str | None) -> None:
+    """Writes a log file: metadata line, one line per row of ``records`` (the
+    bytes of packed records, ``sensaug.logs.to_records``), then the end status
+    (none when ``end_json`` is ``None``).
 
     Raises:
-        ValueError: a column is missing, has the wrong dtype or length; bad JSON.
+        ValueError: not whole records, a value its column does not take
+            (``data.<column>: ... (row k)``); bad JSON.
         ConfigError: ``path`` is not a regular file or a new one (a device,
             a FIFO, a folder, a link).
         OSError: the file cannot be written.

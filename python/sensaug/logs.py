@@ -45,7 +45,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "PARQUET_SUFFIX", "COLUMNS", "DTYPE", "PHASE_NAMES", "SOURCES", "UNITS", "UNKNOWN_INT",
-    "Log", "UnverifiedLogWarning", "from_columns", "from_records", "load_log", "to_json",
+    "Log", "UnverifiedLogWarning", "from_columns", "from_records", "load_log", "to_json", "to_records",
 ]  # fmt: skip
 
 _SCHEMA = _core.log_schema()
@@ -93,6 +93,24 @@ def from_columns(columns: Mapping[str, np.ndarray]) -> np.ndarray:
     for name in COLUMNS:
         data[name] = columns[name]
     return data
+
+
+def to_records(data: Mapping[str, np.ndarray] | np.ndarray) -> np.ndarray:
+    """The bytes of packed records (what ``_core.write_log`` takes) from
+    ``data[name]`` for every column: a structured array or a dict of 1-D
+    arrays with the schema's dtypes. A missing column, another dtype or
+    another length is refused naming the column."""
+    kinds = {c[0]: c[2] for c in _SCHEMA["columns"]}
+    for name in COLUMNS:
+        try:
+            column = np.asarray(data[name])
+        except (KeyError, ValueError):
+            raise ValueError(f"data.{name}: missing column") from None
+        if column.ndim != 1 or column.dtype != DTYPE[name]:
+            raise ValueError(f"data.{name}: expected a 1-D {DTYPE[name]} array (column kind {kinds[name]})")
+        if len(column) != len(data[COLUMNS[0]]):
+            raise ValueError(f"data.{name}: {len(column)} values, but {COLUMNS[0]} has {len(data[COLUMNS[0]])}")
+    return np.ascontiguousarray(from_columns(data)).view(np.uint8)
 
 
 def from_records(records: np.ndarray) -> np.ndarray:
@@ -183,7 +201,7 @@ class Log:
         end = self.meta.get("end")
         _core.write_log(
             str(path),
-            self.data,
+            to_records(self.data),
             meta_json=to_json(meta),
             end_json=None if end is None else to_json(end),
         )

@@ -76,6 +76,23 @@ pub fn replace(path: &Path) -> io::Result<()> {
     std::fs::rename(partial_path(path), path)
 }
 
+/// Writes an output whole: `write` fills `<path>.partial` ([`create_partial`]),
+/// which is then renamed over `path` ([`replace`]), so an older regular file
+/// is replaced only by a complete one. On failure the `.partial` is removed.
+pub fn write_replacing(
+    path: &Path,
+    write: impl FnOnce(&mut io::BufWriter<File>) -> io::Result<()>,
+) -> io::Result<()> {
+    let mut out = io::BufWriter::new(create_partial(path)?);
+    let written = write(&mut out);
+    drop(out);
+    let written = written.and_then(|()| replace(path));
+    if written.is_err() {
+        let _ = std::fs::remove_file(partial_path(path));
+    }
+    written
+}
+
 /// A file type's test (`FileType::is_file`, `FileTypeExt::is_fifo`, ...).
 type IsKind = fn(&FileType) -> bool;
 

@@ -134,6 +134,8 @@ impl core::fmt::Display for PlantError {
             PlantError::InvalidParam("dt_s") => {
                 "dt_s: must be finite and > 0 (the loop period, s; 1e-3 at 1 kHz)"
             }
+            PlantError::InvalidParam("x0") => "x0: must be finite (the initial position)",
+            PlantError::InvalidParam("v0") => "v0: must be finite (the initial velocity)",
             PlantError::InvalidParam(other) => other,
             PlantError::NonFiniteStep("dt_s") => {
                 "dt_s: so large that dt_s^2 overflows (or so small that it underflows) and one \
@@ -274,6 +276,19 @@ impl Plant {
     /// Places the handle at `state` (e.g. the measured start of a trial).
     pub fn set_state(&mut self, state: PlantState) {
         self.state = state;
+    }
+
+    /// A plant ([`Plant::new`]) starting at `state`, which must be finite
+    /// (`Err` names `x0` or `v0`).
+    pub fn starting_at(params: PlantParams, state: PlantState) -> Result<Self, PlantError> {
+        let mut plant = Plant::new(params)?;
+        for (value, name) in [(state.x, "x0"), (state.v, "v0")] {
+            if !value.is_finite() {
+                return Err(PlantError::InvalidParam(name));
+            }
+        }
+        plant.state = state;
+        Ok(plant)
     }
 
     /// The friction torque held over the next step, given the applied torque.

@@ -251,7 +251,8 @@ macro_rules! schema {
         /// [`COLUMNS`] order, native-endian, no padding, a bool as one
         /// byte, a code as its `i64`. Its bytes are a record
         /// ([`Row::packed`], `as_bytes`).
-        #[derive(Clone, Copy, Debug, zerocopy::IntoBytes, zerocopy::Immutable)]
+        #[derive(Clone, Copy, Debug, zerocopy::IntoBytes, zerocopy::TryFromBytes)]
+        #[derive(zerocopy::Immutable, zerocopy::KnownLayout)]
         #[repr(C, packed)]
         pub struct PackedRow {
             $( #[doc = $doc] pub $name: $packed, )*
@@ -275,6 +276,19 @@ macro_rules! schema {
             /// The row as a packed record ([`PackedRow`]).
             pub fn packed(&self) -> PackedRow {
                 PackedRow { $( $name: Cell::pack(self.$name), )* }
+            }
+
+            /// The row a packed record holds; the error names the first
+            /// column whose value is not one of its codes.
+            pub fn from_packed(p: &PackedRow) -> Result<Row, ColumnError> {
+                Ok(Row { $( $name: {
+                    let got = Cell::value({ p.$name });
+                    <$ty as Cell>::from_value(got).ok_or(ColumnError::Invalid {
+                        column: stringify!($name),
+                        expected: <$ty as Cell>::KIND,
+                        got,
+                    })?
+                }, )* })
             }
 
             /// The row's values in [`COLUMNS`] order.

@@ -374,6 +374,47 @@ pub fn schema() -> serde_json::Value {
     })
 }
 
+/// Why bytes are not packed records ([`rows_from_records`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum RecordsError {
+    /// Not a whole number of records.
+    Length(usize),
+    /// Record `row` has a bool byte other than 0 or 1.
+    NotBool(usize),
+    /// Record `row` holds a value its column does not take.
+    Column(usize, ColumnError),
+}
+
+impl std::fmt::Display for RecordsError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let size = std::mem::size_of::<PackedRow>();
+        match self {
+            RecordsError::Length(n) => write!(
+                f,
+                "records: {n} bytes is not a whole number of {size}-byte records; \
+                 pass a structured array of sensaug.logs.DTYPE"
+            ),
+            RecordsError::NotBool(k) => write!(f, "records[{k}]: a bool column is not 0 or 1"),
+            RecordsError::Column(k, e) => write!(f, "data.{e} (row {k})"),
+        }
+    }
+}
+
+/// Rows from the bytes of packed records ([`PackedRow`], the layout of
+/// `sensaug.logs.DTYPE`); the error names the record and the column.
+pub fn rows_from_records(bytes: &[u8]) -> Result<Vec<Row>, RecordsError> {
+    use zerocopy::TryFromBytes;
+    let size = std::mem::size_of::<PackedRow>();
+    if bytes.len() % size != 0 {
+        return Err(RecordsError::Length(bytes.len()));
+    }
+    let row = |(k, chunk)| {
+        let packed = PackedRow::try_read_from_bytes(chunk).map_err(|_| RecordsError::NotBool(k))?;
+        Row::from_packed(&packed).map_err(|e| RecordsError::Column(k, e))
+    };
+    bytes.chunks_exact(size).enumerate().map(row).collect()
+}
+
 /// Writes a whole log: the header ([`write_header`]), one line per row,
 /// then the end-status line unless `end` is `Null`.
 pub fn write_log(
@@ -529,6 +570,35 @@ pub fn git_commit(dir: &Path) -> Option<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Packed records read back as the rows they were packed from, to the
+    /// bit; a record holding no valid code, or a partial record, is refused.
+    #[test]
+    fn packed_records_read_back_as_rows() {
+        use zerocopy::IntoBytes;
+        let mut rows = [Row::UNKNOWN; 2];
+        (rows[1].tick, rows[1].x, rows[1].fresh) = (1, -0.25, true);
+        let bytes: Vec<u8> = rows
+            .iter()
+            .flat_map(|r| r.packed().as_bytes().to_vec())
+            .collect();
+        let back = rows_from_records(&bytes).unwrap();
+        let again: Vec<u8> = back
+            .iter()
+            .flat_map(|r| r.packed().as_bytes().to_vec())
+            .collect();
+        assert_eq!(again, bytes);
+        let mut bad = rows[0].packed();
+        bad.phase = 99;
+        assert!(matches!(
+            rows_from_records(bad.as_bytes()),
+            Err(RecordsError::Column(0, _))
+        ));
+        assert_eq!(
+            rows_from_records(&bytes[1..]),
+            Err(RecordsError::Length(bytes.len() - 1))
+        );
+    }
 
     /// The metadata travels as JSON (Python's `json` <-> serde_json): every
     /// float must come back with the same bits, which serde_json's parser

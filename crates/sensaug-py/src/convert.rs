@@ -6,7 +6,7 @@ use numpy::ndarray::Array2;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayDyn, PyArrayMethods, PyReadonlyArray};
 use numpy::{PyUntypedArrayMethods, ToPyArray};
 use pyo3::exceptions::{PyRuntimeError, PyTypeError, PyValueError};
-use pyo3::types::{IntoPyDict, PyBool, PyDict};
+use pyo3::types::{IntoPyDict, PyBool, PyDict, PyTuple};
 use pyo3::{create_exception, prelude::*};
 use sensaug_core::ukf::{Recoveries, Status};
 use std::fmt::Display;
@@ -55,17 +55,8 @@ fn type_name(obj: &Bound<'_, PyAny>) -> String {
 }
 
 /// A shape as Python prints it: `(3,)`, `(2, 3)`.
-fn shape(s: &[usize]) -> String {
-    match s {
-        [n] => format!("({n},)"),
-        _ => format!(
-            "({})",
-            s.iter()
-                .map(|n| n.to_string())
-                .collect::<Vec<_>>()
-                .join(", ")
-        ),
-    }
+fn shape(py: Python<'_>, s: &[usize]) -> PyResult<String> {
+    Ok(PyTuple::new(py, s)?.repr()?.to_string())
 }
 
 /// `obj` ([`real_array`]) of shape `want` (its `R x C` entries row-major).
@@ -77,7 +68,7 @@ fn read<const R: usize, const C: usize>(
     let a = real_array(obj, name)?.readonly();
     let v = a.as_array();
     if v.shape() != want {
-        let (want, got) = (shape(want), shape(v.shape()));
+        let (want, got) = (shape(obj.py(), want)?, shape(obj.py(), v.shape())?);
         return Err(PyValueError::new_err(format!(
             "{name}: expected shape {want}, got {got}"
         )));
@@ -108,7 +99,7 @@ pub fn array2(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<(Vec<f64>, [usize;
         [r, c] => Ok((a.as_array().iter().copied().collect(), [r, c])),
         ref s => Err(PyValueError::new_err(format!(
             "{name}: expected a 2-D array, got shape {}",
-            shape(s)
+            shape(obj.py(), s)?
         ))),
     }
 }
@@ -124,21 +115,22 @@ pub fn real(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<f64> {
         .map_err(|_| PyTypeError::new_err(got()))
 }
 
-/// An optional keyword: `None` when not given.
-pub type Opt<'a, 'py> = Option<&'a Bound<'py, PyAny>>;
-
-/// Optional keywords as real numbers ([`real`]), each `defaults`' entry
-/// (the schema's) where not given; `names` are the keywords.
-pub fn reals_or<const K: usize>(
-    objs: [Opt<'_, '_>; K],
+/// A constructor's optional keywords (its `**kw`) as real numbers
+/// ([`real`]): `names`' values, each its entry of `defaults` (the schema's)
+/// where not given; a keyword not among `names` is a `TypeError` naming it.
+pub fn settings<const K: usize>(
+    given: Option<&Bound<'_, PyDict>>,
     names: [&str; K],
     defaults: [f64; K],
 ) -> PyResult<[f64; K]> {
     let mut out = defaults;
-    for ((obj, name), v) in objs.into_iter().zip(names).zip(&mut out) {
-        if let Some(obj) = obj {
-            *v = real(obj, name)?;
-        }
+    for (key, value) in given.into_iter().flatten() {
+        let key = key.str()?.to_string();
+        let Some(i) = names.iter().position(|name| *name == key) else {
+            let msg = format!("{key}: not a keyword here; the optional ones are {names:?}");
+            return Err(PyTypeError::new_err(msg));
+        };
+        out[i] = real(&value, &key)?;
     }
     Ok(out)
 }

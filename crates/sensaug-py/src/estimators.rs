@@ -3,8 +3,8 @@
 //! (`sensaug_core::replay`). Conversion only; the docs are in `_core.pyi`.
 #![allow(non_snake_case)]
 
-use crate::convert::{mat_to, matrix, py_err, real, reals_or, recoveries_dict, slice, status};
-use crate::convert::{vec_to, vector, Opt, PyStatus};
+use crate::convert::{mat_to, matrix, py_err, real, recoveries_dict, settings, slice, status};
+use crate::convert::{vec_to, vector, PyStatus};
 use numpy::{PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
 use numpy::{PyUntypedArrayMethods, ToPyArray};
 use pyo3::exceptions::PyValueError;
@@ -77,19 +77,6 @@ pub fn run_batch<'py>(
     }
 }
 
-/// The handle model from `mass`, `damping`, `dt`: the schema's `[plant]`
-/// defaults where one is not given.
-fn handle_model(mass: &Bound<'_, PyAny>, damping: Opt, dt: Opt) -> PyResult<HandleModel> {
-    let d = PlantSpec::default();
-    let mass = real(mass, "mass")?;
-    let [damping, dt_s] = reals_or([damping, dt], ["damping", "dt"], [d.damping, d.dt_s])?;
-    Ok(HandleModel {
-        mass,
-        damping,
-        dt_s,
-    })
-}
-
 /// A constructor's core error: the core calls the model's step `dt_s`,
 /// these classes' keyword is `dt`.
 fn setup_error(e: EstimatorError) -> PyErr {
@@ -125,16 +112,15 @@ macro_rules! extended_estimator {
 
         methods!($name {
             #[new]
-            #[pyo3(signature = (*, mass, Q, R, x0, P0, damping = None, dt = None, alpha = None, beta = None, kappa = None))]
+            #[pyo3(signature = (*, mass, Q, R, x0, P0, **kw))]
             #[pyo3(text_signature = "(*, mass, Q, R, x0, P0, damping=0.0, dt=1e-3, alpha=1.0, beta=2.0, kappa=0.0)")]
-            #[allow(clippy::too_many_arguments)]
             fn new(mass: &Bound<'_, PyAny>, Q: &Bound<'_, PyAny>, R: &Bound<'_, PyAny>,
-                   x0: &Bound<'_, PyAny>, P0: &Bound<'_, PyAny>, damping: Opt, dt: Opt,
-                   alpha: Opt, beta: Opt, kappa: Opt) -> PyResult<Self> {
-                let model = handle_model(mass, damping, dt)?;
-                let d = SigmaSpec::default();
-                let [alpha, beta, kappa] =
-                    reals_or([alpha, beta, kappa], ["alpha", "beta", "kappa"], [d.alpha, d.beta, d.kappa])?;
+                   x0: &Bound<'_, PyAny>, P0: &Bound<'_, PyAny>, kw: Option<&Bound<'_, PyDict>>) -> PyResult<Self> {
+                let (p, s) = (PlantSpec::default(), SigmaSpec::default());
+                let names = ["damping", "dt", "alpha", "beta", "kappa"];
+                let [damping, dt_s, alpha, beta, kappa] =
+                    settings(kw, names, [p.damping, p.dt_s, s.alpha, s.beta, s.kappa])?;
+                let model = HandleModel { mass: real(mass, "mass")?, damping, dt_s };
                 let sigma = MerweParams { alpha, beta, kappa };
                 let (x0, P0) = (vector(x0, "x0")?, matrix(P0, "P0")?);
                 let cfg = ExtendedFilterConfig::<$m> { x0, P0, Q: matrix(Q, "Q")?, R: matrix(R, "R")?, sigma };
@@ -197,30 +183,26 @@ pub struct GoalIntegrator {
 
 methods!(GoalIntegrator {
     #[new]
-    #[pyo3(signature = (*, mass, Q, R, x0, P0, damping = None, dt = None, gate = None, window_n0 = None, hold_max_s = None))]
+    #[pyo3(signature = (*, mass, Q, R, x0, P0, **kw))]
     #[pyo3(
         text_signature = "(*, mass, Q, R, x0, P0, damping=0.0, dt=1e-3, gate=4.0, window_n0=80.0, hold_max_s=0.25)"
     )]
-    #[allow(clippy::too_many_arguments)]
     fn new(
         mass: &Bound<'_, PyAny>,
         Q: &Bound<'_, PyAny>,
         R: &Bound<'_, PyAny>,
         x0: &Bound<'_, PyAny>,
         P0: &Bound<'_, PyAny>,
-        damping: Opt,
-        dt: Opt,
-        gate: Opt,
-        window_n0: Opt,
-        hold_max_s: Opt,
+        kw: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
-        let model = handle_model(mass, damping, dt)?;
+        let (p, c) = (PlantSpec::default(), ChannelConfig::default());
+        let names = ["damping", "dt", "gate", "window_n0", "hold_max_s"];
+        let defaults = [p.damping, p.dt_s, c.gate, c.window_n0, c.hold_max_s];
+        let [damping, dt_s, gate, window_n0, hold_max_s] = settings(kw, names, defaults)?;
+        let mass = real(mass, "mass")?;
+        let model = HandleModel { mass, damping, dt_s };
         let (x0, P0) = (vector(x0, "x0")?, matrix(P0, "P0")?);
         let (Q, R_own) = (matrix(Q, "Q")?, matrix(R, "R")?);
-        let d = ChannelConfig::default();
-        let names = ["gate", "window_n0", "hold_max_s"];
-        let [gate, window_n0, hold_max_s] =
-            reals_or([gate, window_n0, hold_max_s], names, [d.gate, d.window_n0, d.hold_max_s])?;
         let channel = ChannelConfig { gate, window_n0, hold_max_s };
         let cfg = GoalIntegratorConfig { x0, P0, Q, R_own, channel };
         Ok(Self {

@@ -1,9 +1,9 @@
 //! `sensaug._core.Plant`: the 1-DoF handle, steppable or run over a whole
 //! torque sequence in one core call. Conversion only.
-use crate::convert::{py_err, real, reals_or, slice, Opt};
+use crate::convert::{py_err, real, settings, slice};
 use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray1};
-use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
 use sensaug_config::{PlantSpec, WorldSpec};
 use sensaug_core::plant::{Plant as CorePlant, PlantParams, PlantState};
 use sensaug_core::replay::simulate;
@@ -22,38 +22,22 @@ pub struct Plant {
 #[pymethods]
 impl Plant {
     #[new]
-    #[pyo3(signature = (*, mass, damping = None, coulomb = None, dt_s = None, x0 = None, v0 = None))]
+    #[pyo3(signature = (*, mass, **kw))]
     #[pyo3(text_signature = "(*, mass, damping=0.0, coulomb=0.0, dt_s=1e-3, x0=0.0, v0=0.0)")]
-    fn new(
-        mass: &Bound<'_, PyAny>,
-        damping: Opt,
-        coulomb: Opt,
-        dt_s: Opt,
-        x0: Opt,
-        v0: Opt,
-    ) -> PyResult<Self> {
+    fn new(mass: &Bound<'_, PyAny>, kw: Option<&Bound<'_, PyDict>>) -> PyResult<Self> {
         // Defaults: the schema's `[plant]` and `[world]` ones.
         let (d, w) = (PlantSpec::default(), WorldSpec::default());
         let mass = real(mass, "mass")?;
         let names = ["damping", "coulomb", "dt_s", "x0", "v0"];
         let defaults = [d.damping, d.coulomb, d.dt_s, w.x0, w.v0];
-        let [damping, coulomb, dt_s, x, v] =
-            reals_or([damping, coulomb, dt_s, x0, v0], names, defaults)?;
+        let [damping, coulomb, dt_s, x, v] = settings(kw, names, defaults)?;
         let params = PlantParams {
             mass,
             damping,
             coulomb,
             dt_s,
         };
-        let mut inner = CorePlant::new(params).map_err(py_err)?;
-        for (value, name) in [(x, "x0"), (v, "v0")] {
-            if !value.is_finite() {
-                let msg = format!("{name}: must be finite (the initial state)");
-                return Err(PyValueError::new_err(msg));
-            }
-        }
-        let state = PlantState { x, v };
-        inner.set_state(state);
+        let inner = CorePlant::starting_at(params, PlantState { x, v }).map_err(py_err)?;
         Ok(Plant { inner })
     }
 

@@ -1,13 +1,13 @@
 //! `_core.replay_robot`: the robot's controller re-run offline over a
 //! recorded trial (`sensaug_core::replay::replay_robot`). Conversion only.
 
-use crate::convert::slice;
+use crate::convert::{py_err, slice};
 use crate::scenario::{protocol, rejected, Config};
 use numpy::PyReadonlyArray1;
-use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::{IntoPyDict, PyDict};
 use sensaug_core::controller::Robot;
+use sensaug_core::replay::replay_recorded;
 use sensaug_log::Row;
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -31,40 +31,13 @@ fn replay_robot<'py>(
         .as_ref()
         .map(|a| slice(a, "applied_u"))
         .transpose()?;
-    let lengths = [("xdot_meas", v.len()), ("fresh", fresh.len())];
-    for (name, len) in lengths
-        .into_iter()
-        .chain(applied.map(|a| ("applied_u", a.len())))
-    {
-        if len != x.len() {
-            let msg = format!(
-                "{name}: {len} values, but x_meas has {}; pass one value per tick",
-                x.len()
-            );
-            return Err(PyValueError::new_err(msg));
-        }
-    }
     let phases = resolved.phases();
     let mut robot =
         Robot::new(resolved.robot, protocol(resolved, &phases)?).map_err(|_| rejected())?;
-    let measurements: Vec<_> = (0..x.len())
-        .map(|k| fresh[k].then_some((x[k], v[k])))
-        .collect();
-    let mut rows: Vec<Row> = (0..x.len())
-        .map(|k| Row {
-            tick: k as i64,
-            t: k as f64 * resolved.dt_s,
-            x_meas: x[k],
-            xdot_meas: v[k],
-            fresh: fresh[k],
-            ..Row::UNKNOWN
-        })
-        .collect();
+    let mut rows = vec![Row::UNKNOWN; x.len()];
     let counters = py
-        .detach(|| {
-            sensaug_core::replay::replay_robot(&mut robot, &measurements, applied, &mut rows)
-        })
-        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        .detach(|| replay_recorded(&mut robot, resolved.dt_s, [x, v], fresh, applied, &mut rows))
+        .map_err(py_err)?;
     let d = [("ticks", rows.len() as u64)]
         .into_iter()
         .chain(counters.named())
