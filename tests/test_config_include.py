@@ -101,6 +101,13 @@ def test_a_simulated_trial_records_the_files_included(tmp_path):
     plain = experiment.run(merged)
     assert trial.data.tobytes() == plain.data.tobytes()  # NaN columns: compared as bytes
     assert trial.meta["config"]["plant"] == plain.meta["config"]["plant"]
+    # Saved and loaded, the record is still there, and the replay takes the
+    # recorded configuration (its config_sha256 covers the record).
+    path = trial.save(tmp_path / "trial.csv")
+    loaded = experiment.Trial.load(path)
+    assert loaded.config.included == sensaug.ScenarioConfig.from_toml(top).included
+    replayed = sensaug.replay(path)
+    assert len(replayed) == len(trial)
 
 
 def test_a_rig_run_records_the_files_included(tmp_path):

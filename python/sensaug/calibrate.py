@@ -415,10 +415,8 @@ def including_config(config: ScenarioConfig, config_path: Optional[Path], fragme
         tables.pop("included", None)
     else:
         tables = _read_tables(config_path)
-        here = config_path.resolve().parent
-        entries = [here / e for e in tables.pop("include", [])]
         tables.pop("included", None)
-        entries = [e for e in entries if not _is_fragment(e)]
+        entries, _ = _includes(config_path, tables.pop("include", []))
     for key in CALIBRATED_KEYS:
         _without(tables, key)
     include = [os.path.relpath(e.resolve(), folder) for e in entries] + [os.path.relpath(fragment.resolve(), folder)]
@@ -433,6 +431,14 @@ def including_config(config: ScenarioConfig, config_path: Optional[Path], fragme
         path.unlink()
         raise
     return path
+
+
+def _includes(config_path: Path, entries: list[str]) -> tuple[list[Path], list[Path]]:
+    """``config_path``'s include entries as paths: the other files, and the
+    earlier fragments (files that set calibrated keys only)."""
+    here = config_path.resolve().parent
+    paths = [here / e for e in entries]
+    return [p for p in paths if not _is_fragment(p)], [p for p in paths if _is_fragment(p)]
 
 
 def _is_fragment(path: Path) -> bool:
@@ -528,9 +534,14 @@ def command(
     fragment = write_fragment(out / "calibration.toml", est, source=source)
     print(f"fragment: {fragment} ({', '.join(CALIBRATED_KEYS)}); the fit: {picture}")
     if config_path is not None:
-        line = f"include = [{json.dumps(os.path.relpath(fragment.resolve(), config_path.resolve().parent))}]"
-        print(f"to run {config_path} with it: add the line  {line}  at its top (or the path of the handle's "
-              "own copy of the fragment) and remove those four settings from it")
+        _, earlier = _includes(config_path, _read_tables(config_path).get("include", []))
+        if earlier:
+            print(f"{config_path} includes the earlier calibration {', '.join(map(str, earlier))}: copy {fragment} over "
+                  "it to run with the new one")
+        else:
+            line = f"include = [{json.dumps(os.path.relpath(fragment.resolve(), config_path.resolve().parent))}]"
+            print(f"to run {config_path} with it: add the line  {line}  at its top (or the path of the handle's "
+                  "own copy of the fragment) and remove those four settings from it")
     try:
         full = including_config(config, config_path, fragment, out / "calibrated_config.toml")
     except ValueError as e:
