@@ -89,6 +89,13 @@ def test_both_checkers_and_doctor_read_an_including_file(tmp_path, capsys):
     doctor = subprocess.run([sys.executable, "-m", "sensaug", "doctor", str(top)], capture_output=True, text=True,
                             timeout=60)  # fmt: skip
     assert doctor.returncode == 2 and "plant.mass: set in both" in doctor.stdout + doctor.stderr
+    # A bad value in the fragment: the same message from both, naming it.
+    top.write_text(text)
+    fragment.write_text(fragment.read_text().replace("mass = 0.0041", "mass = -1.0"))
+    assert cli.main(["check", str(top)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("plant.mass: ") and err.rstrip().endswith(f"(set in {fragment})"), err
+    assert rt_check(top) == (2, "", err)
 
 
 def test_a_simulated_trial_records_the_files_included(tmp_path):

@@ -7,7 +7,7 @@
 //!   one owned value every consumer takes); the error names the first bad
 //!   field by its dotted path and says how to fix it. [`parse_file`] /
 //!   [`parse_str`] only parse, for a caller that edits before resolving.
-//!   A file may include others ([`include`]; expanded by [`parse_file`]).
+//!   A file may include others (`include.rs`; expanded by [`parse_file`]).
 //! * [`Resolved::new`]: every field's bound, the cross-field rules, then the
 //!   core's structs and the loop's settings ([`rig::RigSettings`]).
 //! * [`to_toml`]: a configuration as TOML with each field's description and
@@ -87,14 +87,26 @@ pub fn json_schema() -> &'static serde_json::Value {
 /// [`Resolved::new`]). An error at a setting an included file gave names
 /// that file.
 pub fn load_file(path: &Path) -> Result<Resolved, ConfigError> {
-    let (spec, origins) = read_file(path)?;
+    load_file_with(path, |_| Ok(()))
+}
+
+/// [`load_file`] with `edit` applied to the file's values before they are
+/// resolved (`sensaug-rt`'s command-line overrides), so that its errors
+/// are worded as [`load_file`]'s.
+pub fn load_file_with(
+    path: &Path,
+    edit: impl FnOnce(&mut ScenarioSpec) -> Result<(), ConfigError>,
+) -> Result<Resolved, ConfigError> {
+    let (mut spec, origins) = read_file(path)?;
     let top = path.display().to_string();
-    Resolved::new(spec).map_err(|e| origins.annotate(&top, e))
+    edit(&mut spec)
+        .and_then(|()| Resolved::new(spec))
+        .map_err(|e| origins.annotate(&top, e))
 }
 
 /// Reads and parses a configuration file, not yet checked against the
 /// bounds or resolved, its `include`s merged in and recorded in
-/// `included` ([`include`]). Files over [`MAX_FILE_BYTES`] are refused
+/// `included` (`include.rs`). Files over [`MAX_FILE_BYTES`] are refused
 /// before parsing. Errors about the file itself or its syntax name it as
 /// given.
 pub fn parse_file(path: &Path) -> Result<ScenarioSpec, ConfigError> {
