@@ -43,6 +43,7 @@ CLASS = {
     "DisplaySpec": "DisplayConfig",
     "SessionSpec": "SessionConfig",
     "BlockSpec": "BlockConfig",
+    "IncludedFile": "IncludedFile",
 }
 
 

@@ -18,7 +18,11 @@ docs/hardware.md "Calibrating the handle").
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import math
+import tomllib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -33,6 +37,7 @@ from sensaug.calibrate import (
     excitation_config,
     identify,
     identify_log,
+    including_config,
     run_calibration,
 )
 
@@ -229,6 +234,7 @@ def test_the_loop_compensates_the_friction_inside_the_torque_limit(tmp_path) -> 
     calibrated = sensaug.ScenarioConfig.from_toml(out / "calibrated_config.toml")
     assert calibrated.plant.mass == pytest.approx(0.0035, rel=MASS_REL_TOL)
     assert calibrated.rig.friction.coulomb_nm == pytest.approx(0.02, abs=COULOMB_TOL)
+    assert [Path(i.path) for i in calibrated.included] == [(out / "calibration.toml").resolve()]
     assert (out / "calibration.toml").is_file() and (out / "calibration.png").stat().st_size > 10_000
 
 
@@ -241,17 +247,65 @@ def test_calibrated_config_carries_the_estimate(tmp_path) -> None:
     cfg = calibrated_config(presets.hi5_rig(), e)
     assert cfg.plant.mass == 0.0041 and cfg.plant.damping == 0.0
     assert cfg.rig.friction.coulomb_nm == 0.021 and cfg.rig.friction.viscous_nm_s_per_rad == 0.0
-    path = write_fragment(tmp_path / "calibration.toml", e, source="test", config=cfg)
-    import tomllib
+    path = write_fragment(tmp_path / "calibration.toml", e, source="test")
 
     fragment = tomllib.loads(path.read_text())
     assert fragment == {"plant": {"mass": 0.0041, "damping": 0.0},
-                        "rig": {"friction": {"coulomb_nm": 0.021, "viscous_nm_s_per_rad": 0.0,
-                                             "coulomb_band_rad_s": 0.002,
-                                             "coulomb_torque_band_nm": 0.0005}}}  # fmt: skip
+                        "rig": {"friction": {"coulomb_nm": 0.021, "viscous_nm_s_per_rad": 0.0}}}  # fmt: skip
     assert "compensated as 0" in path.read_text()
-    # The fragment's tables over a configuration's give the calibrated one.
-    d = presets.hi5_rig().to_dict()
-    d["plant"].update(fragment["plant"])
-    d["rig"]["friction"] = fragment["rig"]["friction"]
-    assert sensaug.ScenarioConfig.from_dict(d).to_dict() == cfg.to_dict()
+    # The rig configuration including the fragment is the calibrated one,
+    # and records the fragment with its SHA-256.
+    full = including_config(presets.hi5_rig(), None, path, tmp_path / "calibrated_config.toml")
+    assert tomllib.loads(full.read_text())["include"] == ["calibration.toml"]
+    included = sensaug.ScenarioConfig.from_toml(full)
+    assert [i.sha256 for i in included.included] == [hashlib.sha256(path.read_bytes()).hexdigest()]
+    assert dataclasses.replace(included, included=None) == cfg
+
+
+def test_a_lab_configuration_includes_the_handle_calibration(tmp_path) -> None:
+    """A lab's rig configuration that included an earlier calibration: the
+    one written includes its other files and the new fragment instead of
+    the old, from the output folder; one that sets a calibrated value
+    itself gets the line to add; a file included deeper that gives the
+    values too is refused, naming both files."""
+    from sensaug.calibrate import Estimate, HandleEstimate, write_fragment
+
+    e = HandleEstimate(mass=Estimate(0.0041, 0.004, 0.0042), damping=Estimate(0.002, 0.001, 0.003),
+                       coulomb=Estimate(0.021, 0.02, 0.022), pairs=1000, residual_std_rad_s=1e-6, a=1.0, b=0.2,
+                       dt_s=DT)  # fmt: skip
+    lab = tmp_path / "lab"
+    (lab / "handles").mkdir(parents=True)
+    old = write_fragment(lab / "handles" / "a.toml", dataclasses.replace(e, mass=Estimate(0.003, 0.003, 0.003)),
+                         source="last week")  # fmt: skip
+    (lab / "limits.toml").write_text("[rig]\ntorque_limit_nm = 0.5\n")
+    rig_toml = presets.hi5_rig().to_dict()
+    rig_toml.pop("plant")
+    rig_toml["rig"].pop("friction")
+    rig_toml["rig"].pop("torque_limit_nm")
+    import tomli_w
+
+    config_path = lab / "rig.toml"
+    config_path.write_text(tomli_w.dumps({"include": ["limits.toml", "handles/a.toml"], **rig_toml}))
+    config = sensaug.ScenarioConfig.from_toml(config_path)
+    assert config.plant.mass == 0.003 and len(config.included) == 2
+    out = tmp_path / "out"
+    out.mkdir()
+    fragment = write_fragment(out / "calibration.toml", e, source="test")
+    full = including_config(config, config_path, fragment, out / "calibrated_config.toml")
+    assert tomllib.loads(full.read_text())["include"] == ["../lab/limits.toml", "calibration.toml"]
+    cal = sensaug.ScenarioConfig.from_toml(full)
+    assert (cal.plant.mass, cal.plant.damping) == (0.0041, 0.0)
+    assert (cal.rig.friction.coulomb_nm, cal.rig.friction.viscous_nm_s_per_rad) == (0.021, 0.002)
+    assert cal.rig.torque_limit_nm == 0.5
+    assert [Path(i.path).name for i in cal.included] == ["limits.toml", "calibration.toml"]
+    # Copied over the handle's file, the lab's own configuration runs with it.
+    (lab / "handles" / "a.toml").write_text(fragment.read_text())
+    assert dataclasses.replace(sensaug.ScenarioConfig.from_toml(config_path), included=None) == \
+        dataclasses.replace(cal, included=None)  # fmt: skip
+    # A deeper include giving a calibrated value too: refused by name.
+    (lab / "limits.toml").write_text("[rig]\ntorque_limit_nm = 0.5\n[plant]\nmass = 0.003\n")
+    (lab / "handles" / "a.toml").write_text("[rig.friction]\ncoulomb_nm = 0.01\n")
+    config = sensaug.ScenarioConfig.from_toml(config_path)
+    with pytest.raises(sensaug.ConfigError, match=r"^plant\.mass: set in both .*limits\.toml and .*calibration\.toml"):
+        including_config(config, config_path, fragment, out / "calibrated_config.toml")
+    assert not (out / "calibrated_config.toml").exists()

@@ -32,13 +32,18 @@ covariance ``s^2 (X^T X)^-1``.
 
 from __future__ import annotations
 
+import json
 import math
+import os
+import sys
+import tomllib
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Optional
 
 import numpy as np
+import tomli_w
 
 from sensaug.config import ScenarioConfig
 from sensaug.config_types import Chirp, Constant, PhaseConfig
@@ -46,7 +51,8 @@ from sensaug.logs import Log
 
 __all__ = [
     "Estimate", "HandleEstimate", "excitation_config", "identify", "identify_log", "regression_pairs",
-    "write_fragment", "calibrated_config", "friction_points", "plot_fit", "Z95",
+    "write_fragment", "calibrated_config", "including_config", "friction_points", "plot_fit", "Z95",
+    "CALIBRATED_KEYS",
 ]  # fmt: skip
 
 #: The normal quantile of a two-sided 95% interval.
@@ -309,7 +315,9 @@ def _compensation(est: HandleEstimate) -> tuple[float, float, list[str]]:
 def calibrated_config(config: ScenarioConfig, est: HandleEstimate) -> ScenarioConfig:
     """``config`` with the identified handle: ``plant.mass`` = M, and
     ``rig.friction`` compensating F_c and C (``plant.damping`` = 0: the
-    model is the handle after compensation, as the paper's).
+    model is the handle after compensation, as the paper's). In Python, for
+    a trial or a sweep; on the rig a configuration includes the fragment
+    (:func:`write_fragment`, :func:`including_config`).
 
     Raises:
         ConfigError: the result is refused (e.g. the compensation above the
@@ -325,13 +333,18 @@ def calibrated_config(config: ScenarioConfig, est: HandleEstimate) -> ScenarioCo
     return cfg
 
 
-def write_fragment(path: str | Path, est: HandleEstimate, *, source: str, config: ScenarioConfig) -> Path:
-    """The configuration fragment: ``[plant] mass`` and the ``[rig.friction]``
-    table, the estimates and their intervals as comments. It replaces those
-    settings of a rig configuration (copy them over; or run the complete
-    configuration :func:`calibrated_config` writes)."""
+#: The settings the fragment gives (dotted keys): what was identified. A
+#: rig configuration that includes the fragment leaves them out (a setting
+#: comes from one file, docs/config.md "Includes"); the compensation's
+#: bands stay the rig configuration's.
+CALIBRATED_KEYS = ("plant.mass", "plant.damping", "rig.friction.coulomb_nm", "rig.friction.viscous_nm_s_per_rad")
+
+
+def write_fragment(path: str | Path, est: HandleEstimate, *, source: str) -> Path:
+    """The configuration fragment a rig configuration includes
+    (``include = ["calibration.toml"]``): :data:`CALIBRATED_KEYS`, the
+    estimates and their intervals as comments."""
     fc, c, notes = _compensation(est)
-    band, torque_band = config.rig.friction.coulomb_band_rad_s, config.rig.friction.coulomb_torque_band_nm
     when = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     lines = [
         f"# The handle identified by sensaug calibrate, {when}, from {source}",
@@ -340,8 +353,9 @@ def write_fragment(path: str | Path, est: HandleEstimate, *, source: str, config
         f"#   C   = {est.damping} N m s/rad",
         f"#   F_c = {est.coulomb} N m",
         *(f"# {n}" for n in notes),
-        "# Copy these values over the rig configuration's (they replace [plant] mass and",
-        "# [rig.friction]), or run calibrated_config.toml written next to this file.",
+        "# A rig configuration includes this file: include = [\"<path to it>\"] (relative to the",
+        "# including file), and sets none of these four itself; calibrated_config.toml next to",
+        "# this file is one (docs/hardware.md, \"Calibrating the handle\").",
         "",
         "[plant]",
         f"mass = {est.mass.value!r}  # kg m^2, the handle's inertia",
@@ -350,13 +364,91 @@ def write_fragment(path: str | Path, est: HandleEstimate, *, source: str, config
         "[rig.friction]",
         f"coulomb_nm = {fc!r}",
         f"viscous_nm_s_per_rad = {c!r}",
-        f"coulomb_band_rad_s = {band!r}",
-        f"coulomb_torque_band_nm = {torque_band!r}",
         "",
     ]
     path = Path(path)
     path.write_text("\n".join(lines))
     return path
+
+
+def _read_tables(path: Path) -> dict[str, Any]:
+    """A configuration file's own tables as written (its includes not
+    merged, no defaults filled)."""
+    text = path.read_text()
+    return json.loads(text) if path.suffix.lower() == ".json" else tomllib.loads(text)
+
+
+def _without(tables: dict[str, Any], dotted: str) -> bool:
+    """Removes ``dotted`` from ``tables`` (and tables it leaves empty);
+    whether it was there."""
+    *parents, leaf = dotted.split(".")
+    chain = [tables]
+    for p in parents:
+        nxt = chain[-1].get(p)
+        if not isinstance(nxt, dict):
+            return False
+        chain.append(nxt)
+    found = chain[-1].pop(leaf, None) is not None
+    for i in reversed(range(len(parents))):
+        if chain[i + 1]:
+            break
+        chain[i].pop(parents[i])
+    return found
+
+
+def including_config(config: ScenarioConfig, config_path: Optional[Path], fragment: Path, path: Path) -> Path:
+    """Writes ``path``: the rig configuration that includes ``fragment``.
+    Its settings are ``config_path``'s own as written (else ``config``'s
+    tables) without :data:`CALIBRATED_KEYS`; its includes are the file's,
+    re-pointed from ``path``'s folder, except an earlier fragment (a file
+    that sets only calibrated keys), which the new one replaces. Read back
+    by the one schema before it is kept.
+
+    Raises:
+        ConfigError: the written configuration is refused (e.g. a file it
+            includes gives a calibrated setting too: the message names the
+            setting and both files); ``path`` is then removed.
+    """
+    folder = path.parent.resolve()
+    if config_path is None:
+        tables, entries = config.to_dict(), []
+        tables.pop("included", None)
+    else:
+        tables = _read_tables(config_path)
+        tables.pop("included", None)
+        entries, _ = _includes(config_path, tables.pop("include", []))
+    for key in CALIBRATED_KEYS:
+        _without(tables, key)
+    include = [os.path.relpath(e.resolve(), folder) for e in entries] + [os.path.relpath(fragment.resolve(), folder)]
+    path.write_text(
+        f"# The rig configuration with the handle calibrated: {config_path or 'the hi5_rig preset'}'s settings\n"
+        "# including the fragment (written by sensaug calibrate; docs/hardware.md).\n"
+        + tomli_w.dumps({"include": include, **tables})
+    )
+    try:
+        ScenarioConfig.from_toml(path)
+    except ValueError:
+        path.unlink()
+        raise
+    return path
+
+
+def _includes(config_path: Path, entries: list[str]) -> tuple[list[Path], list[Path]]:
+    """``config_path``'s include entries as paths: the other files, and the
+    earlier fragments (files that set calibrated keys only)."""
+    here = config_path.resolve().parent
+    paths = [here / e for e in entries]
+    return [p for p in paths if not _is_fragment(p)], [p for p in paths if _is_fragment(p)]
+
+
+def _is_fragment(path: Path) -> bool:
+    """Whether ``path`` sets calibrated keys only (an earlier fragment)."""
+    try:
+        tables = _read_tables(path)
+    except (OSError, ValueError):
+        return False  # the schema's read of the written file names the problem
+    removed = [_without(tables, k) for k in CALIBRATED_KEYS]
+    return any(removed) and not tables
 
 
 def drive_handle_args(mass: float, damping: float, coulomb: float) -> list[str]:
@@ -411,7 +503,9 @@ def command(
 ) -> int:
     """``sensaug calibrate``: the excitation on the virtual rig (or a rig
     log's, ``log_path``), the identified handle printed, the fragment
-    ``out/calibration.toml`` and ``out/calibrated_config.toml`` written;
+    ``out/calibration.toml`` and ``out/calibrated_config.toml`` (the rig
+    configuration including it, :func:`including_config`) written, and the
+    line that includes the fragment in ``config_path``;
     ``write_excitation``: only the excitation run's configuration, for
     ``sensaug-rt`` on a real rig."""
     from sensaug import presets
@@ -437,9 +531,21 @@ def command(
     print(est.summary())
     log = load_log(log_path) if log_path is not None else load_log(out / "rig_log.csv")
     picture = plot_fit(log, est, out / "calibration.png")
-    fragment = write_fragment(out / "calibration.toml", est, source=source, config=config)
-    full = out / "calibrated_config.toml"
-    calibrated_config(config, est).to_toml(full)
-    print(f"fragment: {fragment} ([plant] mass, [rig.friction]); the configuration with it: {full}; "
-          f"the fit: {picture}")
+    fragment = write_fragment(out / "calibration.toml", est, source=source)
+    print(f"fragment: {fragment} ({', '.join(CALIBRATED_KEYS)}); the fit: {picture}")
+    if config_path is not None:
+        _, earlier = _includes(config_path, _read_tables(config_path).get("include", []))
+        if earlier:
+            print(f"{config_path} includes the earlier calibration {', '.join(map(str, earlier))}: copy {fragment} over "
+                  "it to run with the new one")
+        else:
+            line = f"include = [{json.dumps(os.path.relpath(fragment.resolve(), config_path.resolve().parent))}]"
+            print(f"to run {config_path} with it: add the line  {line}  at its top (or the path of the handle's "
+                  "own copy of the fragment) and remove those four settings from it")
+    try:
+        full = including_config(config, config_path, fragment, out / "calibrated_config.toml")
+    except ValueError as e:
+        print(f"sensaug calibrate: calibrated_config.toml not written: {e}", file=sys.stderr)
+        return 1
+    print(f"the rig configuration including it: {full}")
     return 0

@@ -169,6 +169,18 @@ class DisplayConfig(_Table):
 
 
 @dataclass
+class IncludedFile(_Table):
+    """A file a configuration included (`included`)."""
+
+    path: str
+    """The file as opened: the `include` entry joined to the including file's folder, made
+    absolute.
+    """
+    sha256: str
+    """SHA-256 of the file's bytes as read (64 lowercase hex digits)."""
+
+
+@dataclass
 class GainDriftConfig(_Table):
     """`[partner.human.gain_drift]`: each gain is L (1 + delta), delta a mean-reverting random
     walk clipped at +-3 std.
@@ -716,6 +728,17 @@ class ScenarioConfig(_Table):
     """The protocol: 1 to 4 phases run in order."""
     display: DisplayConfig = field(default_factory=lambda: DisplayConfig.from_dict({'direction': 'right', 'dots': 20, 'enabled': False, 'freeze_timeout_ms': 250.0, 'fullscreen': True, 'height_px': 720, 'on_freeze': 'stop', 'px_per_unit': 25.0, 'refresh_ms': 100.0, 'seed': 0, 'sigma_v': 0.0, 'width_px': 1280}))
     """The participant's display (Python `sensaug.display`; the loop ignores it)."""
+    include: list[str] | None = None
+    """Files whose tables this file takes in, each path relative to this file (`include =
+    ["calibration.toml"]`), merged when the file is read (`sensaug-rt CONFIG`,
+    `ScenarioConfig.from_toml(path)`); a setting may be given in one file only
+    (docs/config.md, "Includes"). Text and tables read without a file cannot include.
+    """
+    included: list[IncludedFile] | None = None
+    """Written when the file is read, not by hand: each file the configuration included, its path
+    and SHA-256, so that a trial's log says which files (which handle calibration) it ran
+    with.
+    """
     partner: PartnerConfig = field(default_factory=lambda: PartnerConfig.from_dict({'acts_on': 'measured', 'estimates_robot': False, 'gains': [0.0, 0.0, 2.0], 'torque_limit': 1000.0}))
     """The partner: the virtual human (simulation, and inside the rig loop)."""
     plant: PlantConfig = field(default_factory=lambda: PlantConfig.from_dict({'coulomb': 0.0, 'damping': 0.0, 'dt_s': 0.001, 'mass': 0.0035}))
@@ -731,4 +754,4 @@ class ScenarioConfig(_Table):
     world: WorldConfig = field(default_factory=lambda: WorldConfig.from_dict({'motor_noise_std': 0.001, 'position_noise_std': 0.00031622776601683794, 'seed': 0, 'v0': 0.0, 'velocity_noise_std': 0.00031622776601683794, 'x0': 0.0}))
     """Simulation only: noise, seed and initial state of the simulated world."""
 
-    _nested = {'phases': _list_of(PhaseConfig.from_dict), 'display': DisplayConfig.from_dict, 'partner': PartnerConfig.from_dict, 'plant': PlantConfig.from_dict, 'rig': RigConfig.from_dict, 'robot': RobotConfig.from_dict, 'session': SessionConfig.from_dict, 'world': WorldConfig.from_dict}
+    _nested = {'phases': _list_of(PhaseConfig.from_dict), 'display': DisplayConfig.from_dict, 'included': _list_of(IncludedFile.from_dict), 'partner': PartnerConfig.from_dict, 'plant': PlantConfig.from_dict, 'rig': RigConfig.from_dict, 'robot': RobotConfig.from_dict, 'session': SessionConfig.from_dict, 'world': WorldConfig.from_dict}

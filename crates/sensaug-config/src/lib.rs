@@ -7,6 +7,7 @@
 //!   one owned value every consumer takes); the error names the first bad
 //!   field by its dotted path and says how to fix it. [`parse_file`] /
 //!   [`parse_str`] only parse, for a caller that edits before resolving.
+//!   A file may include others (`include.rs`; expanded by [`parse_file`]).
 //! * [`Resolved::new`]: every field's bound, the cross-field rules, then the
 //!   core's structs and the loop's settings ([`rig::RigSettings`]).
 //! * [`to_toml`]: a configuration as TOML with each field's description and
@@ -19,6 +20,7 @@
 pub mod check;
 pub mod cov;
 pub mod error;
+mod include;
 pub mod outputs;
 pub mod person;
 pub mod resolve;
@@ -82,15 +84,54 @@ pub fn json_schema() -> &'static serde_json::Value {
 }
 
 /// Reads, parses and resolves a configuration file ([`parse_file`], then
-/// [`Resolved::new`]).
+/// [`Resolved::new`]). An error at a setting an included file gave names
+/// that file.
 pub fn load_file(path: &Path) -> Result<Resolved, ConfigError> {
-    Resolved::new(parse_file(path)?)
+    load_file_with(path, |_| Ok(()))
+}
+
+/// [`load_file`] with `edit` applied to the file's values before they are
+/// resolved (`sensaug-rt`'s command-line overrides), so that its errors
+/// are worded as [`load_file`]'s.
+pub fn load_file_with(
+    path: &Path,
+    edit: impl FnOnce(&mut ScenarioSpec) -> Result<(), ConfigError>,
+) -> Result<Resolved, ConfigError> {
+    let (mut spec, origins) = read_file(path)?;
+    let top = path.display().to_string();
+    edit(&mut spec)
+        .and_then(|()| Resolved::new(spec))
+        .map_err(|e| origins.annotate(&top, e))
 }
 
 /// Reads and parses a configuration file, not yet checked against the
-/// bounds or resolved. Files over [`MAX_FILE_BYTES`] are refused before
-/// parsing. Errors about the file itself or its syntax name it as given.
+/// bounds or resolved, its `include`s merged in and recorded in
+/// `included` (`include.rs`). Files over [`MAX_FILE_BYTES`] are refused
+/// before parsing. Errors about the file itself or its syntax name it as
+/// given.
 pub fn parse_file(path: &Path) -> Result<ScenarioSpec, ConfigError> {
+    read_file(path).map(|(spec, _)| spec)
+}
+
+/// [`parse_file`], and the file each setting came from.
+fn read_file(path: &Path) -> Result<(ScenarioSpec, include::Origins), ConfigError> {
+    let name = path.display().to_string();
+    let text = read_text(path)?;
+    let format = Format::of_path(path);
+    if include::names_includes(&text, format) {
+        return include::expand(path, &text);
+    }
+    // An error about the whole text (its syntax, its size) names the file,
+    // not "(config)": the person reading it has a file open.
+    let spec = parse_str(&text, format).map_err(|e| match e.field.as_str() {
+        "(config)" => ConfigError::new(&name, e.message),
+        _ => e,
+    })?;
+    Ok((spec, include::Origins::default()))
+}
+
+/// A configuration file's text; the error names the file as given.
+pub(crate) fn read_text(path: &Path) -> Result<String, ConfigError> {
     let name = path.display().to_string();
     let file = std::fs::File::open(path).map_err(|e| {
         ConfigError::new(
@@ -119,12 +160,7 @@ pub fn parse_file(path: &Path) -> Result<ScenarioSpec, ConfigError> {
             ),
         ));
     }
-    // An error about the whole text (its syntax, its size) names the file,
-    // not "(config)": the person reading it has a file open.
-    parse_str(&text, Format::of_path(path)).map_err(|e| match e.field.as_str() {
-        "(config)" => ConfigError::new(&name, e.message),
-        _ => e,
-    })
+    Ok(text)
 }
 
 /// What both checkers (`sensaug check`, `sensaug-rt --check`) run: the file
@@ -160,7 +196,7 @@ pub fn check_rig_outputs(spec: &ScenarioSpec) -> Result<(), ConfigError> {
     outputs::check_outputs(&refs)
 }
 
-fn io_reason(e: &std::io::Error) -> String {
+pub(crate) fn io_reason(e: &std::io::Error) -> String {
     // The OS message without Rust's "(os error N)" suffix.
     let s = e.to_string();
     match s.find(" (os error") {
@@ -227,6 +263,11 @@ where
             format!("cannot be read as tables of numbers, strings, true/false and lists ({e})"),
         )
     })?;
+    spec_of_value(value)
+}
+
+/// A configuration from TOML's data model, errors worded as a file's.
+pub(crate) fn spec_of_value(value: toml::Value) -> Result<ScenarioSpec, ConfigError> {
     serde_path_to_error::deserialize(value).map_err(|e| {
         let path = path_string(e.path());
         // A TOML value's error ends with the key it was at ("\nin ..."):

@@ -71,6 +71,15 @@ impl Resolved {
     /// that resolves also builds.
     pub fn new(spec: ScenarioSpec) -> Result<Resolved, ConfigError> {
         RESOLVES.with(|n| n.set(n.get() + 1));
+        if !spec.include.is_empty() {
+            return Err(ConfigError::new(
+                "include",
+                "names files relative to a configuration file, but this configuration was not \
+                 read from a file (text, or Python tables): read the file itself \
+                 (ScenarioConfig.from_toml(path), sensaug-rt CONFIG), or give the included \
+                 settings here",
+            ));
+        }
         let value = serde_json::to_value(&spec)
             .map_err(|e| ConfigError::new("(config)", format!("cannot be represented: {e}")))?;
         crate::check::bounds(crate::json_schema(), &value)?;

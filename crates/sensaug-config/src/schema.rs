@@ -77,6 +77,34 @@ pub struct ScenarioSpec {
     /// session`; a single trial ignores it).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub session: Option<SessionSpec>,
+    /// Files whose tables this file takes in, each path relative to this
+    /// file (`include = ["calibration.toml"]`), merged when the file is read
+    /// (`sensaug-rt CONFIG`, `ScenarioConfig.from_toml(path)`); a setting
+    /// may be given in one file only (docs/config.md, "Includes"). Text and
+    /// tables read without a file cannot include.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    #[schemars(length(max = MAX_INCLUDES))]
+    pub include: Vec<String>,
+    /// Written when the file is read, not by hand: each file the
+    /// configuration included, its path and SHA-256, so that a trial's log
+    /// says which files (which handle calibration) it ran with.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    #[schemars(length(max = MAX_INCLUDES))]
+    pub included: Vec<IncludedFile>,
+}
+
+/// Most files one configuration may include, nested includes counted.
+pub const MAX_INCLUDES: usize = 32;
+
+/// A file a configuration included (`included`).
+#[derive(Clone, Debug, PartialEq, Eq, Deserialize, Serialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct IncludedFile {
+    /// The file as opened: the `include` entry joined to the including
+    /// file's folder, made absolute.
+    pub path: String,
+    /// SHA-256 of the file's bytes as read (64 lowercase hex digits).
+    pub sha256: String,
 }
 
 /// What the robot does during a phase.

@@ -15,13 +15,8 @@ fn load_str(text: &str, format: Format) -> Result<ScenarioSpec, ConfigError> {
 }
 use std::path::Path;
 
-const MINIMAL: &str = r#"
-[[phases]]
-kind = "gains"
-duration_s = 1.0
-robot_target = [{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }]
-partner_target = [{ kind = "rounded_square", amplitude = 8.0, period_s = 4.0 }]
-"#;
+mod common;
+use common::MINIMAL;
 
 fn repo() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))

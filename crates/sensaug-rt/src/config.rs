@@ -6,7 +6,7 @@ use crate::control::LoopSettings;
 use sensaug_bridge::cia402::{CanopenNode, MasterSettings};
 use sensaug_bridge::drive_link::{Cia402Link, DriveLink, Hi5Link};
 use sensaug_bridge::protocol::NodeId;
-use sensaug_config::{parse_file, ConfigError, DriveProfile, Resolved};
+use sensaug_config::{load_file_with, ConfigError, DriveProfile, Resolved};
 use std::path::Path;
 use std::time::Duration;
 
@@ -29,21 +29,21 @@ pub fn load(
     overrides: &Overrides,
     check_outputs: bool,
 ) -> Result<Resolved, ConfigError> {
-    let mut spec = parse_file(path)?;
-    let rig = &mut spec.rig;
-    for (field, value) in [
-        (&mut rig.can, &overrides.can),
-        (&mut rig.log, &overrides.log),
-        (&mut rig.stats, &overrides.stats),
-    ] {
-        if let Some(v) = value {
-            field.clone_from(v);
+    let resolved = load_file_with(path, |spec| {
+        let rig = &mut spec.rig;
+        for (field, value) in [
+            (&mut rig.can, &overrides.can),
+            (&mut rig.log, &overrides.log),
+            (&mut rig.stats, &overrides.stats),
+        ] {
+            if let Some(v) = value {
+                field.clone_from(v);
+            }
         }
-    }
-    // A revolute joint: the rig refuses a linear position unit before
-    // resolving (the simulation accepts it).
-    sensaug_config::check_rig_unit(&spec)?;
-    let resolved = Resolved::new(spec)?;
+        // A revolute joint: the rig refuses a linear position unit before
+        // resolving (the simulation accepts it).
+        sensaug_config::check_rig_unit(spec)
+    })?;
     if check_outputs {
         sensaug_config::check_rig_outputs(&resolved.spec)?;
     }
