@@ -26,7 +26,7 @@ from sensaug_bridge.udp_bus import free_port
 from test_rig import short_config, stall_tolerant
 
 from sensaug import cli, rig
-from sensaug.capture import BusCapture, Frame, decode_all, match_commands, match_feedback, read_candump
+from sensaug.capture import BusCapture, Decoded, Frame, decode_all, match_commands, match_feedback, read_candump
 
 REPO = Path(__file__).resolve().parents[1]
 DBC = REPO / "firmware_bridge" / "hi5.dbc"
@@ -106,6 +106,21 @@ def test_every_command_and_feedback_in_the_log_is_on_the_bus(run):
     np.testing.assert_allclose(log["xdot"][fresh] * unit, vel, rtol=0, atol=1e-9)
     print(f"\ncapture: {len(frames)} frames, {len(commands)} commands, {len(feedback)} feedback; "
           f"{len(fresh)} fresh ticks of {ticks} matched")
+
+
+def test_an_answer_captured_before_its_command_is_matched():
+    """The capture order of a failed full run (tick 1's Feedback queued before
+    its TorqueCommand), and the earlier answers that must not be taken: an
+    answer is looked for after the previous tick's command, never earlier."""
+    frame = Frame(0.0, 0, False, False, False, False, b"")
+    bus = [("TorqueCommand", 0), ("Feedback", 0), ("Feedback", 1), ("TorqueCommand", 1),
+           ("TorqueCommand", 2), ("Feedback", 2), ("TorqueCommand", 3), ("Feedback", 2), ("TorqueCommand", 4)]
+    decoded = [Decoded(frame, name, "", {"sequence": seq}, i) for i, (name, seq) in enumerate(bus)]
+    commands = [d for d in decoded if d.name == "TorqueCommand"]
+    feedback = [d for d in decoded if d.name == "Feedback"]
+    answer = match_feedback(commands, list(range(len(commands))), feedback)
+    # Ticks 3 and 4: only a second Feedback(2) comes after their commands.
+    assert answer == [0, 1, 2, None, None]
 
 
 def around(decoded, index: int, frames: int = 6) -> str:

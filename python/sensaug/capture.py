@@ -289,16 +289,24 @@ def subsequence(commands: list[Decoded], seq: list[int], torque: np.ndarray, tol
 
 def match_feedback(commands: list[Decoded], matched: list[int], feedback: list[Decoded]) -> list[Optional[int]]:
     """For each tick's command (``commands[matched[k]]``), the index in
-    ``feedback`` of the Feedback answering it: the first one after the
-    command on the bus echoing its sequence, before the command 256 ticks
-    later reuses that sequence; None when there is none."""
+    ``feedback`` of the Feedback answering it: the first one echoing its
+    sequence after the previous tick's command on the bus, before the
+    command 256 ticks later reuses that sequence; None when there is none.
+
+    From the previous command, not from this one: the capture is one more
+    receiver of the bus and can queue the drive's answer before the command
+    it answers (seen on the loopback UDP bus in a full test run:
+    ``Feedback(1)`` captured before ``TorqueCommand(1)``; presumably the
+    drive, woken by the command's datagram, answered while the kernel was
+    still handing that datagram to the other sockets)."""
     out: list[Optional[int]] = []
     j = 0
     for k, ci in enumerate(matched):
         cmd = commands[ci]
         seq = cmd.signals["sequence"]
         bound = commands[matched[k + 256]].index if k + 256 < len(matched) else None
-        while j < len(feedback) and feedback[j].index < cmd.index:
+        start = commands[matched[k - 1]].index if k > 0 else -1
+        while j < len(feedback) and feedback[j].index < start:
             j += 1
         i = j
         while i < len(feedback) and (bound is None or feedback[i].index < bound) and feedback[i].signals["sequence"] != seq:
