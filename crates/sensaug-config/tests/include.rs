@@ -27,6 +27,15 @@ fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
     path
 }
 
+/// `rig.toml` in `dir`: `include = INCLUDE`, the phases, then `rest`.
+fn rig_including(dir: &Path, include: &str, rest: &str) -> PathBuf {
+    write(
+        dir,
+        "rig.toml",
+        &format!("include = {include}\n{PHASES}{rest}"),
+    )
+}
+
 fn sha256_hex(text: &str) -> String {
     // The record's digest, checked against an independent tool's output
     // for one file below; here the expected value for the others.
@@ -51,10 +60,10 @@ fn err(path: &Path) -> ConfigError {
 fn an_included_fragment_gives_its_settings_and_is_recorded() {
     let dir = folder("merge");
     write(&dir, "handles/a.toml", CALIBRATION);
-    let top = write(
+    let top = rig_including(
         &dir,
-        "rig.toml",
-        &format!("include = [\"handles/a.toml\"]\n{PHASES}\n[rig]\ncan = \"udp:47001\"\n"),
+        "[\"handles/a.toml\"]",
+        "\n[rig]\ncan = \"udp:47001\"\n",
     );
     let merged = write(
         &dir,
@@ -89,11 +98,7 @@ fn an_included_fragment_gives_its_settings_and_is_recorded() {
 fn a_setting_given_in_two_files_is_refused_naming_both() {
     let dir = folder("conflict");
     write(&dir, "cal.toml", CALIBRATION);
-    let top = write(
-        &dir,
-        "rig.toml",
-        &format!("include = [\"cal.toml\"]\n{PHASES}\n[plant]\nmass = 0.0035\n"),
-    );
+    let top = rig_including(&dir, "[\"cal.toml\"]", "\n[plant]\nmass = 0.0035\n");
     let e = err(&top);
     assert_eq!(e.field, "plant.mass");
     let (a, b) = (top.display().to_string(), dir.join("cal.toml"));
@@ -103,20 +108,12 @@ fn a_setting_given_in_two_files_is_refused_naming_both() {
     );
     assert!(e.message.contains("remove it from one of them"), "{e}");
     // Tables merge key by key: another key of [plant] is no conflict.
-    let top = write(
-        &dir,
-        "rig.toml",
-        &format!("include = [\"cal.toml\"]\n{PHASES}\n[plant]\ndt_s = 0.002\n"),
-    );
+    let top = rig_including(&dir, "[\"cal.toml\"]", "\n[plant]\ndt_s = 0.002\n");
     let r = load_file(&top).unwrap();
     assert_eq!((r.spec.plant.mass, r.spec.plant.dt_s), (0.0041, 0.002));
     // A list is one value: phases from two files is a conflict.
     write(&dir, "more.toml", PHASES);
-    let top = write(
-        &dir,
-        "rig.toml",
-        &format!("include = [\"more.toml\"]\n{PHASES}"),
-    );
+    let top = rig_including(&dir, "[\"more.toml\"]", "");
     assert_eq!(err(&top).field, "phases");
 }
 
@@ -198,11 +195,7 @@ fn a_cycle_and_a_file_included_twice_are_refused() {
 #[test]
 fn a_missing_or_malformed_include_names_the_entry_and_the_path_tried() {
     let dir = folder("missing");
-    let top = write(
-        &dir,
-        "rig.toml",
-        &format!("include = [\"handles/nope.toml\"]\n{PHASES}"),
-    );
+    let top = rig_including(&dir, "[\"handles/nope.toml\"]", "");
     let e = err(&top);
     assert_eq!(e.field, "include[0]");
     let tried = dir.join("handles/nope.toml").display().to_string();
@@ -210,32 +203,20 @@ fn a_missing_or_malformed_include_names_the_entry_and_the_path_tried() {
     assert!(e.message.contains(&tried), "{e}");
     assert!(e.message.contains("relative to the including file"), "{e}");
     // Not a list of paths.
-    let top = write(
-        &dir,
-        "rig.toml",
-        &format!("include = \"cal.toml\"\n{PHASES}"),
-    );
+    let top = rig_including(&dir, "\"cal.toml\"", "");
     let e = err(&top);
     assert_eq!(e.field, "include");
     assert!(e.message.contains("list of file paths"), "{e}");
     // A syntax error inside the included file names it.
     write(&dir, "bad.toml", "[plant]\nmass = = 1\n");
-    let top = write(
-        &dir,
-        "rig.toml",
-        &format!("include = [\"bad.toml\"]\n{PHASES}"),
-    );
+    let top = rig_including(&dir, "[\"bad.toml\"]", "");
     let e = err(&top);
     assert_eq!(e.field, "plant.mass");
     assert!(e.message.contains("not valid TOML"), "{e}");
     assert!(e.message.contains("bad.toml"), "{e}");
     // An unreadable file (a folder).
     std::fs::create_dir_all(dir.join("dir.toml")).unwrap();
-    let top = write(
-        &dir,
-        "rig.toml",
-        &format!("include = [\"dir.toml\"]\n{PHASES}"),
-    );
+    let top = rig_including(&dir, "[\"dir.toml\"]", "");
     let e = err(&top);
     assert_eq!(e.field, "include[0]");
     assert!(e.message.contains("\"dir.toml\""), "{e}");
@@ -245,11 +226,7 @@ fn a_missing_or_malformed_include_names_the_entry_and_the_path_tried() {
 fn a_bad_value_in_an_included_file_names_that_file() {
     let dir = folder("bad_value");
     write(&dir, "cal.toml", "[plant]\nmass = -1.0\n");
-    let top = write(
-        &dir,
-        "rig.toml",
-        &format!("include = [\"cal.toml\"]\n{PHASES}"),
-    );
+    let top = rig_including(&dir, "[\"cal.toml\"]", "");
     let e = err(&top);
     assert_eq!(e.field, "plant.mass");
     assert!(e.message.contains("(set in"), "{e}");
@@ -271,11 +248,7 @@ fn json_files_include_and_are_included() {
         "cal.json",
         r#"{"plant": {"mass": 0.0041, "damping": 0.0}, "partner": {"q_pos": null, "gains": [0, 0, 2]}}"#,
     );
-    let top = write(
-        &dir,
-        "rig.toml",
-        &format!("include = [\"cal.json\"]\n{PHASES}"),
-    );
+    let top = rig_including(&dir, "[\"cal.json\"]", "");
     assert_eq!(load_file(&top).unwrap().spec.plant.mass, 0.0041);
     write(&dir, "cal.toml", CALIBRATION);
     let phases = load_file(&top).unwrap().spec.phases;
