@@ -17,6 +17,12 @@ use sensaug_core::world::Scenario;
 
 /// The controller's columns of a row (only those a replay writes), each
 /// value's bit pattern (NaN equals NaN, -0.0 differs from 0.0).
+/// A new robot of the tests' configuration following `protocol`: what a
+/// replay must start from to repeat a trial bit for bit.
+fn fresh_robot(protocol: Protocol<'_>) -> Robot<'_> {
+    Robot::new(common::robot(), protocol).unwrap()
+}
+
 fn bits(t: &Row) -> Vec<u64> {
     COLUMNS
         .iter()
@@ -72,7 +78,7 @@ fn a_simulated_trial_replays_bit_for_bit() {
     let phases = common::phases(1.5, 1.0);
     let (recs, measurements) = measured(&phases);
     let protocol = Protocol::new(&phases, common::DT).unwrap();
-    let mut robot = Robot::new(common::robot(), protocol).unwrap();
+    let mut robot = fresh_robot(protocol);
     let mut out = vec![Row::UNKNOWN; recs.len()];
     let counters = replay_robot(&mut robot, &measurements, None, &mut out).unwrap();
     let online = recs;
@@ -90,7 +96,7 @@ fn a_rig_trial_replays_with_the_torque_the_drive_applied() {
     let phases = common::phases(1.5, 1.0);
     let (recs, measurements) = measured(&phases);
     let protocol = Protocol::new(&phases, common::DT).unwrap();
-    let mut online_robot = Robot::new(common::robot(), protocol).unwrap();
+    let mut online_robot = fresh_robot(protocol);
     let step = 0.05;
     let online: Vec<Row> = measurements
         .iter()
@@ -107,11 +113,11 @@ fn a_rig_trial_replays_with_the_torque_the_drive_applied() {
         })
         .collect();
     let applied: Vec<f64> = online.iter().map(|r| r.u).collect();
-    let mut robot = Robot::new(common::robot(), protocol).unwrap();
+    let mut robot = fresh_robot(protocol);
     let mut out = vec![Row::UNKNOWN; recs.len()];
     replay_robot(&mut robot, &measurements, Some(&applied), &mut out).unwrap();
     assert_identical(&out, &online);
-    let mut robot = Robot::new(common::robot(), protocol).unwrap();
+    let mut robot = fresh_robot(protocol);
     replay_robot(&mut robot, &measurements, None, &mut out).unwrap();
     assert!(out.iter().zip(&online).any(|(a, b)| a.Lhh_hat != b.Lhh_hat));
     assert_eq!(
@@ -136,7 +142,7 @@ fn missing_measurements_replay_as_the_online_predict_only_ticks() {
         .collect();
     measurements[100] = Some((f64::NAN, 0.0));
     let protocol = Protocol::new(&phases, common::DT).unwrap();
-    let mut online_robot = Robot::new(common::robot(), protocol).unwrap();
+    let mut online_robot = fresh_robot(protocol);
     let online: Vec<Row> = measurements
         .iter()
         .enumerate()
@@ -147,7 +153,7 @@ fn missing_measurements_replay_as_the_online_predict_only_ticks() {
             row
         })
         .collect();
-    let mut robot = Robot::new(common::robot(), protocol).unwrap();
+    let mut robot = fresh_robot(protocol);
     let mut out = vec![Row::UNKNOWN; recs.len()];
     let counters = replay_robot(&mut robot, &measurements, None, &mut out).unwrap();
     assert_identical(&out, &online);
@@ -163,7 +169,7 @@ fn missing_measurements_replay_as_the_online_predict_only_ticks() {
 fn lengths_are_checked_and_ticks_after_the_protocol_are_none() {
     let phases = common::phases(0.01, 0.0);
     let protocol = Protocol::new(&phases, common::DT).unwrap();
-    let mut robot = Robot::new(common::robot(), protocol).unwrap();
+    let mut robot = fresh_robot(protocol);
     let mut out = vec![Row::UNKNOWN; 3];
     assert_eq!(
         replay_robot(&mut robot, &[None; 4], None, &mut out),
@@ -187,7 +193,7 @@ fn lengths_are_checked_and_ticks_after_the_protocol_are_none() {
 fn a_robot_replay_does_not_allocate() {
     let phases = common::phases(1.0, 1.0);
     let protocol = Protocol::new(&phases, common::DT).unwrap();
-    let mut robot = Robot::new(common::robot(), protocol).unwrap();
+    let mut robot = fresh_robot(protocol);
     let n = protocol.total_ticks() as usize;
     let measurements: Vec<_> = (0..n)
         .map(|k| (k % 5 != 0).then_some((1e-3 * (k as f64 * 1e-2).sin(), 0.0)))
@@ -224,7 +230,7 @@ fn all_but(source: ColumnSource) -> Row {
 fn the_controller_and_the_world_fill_the_columns_their_tags_name() {
     let phases = common::phases(0.5, 1.0);
     let protocol = Protocol::new(&phases, common::DT).unwrap();
-    let mut robot = Robot::new(common::robot(), protocol).unwrap();
+    let mut robot = fresh_robot(protocol);
     let before = all_but(ColumnSource::Controller);
     for k in 0..protocol.total_ticks() + 2 {
         let mut row = before;
