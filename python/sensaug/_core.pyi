@@ -8,14 +8,12 @@ from typing_extensions import disjoint_base
 
 __all__ = [
     "Config",
-    "ConfigError",
     "GainEstimator",
     "GoalIntegrator",
     "Plant",
     "RiccatiConvergenceError",
     "Status",
     "TrajectoryEstimator",
-    "TrialTooLargeError",
     "UkfStepError",
     "agent_gains",
     "available_memory",
@@ -316,15 +314,9 @@ class GoalIntegrator:
 
 # --- scenario ---
 
-class ConfigError(ValueError):
-    """A configuration error: ``.field`` is the dotted field path, ``.message``
-    what is wrong and how to fix it; ``str(e)`` is ``<field>: <message>``."""
-
-    field: str
-    message: str
-
-class TrialTooLargeError(ConfigError):
-    """A simulated trial whose log would not fit the memory it may take; raised before it runs."""
+# ``ConfigError`` and ``TrialTooLargeError`` are Python classes
+# (``sensaug.config``, ``sensaug.experiment``): the module raises them with
+# ``(field, message)``.
 
 @final
 class Config:
@@ -365,18 +357,19 @@ class Config:
 
 def run_scenario(
     config: Config, /, *, memory_budget: int | None, git_commit: str | None
-) -> tuple[NDArray[np.uint8], dict[str, int], str]:
+) -> tuple[NDArray[np.uint8], dict[str, int], dict[str, Any]]:
     """One whole simulated trial of a resolved configuration.
 
     Returns ``(records, summary, meta)``: the log's rows as the bytes of
     packed records in the log schema's column order (``log_schema()``; int64
     and float64 native-endian, bool one byte),
     ``records.view(sensaug.logs.DTYPE)``; the run's counters; the log's
-    metadata line (JSON), built in Rust.
+    metadata (the metadata line's object), built in Rust inside the run.
 
     Raises:
         TrialTooLargeError: the log needs more than ``memory_budget`` bytes
             (``None``: ``available_memory()``), before anything runs.
+        ConfigError: the core rejected the resolved configuration (a bug).
     """
 
 def resolve_count() -> int:

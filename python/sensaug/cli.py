@@ -19,7 +19,7 @@ import numpy as np
 
 from sensaug import _core, experiment, presets
 from sensaug._resources import package_version
-from sensaug.config import ScenarioConfig
+from sensaug.config import ConfigError, ScenarioConfig
 from sensaug.lqr import agent_gains
 
 __all__ = ["main", "EXIT_INTERRUPTED"]
@@ -429,7 +429,7 @@ def check(path: str) -> int:
     (one implementation: ``sensaug_config::person::check_conditions``)."""
     try:
         _core.Config.from_file(path, check_outputs=True)
-    except _core.ConfigError as e:
+    except ConfigError as e:
         print(e, file=sys.stderr)
         return 2
     print("valid")

@@ -85,18 +85,18 @@ __all__ = [
     "schema",
 ]
 
-#: Raised for every configuration problem; ``e.field`` is the dotted field
-#: path, ``e.message`` what is wrong and how to fix it, ``str(e)`` is
-#: ``"<field>: <message>"`` (a ``ValueError``).
-ConfigError = _core.ConfigError
+class ConfigError(ValueError):
+    """Raised for every configuration problem, by the core (the binding
+    raises this class) and by the Python side alike: ``e.field`` is the
+    dotted field path, ``e.message`` what is wrong and how to fix it,
+    ``str(e)`` is ``"<field>: <message>"``."""
 
+    def __init__(self, field: str, message: str) -> None:
+        super().__init__(field, message)  # the args a pickled error is rebuilt from
+        self.field, self.message = field, message
 
-def config_error(field: str, message: str) -> ConfigError:
-    """A :data:`ConfigError` raised on the Python side, with ``.field`` and
-    ``.message`` as the core's carry them."""
-    e = ConfigError(f"{field}: {message}")
-    e.field, e.message = field, message
-    return e
+    def __str__(self) -> str:
+        return f"{self.field}: {self.message}"
 
 
 def _plain(obj: Any, path: str) -> Any:
@@ -121,7 +121,7 @@ def _plain(obj: Any, path: str) -> Any:
         return obj.item()
     if isinstance(obj, (bool, int, float, str)):
         return obj
-    raise config_error(
+    raise ConfigError(
         path or "(config)",
         f"a {type(obj).__name__} cannot be written to a configuration; "
         "use a number, a string, true/false, a list or a table",

@@ -11,7 +11,6 @@ trial in one call and the log's metadata is built; it returns a
 from __future__ import annotations
 
 import functools
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, overload
@@ -23,13 +22,16 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 from sensaug import _core, logs, metrics
-from sensaug.config import ScenarioConfig
+from sensaug.config import ConfigError, ScenarioConfig
 
 __all__ = ["Trial", "run", "trial_memory", "TrialTooLargeError", "FIELDS", "PHASE_KINDS", "PLOT_KINDS"]
 
-#: Raised by :func:`run` (and ``sweep``) before a trial whose log would not fit
-#: in memory; a :class:`~sensaug.config.ConfigError`.
-TrialTooLargeError = _core.TrialTooLargeError
+
+class TrialTooLargeError(ConfigError):
+    """Raised by :func:`run` (and ``sweep``) before a trial whose log would
+    not fit in memory (the core raises it: ``phases[*].duration_s,
+    plant.dt_s`` and the fix)."""
+
 
 #: Column names of ``Trial.data`` (the one log schema, ``sensaug.logs``).
 FIELDS: tuple[str, ...] = logs.COLUMNS
@@ -219,10 +221,7 @@ def run(config: ScenarioConfig, *, memory_budget: int | None = None) -> Trial:
             ``phases[*].duration_s`` and ``plant.dt_s`` and the fix), before
             anything runs.
     """
-    records, summary, meta_json = _core.run_scenario(
-        config.resolved(), memory_budget=memory_budget, git_commit=_git_commit()
-    )
-    meta = json.loads(meta_json)
+    records, summary, meta = _core.run_scenario(config.resolved(), memory_budget=memory_budget, git_commit=_git_commit())
     summary = dict(summary)
     meta["end"] = summary
     return Trial(

@@ -143,7 +143,7 @@ def expand(plan: ScenarioConfig, participant: str) -> list[SessionTrial]:
             and the field a condition sets wrongly.
     """
     if plan.session is None:
-        raise ConfigError("session: the plan has no [session] table; add [[session.blocks]] (docs/person.md)")
+        raise ConfigError("session", "the plan has no [session] table; add [[session.blocks]] (docs/person.md)")
     order, _ = block_order(plan, participant)
     out: list[SessionTrial] = []
     for b in order:
@@ -154,7 +154,7 @@ def expand(plan: ScenarioConfig, participant: str) -> list[SessionTrial]:
                 cfg = _block_config(plan, b, seed)
                 cfg.validate()
             except ConfigError as e:
-                raise ConfigError(f"session.blocks[{b}].set: {e}") from None
+                raise ConfigError(f"session.blocks[{b}].set", str(e)) from None
             out.append(SessionTrial(len(out), block.name, k, bool(block.practice), cfg, seed, dict(block.set or {})))
     return out
 

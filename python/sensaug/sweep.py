@@ -72,7 +72,7 @@ def _segments(path: str) -> list[str | int]:
     for part in path.split("."):
         m = _SEGMENT.fullmatch(part)
         if m is None:
-            raise ConfigError(f"{path}: not a dotted path of the configuration (e.g. robot.stage3.channel.gate)")
+            raise ConfigError(path, "not a dotted path of the configuration (e.g. robot.stage3.channel.gate)")
         out.append(m.group(1))
         for idx in re.findall(r"\[(\d+|\*)\]", m.group(2)):
             out.append("*" if idx == "*" else int(idx))
@@ -86,7 +86,7 @@ def _assign(obj: Any, segs: list[str | int], value: Any, path: str, done: str) -
         head = _GAIN_NAMES[head]
     if head == "*":
         if not isinstance(obj, list):
-            raise ConfigError(f"{path}: {done} is not a list; [*] needs one")
+            raise ConfigError(path, f"{done} is not a list; [*] needs one")
         for i, item in enumerate(obj):
             if rest:
                 _assign(item, rest, value, path, f"{done}[{i}]")
@@ -95,18 +95,18 @@ def _assign(obj: Any, segs: list[str | int], value: Any, path: str, done: str) -
         return
     if isinstance(head, int):
         if not isinstance(obj, list) or not -len(obj) <= head < len(obj):
-            raise ConfigError(f"{path}: {where} does not exist (index out of range or not a list)")
+            raise ConfigError(path, f"{where} does not exist (index out of range or not a list)")
         if rest:
             _assign(obj[head], rest, value, path, where)
         else:
             obj[head] = value
         return
     if not hasattr(obj, "__dataclass_fields__") or head not in obj.__dataclass_fields__:
-        raise ConfigError(f"{path}: {where} is not a field of the configuration; see `sensaug schema`")
+        raise ConfigError(path, f"{where} is not a field of the configuration; see `sensaug schema`")
     if rest:
         child = getattr(obj, head)
         if child is None:
-            raise ConfigError(f"{path}: {where} is not set in the base configuration; give it a value first")
+            raise ConfigError(path, f"{where} is not set in the base configuration; give it a value first")
         if isinstance(child, tuple):
             child = list(child)
             setattr(obj, head, child)
@@ -227,11 +227,11 @@ def _points(grid: Mapping[str, Sequence[Any]]) -> list[dict[str, Any]]:
     keys = list(grid)
     for k in keys:
         if isinstance(grid[k], (str, bytes)) or not isinstance(grid[k], Iterable):
-            raise ConfigError(f"grid.{k}: give a list of values to sweep, got {grid[k]!r}")
+            raise ConfigError(f"grid.{k}", f"give a list of values to sweep, got {grid[k]!r}")
     values = [list(grid[k]) for k in keys]
     for k, v in zip(keys, values):
         if not v:
-            raise ConfigError(f"grid.{k}: empty; give at least one value")
+            raise ConfigError(f"grid.{k}", "empty; give at least one value")
     return [dict(zip(keys, combo)) for combo in itertools.product(*values)]
 
 
@@ -285,7 +285,7 @@ def sweep(
     points = _points(grid or {})
     seed_list = [int(s) for s in seeds]
     if not seed_list:
-        raise ConfigError("seeds: empty; give at least one seed")
+        raise ConfigError("seeds", "empty; give at least one seed")
     if workers is not None and workers < 1:
         raise ValueError(f"workers: must be >= 1, got {workers}")
     jobs: list[tuple[dict[str, Any], int, str]] = []
@@ -297,7 +297,8 @@ def sweep(
             seeded = _seeded_fields(cfg, point)
             if not seeded and len(seed_list) > 1:
                 raise ConfigError(
-                    f"seeds: the grid sets every seed of the trial ({', '.join(k for k in point if _canonical(k) in SEED_FIELDS)}), "
+                    "seeds",
+                    f"the grid sets every seed of the trial ({', '.join(k for k in point if _canonical(k) in SEED_FIELDS)}), "
                     f"so {len(seed_list)} seeds would repeat identical trials; give one seed (seeds=[0], --seeds 1)"
                 )
             _seed(cfg, seeded, seed)

@@ -10,6 +10,9 @@
 //!   A file may include others (`include.rs`; expanded by [`parse_file`]).
 //! * [`Resolved::new`]: every field's bound, the cross-field rules, then the
 //!   core's structs and the loop's settings ([`rig::RigSettings`]).
+//! * [`run`]: what runs from a [`Resolved`]: the core's protocol and
+//!   controller, a simulated trial ([`Resolved::simulate`]) and a log's
+//!   metadata ([`Resolved::log_metadata`]).
 //! * [`to_toml`]: a configuration as TOML with each field's description and
 //!   unit as a comment.
 //! * [`outputs`]: the rig's output paths, checked against the file system
@@ -25,6 +28,7 @@ pub mod outputs;
 pub mod person;
 pub mod resolve;
 pub mod rig;
+pub mod run;
 pub mod schema;
 mod shape;
 mod write;
@@ -32,6 +36,7 @@ mod write;
 pub use cov::Cov;
 pub use error::ConfigError;
 pub use resolve::{resolve_count, Resolved};
+pub use run::{trial_memory_budget, Rejected, SimulatedTrial, TrialError};
 pub use schema::*;
 pub use write::to_toml;
 
@@ -191,9 +196,7 @@ pub fn check_rig_unit(spec: &ScenarioSpec) -> Result<(), ConfigError> {
 /// The rig's output paths (`rig.log`, `rig.stats`) checked against the file
 /// system ([`outputs::check_outputs`]).
 pub fn check_rig_outputs(spec: &ScenarioSpec) -> Result<(), ConfigError> {
-    let outs = outputs::rig_outputs(spec);
-    let refs: Vec<(&str, &Path)> = outs.iter().map(|(f, p)| (*f, p.as_path())).collect();
-    outputs::check_outputs(&refs)
+    outputs::check_outputs(&outputs::rig_outputs(spec))
 }
 
 pub(crate) fn io_reason(e: &std::io::Error) -> String {

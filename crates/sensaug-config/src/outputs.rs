@@ -156,10 +156,11 @@ fn option_hint(field: &str) -> &'static str {
 /// `<path>.partial` are regular files or absent, its folder is a folder (or
 /// will be created), and no two outputs (or their `.partial`) are the same
 /// file. The first problem, at its field.
-pub fn check_outputs(outputs: &[(&str, &Path)]) -> Result<(), ConfigError> {
+pub fn check_outputs(outputs: &[(impl AsRef<str>, impl AsRef<Path>)]) -> Result<(), ConfigError> {
     // Every file written so far: where, and what it is, for the message.
     let mut taken: Vec<(PathBuf, String)> = Vec::new();
-    for &(field, path) in outputs {
+    for (field, path) in outputs {
+        let (field, path) = (field.as_ref(), path.as_ref());
         check_one(field, path)?;
         for (file, temporary) in [(path.to_path_buf(), false), (partial_path(path), true)] {
             let id = identity(&file);

@@ -1,9 +1,46 @@
 //! Set-up errors of a trial, shared by the protocol, the controller and the
-//! simulation world (re-exported as `sensaug_core::ScenarioError`).
+//! simulation world (re-exported as `sensaug_core::ScenarioError`), and the
+//! kind of every error of the core ([`CoreError`]).
 
 use crate::estimator::EstimatorError;
 use crate::plant::PlantError;
+use crate::replay::ReplayError;
 use crate::target::TargetError;
+use crate::ukf::RunReport;
+
+/// Whose fault an error of the core is: a caller that maps errors to its
+/// own classes (the Python binding's exceptions) maps them by kind.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ErrorKind {
+    /// An argument or setting breaks a precondition.
+    Argument,
+    /// A filter step the numbers broke: rejected (state unchanged) or
+    /// repaired (`P` reset).
+    StepFailure,
+    /// The Riccati solver failed its own checks (no convergence, residual,
+    /// closed loop).
+    SolverFailure,
+}
+
+/// An error of the core: its message (field and fix) is its `Display`,
+/// [`CoreError::kind`] says whose fault it is.
+pub trait CoreError: core::fmt::Display {
+    /// Whose fault it is; an argument's unless the numbers failed.
+    fn kind(&self) -> ErrorKind {
+        ErrorKind::Argument
+    }
+}
+
+impl CoreError for EstimatorError {}
+impl CoreError for ReplayError {}
+impl CoreError for PlantError {}
+
+/// A strict run that had step errors.
+impl CoreError for RunReport {
+    fn kind(&self) -> ErrorKind {
+        ErrorKind::StepFailure
+    }
+}
 
 /// Set-up errors of a trial; each names what to fix.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -37,4 +37,4 @@ pub mod target;
 pub mod ukf;
 pub mod world;
 
-pub use error::ScenarioError;
+pub use error::{CoreError, ErrorKind, ScenarioError};

@@ -131,16 +131,16 @@ pub enum RiccatiError {
     },
 }
 
-impl RiccatiError {
+impl crate::CoreError for RiccatiError {
     /// The solver failed its own checks (no convergence, residual, closed
     /// loop), as opposed to inputs that break a precondition.
-    pub fn is_solver_failure(&self) -> bool {
-        matches!(
-            self,
+    fn kind(&self) -> crate::ErrorKind {
+        match self {
             RiccatiError::NoConvergence
-                | RiccatiError::ResidualTooLarge { .. }
-                | RiccatiError::NotStabilizing
-        )
+            | RiccatiError::ResidualTooLarge { .. }
+            | RiccatiError::NotStabilizing => crate::ErrorKind::SolverFailure,
+            _ => crate::ErrorKind::Argument,
+        }
     }
 }
 

@@ -190,18 +190,18 @@ impl Phase {
     }
 }
 
-impl UkfError {
+impl crate::CoreError for UkfError {
     /// A step the filter rejected (state unchanged) or repaired (`P`
-    /// reset): the numbers went wrong, not an argument.
-    pub fn is_step_failure(&self) -> bool {
-        matches!(
-            self,
+    /// reset) is a step failure: the numbers went wrong, not an argument.
+    fn kind(&self) -> crate::ErrorKind {
+        match self {
             UkfError::NonFiniteMeasurement
-                | UkfError::NonFiniteProcess
-                | UkfError::NonFiniteMeasurementModel
-                | UkfError::NonFiniteResult { .. }
-                | UkfError::CovarianceReset { .. }
-        )
+            | UkfError::NonFiniteProcess
+            | UkfError::NonFiniteMeasurementModel
+            | UkfError::NonFiniteResult { .. }
+            | UkfError::CovarianceReset { .. } => crate::ErrorKind::StepFailure,
+            _ => crate::ErrorKind::Argument,
+        }
     }
 }
 

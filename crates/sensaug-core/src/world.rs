@@ -189,26 +189,43 @@ impl LogTooLarge {
             budget,
         }
     }
+
+    /// The fields that make a trial's log large: the error's field.
+    pub const FIELD: &'static str = "phases[*].duration_s, plant.dt_s";
+
+    /// What is wrong and the fix, without [`Self::FIELD`].
+    pub fn message(&self) -> impl core::fmt::Display + '_ {
+        LogTooLargeMessage(self)
+    }
 }
 
-impl core::fmt::Display for LogTooLarge {
+struct LogTooLargeMessage<'a>(&'a LogTooLarge);
+
+impl core::fmt::Display for LogTooLargeMessage<'_> {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        let e = self.0;
         let gb = |b: u64| b as f64 / 1e9;
         write!(
             f,
-            "phases[*].duration_s, plant.dt_s: {} phase(s) of {} s in all at plant.dt_s = {} s \
-             are {} ticks, whose log needs {:.2} GB of memory, ",
-            self.phases,
-            self.duration_s,
-            self.dt_s,
-            self.ticks,
-            gb(self.bytes),
+            "{} phase(s) of {} s in all at plant.dt_s = {} s are {} ticks, whose log needs \
+             {:.2} GB of memory, ",
+            e.phases,
+            e.duration_s,
+            e.dt_s,
+            e.ticks,
+            gb(e.bytes),
         )?;
-        match self.budget {
+        match e.budget {
             Some(b) => write!(f, "more than the {:.2} GB this trial may take", gb(b))?,
             None => f.write_str("which the system refused to reserve")?,
         }
         f.write_str("; shorten the phases, raise plant.dt_s, or split the trial into shorter runs")
+    }
+}
+
+impl core::fmt::Display for LogTooLarge {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "{}: {}", Self::FIELD, self.message())
     }
 }
 

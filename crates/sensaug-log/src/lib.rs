@@ -387,7 +387,7 @@ pub enum RecordsError {
 
 impl std::fmt::Display for RecordsError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let size = std::mem::size_of::<PackedRow>();
+        let size = RECORD_BYTES;
         match self {
             RecordsError::Length(n) => write!(
                 f,
@@ -404,7 +404,7 @@ impl std::fmt::Display for RecordsError {
 /// `sensaug.logs.DTYPE`); the error names the record and the column.
 pub fn rows_from_records(bytes: &[u8]) -> Result<Vec<Row>, RecordsError> {
     use zerocopy::TryFromBytes;
-    let size = std::mem::size_of::<PackedRow>();
+    let size = RECORD_BYTES;
     if bytes.len() % size != 0 {
         return Err(RecordsError::Length(bytes.len()));
     }
@@ -413,6 +413,25 @@ pub fn rows_from_records(bytes: &[u8]) -> Result<Vec<Row>, RecordsError> {
         Row::from_packed(&packed).map_err(|e| RecordsError::Column(k, e))
     };
     bytes.chunks_exact(size).enumerate().map(row).collect()
+}
+
+/// Bytes of one packed record ([`PackedRow`]: the columns in schema order,
+/// native-endian int64 / float64, bool as one byte; `sensaug.logs.DTYPE`).
+pub const RECORD_BYTES: usize = std::mem::size_of::<PackedRow>();
+
+/// Appends `row` to `out` as one packed record (the inverse of
+/// [`rows_from_records`]).
+pub fn push_record(row: &Row, out: &mut Vec<u8>) {
+    use zerocopy::IntoBytes;
+    out.extend_from_slice(row.packed().as_bytes());
+}
+
+/// Rows as the bytes of packed records (every path of log rows to numpy
+/// returns these; `sensaug.logs.from_records` views them).
+pub fn records_from_rows(rows: &[Row]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(rows.len() * RECORD_BYTES);
+    rows.iter().for_each(|r| push_record(r, &mut out));
+    out
 }
 
 /// Writes a whole log: the header ([`write_header`]), one line per row,
@@ -578,16 +597,11 @@ mod tests {
         use zerocopy::IntoBytes;
         let mut rows = [Row::UNKNOWN; 2];
         (rows[1].tick, rows[1].x, rows[1].fresh) = (1, -0.25, true);
-        let bytes: Vec<u8> = rows
-            .iter()
-            .flat_map(|r| r.packed().as_bytes().to_vec())
-            .collect();
+        let bytes = records_from_rows(&rows);
+        assert_eq!(bytes.len(), 2 * RECORD_BYTES);
+        assert_eq!(&bytes[RECORD_BYTES..], rows[1].packed().as_bytes());
         let back = rows_from_records(&bytes).unwrap();
-        let again: Vec<u8> = back
-            .iter()
-            .flat_map(|r| r.packed().as_bytes().to_vec())
-            .collect();
-        assert_eq!(again, bytes);
+        assert_eq!(records_from_rows(&back), bytes);
         let mut bad = rows[0].packed();
         bad.phase = 99;
         assert!(matches!(

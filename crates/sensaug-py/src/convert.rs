@@ -9,7 +9,6 @@ use pyo3::exceptions::{PyRuntimeError, PyTypeError, PyValueError};
 use pyo3::types::{IntoPyDict, PyBool, PyDict, PyTuple};
 use pyo3::{create_exception, prelude::*};
 use sensaug_core::ukf::{Recoveries, Status};
-use std::fmt::Display;
 
 create_exception!(_core, UkfStepError, PyRuntimeError);
 create_exception!(_core, RiccatiConvergenceError, PyRuntimeError);
@@ -197,47 +196,34 @@ pub fn recoveries_dict<'py>(py: Python<'py>, r: &Recoveries) -> PyResult<Bound<'
     .into_py_dict(py)
 }
 
-/// Which Python exception a core error becomes (`ValueError` unless the
-/// numbers, not an argument, failed).
-pub trait CoreError: Display {
-    fn into_py(self) -> PyErr
-    where
-        Self: Sized,
-    {
-        PyValueError::new_err(self.to_string())
+/// The one error mapping: a core error as the Python exception of its kind
+/// (`sensaug_core::ErrorKind`), its message the core's own `Display`.
+pub fn py_err(e: impl sensaug_core::CoreError) -> PyErr {
+    use sensaug_core::ErrorKind;
+    let text = e.to_string();
+    match e.kind() {
+        ErrorKind::Argument => PyValueError::new_err(text),
+        ErrorKind::StepFailure => UkfStepError::new_err(text),
+        ErrorKind::SolverFailure => RiccatiConvergenceError::new_err(text),
     }
 }
 
-impl CoreError for sensaug_core::estimator::EstimatorError {}
-impl CoreError for sensaug_core::replay::ReplayError {}
-impl CoreError for sensaug_core::plant::PlantError {}
+// The configuration's exceptions are Python classes, raised with
+// `(field, message)`, which they keep as `.field` and `.message`.
+pyo3::import_exception!(sensaug.config, ConfigError);
+pyo3::import_exception!(sensaug.experiment, TrialTooLargeError);
 
-impl CoreError for sensaug_core::ukf::UkfError {
-    fn into_py(self) -> PyErr {
-        match self.is_step_failure() {
-            true => UkfStepError::new_err(self.to_string()),
-            false => PyValueError::new_err(self.to_string()),
+pub fn config_err(e: sensaug_config::ConfigError) -> PyErr {
+    ConfigError::new_err((e.field, e.message))
+}
+
+/// A simulated trial that did not run: too large, or (a bug) rejected.
+pub fn trial_err(e: sensaug_config::TrialError) -> PyErr {
+    match e {
+        sensaug_config::TrialError::TooLarge(e) => {
+            let field = sensaug_core::world::LogTooLarge::FIELD;
+            TrialTooLargeError::new_err((field, e.message().to_string()))
         }
+        sensaug_config::TrialError::Rejected(e) => config_err(e.into()),
     }
-}
-
-impl CoreError for sensaug_core::riccati::RiccatiError {
-    fn into_py(self) -> PyErr {
-        match self.is_solver_failure() {
-            true => RiccatiConvergenceError::new_err(self.to_string()),
-            false => PyValueError::new_err(self.to_string()),
-        }
-    }
-}
-
-/// A strict run that had step errors.
-impl CoreError for sensaug_core::ukf::RunReport {
-    fn into_py(self) -> PyErr {
-        UkfStepError::new_err(self.to_string())
-    }
-}
-
-/// The one error mapping: a core error as its Python exception.
-pub fn py_err(e: impl CoreError) -> PyErr {
-    e.into_py()
 }

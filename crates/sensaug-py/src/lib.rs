@@ -1,29 +1,32 @@
 //! Python bindings for `sensaug-core`. Type conversion only: every function
 //! here fills core structs from Python values, calls the core once, and
 //! converts the result back (`convert` holds the one set of conversions).
-use pyo3::prelude::*;
+use pyo3::pymodule;
 
 pub mod convert;
 pub mod estimators;
 mod log;
 mod plant;
-mod replay;
 mod riccati;
 mod scenario;
 
 #[pymodule]
-fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    estimators::register(m)?;
-    log::register(m)?;
-    plant::register(m)?;
-    replay::register(m)?;
-    riccati::register(m)?;
-    scenario::register(m)?;
-    let py = m.py();
-    m.add("UkfStepError", py.get_type::<convert::UkfStepError>())?;
-    m.add_class::<convert::PyStatus>()?;
-    m.add(
-        "RiccatiConvergenceError",
-        py.get_type::<convert::RiccatiConvergenceError>(),
-    )
+mod _core {
+    use pyo3::prelude::*;
+
+    #[pymodule_export]
+    use crate::convert::{PyStatus, RiccatiConvergenceError, UkfStepError};
+    #[pymodule_export]
+    use crate::log::{config_sha256, git_commit, log_schema, write_log};
+    #[pymodule_export]
+    use crate::scenario::{available_memory, check_output_paths, config_schema, Config};
+    #[pymodule_export]
+    use crate::scenario::{replay_robot, resolve_count, run_scenario};
+
+    #[pymodule_init]
+    fn init(m: &Bound<'_, PyModule>) -> PyResult<()> {
+        crate::estimators::register(m)?;
+        crate::plant::register(m)?;
+        crate::riccati::register(m)
+    }
 }

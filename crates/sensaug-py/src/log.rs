@@ -1,66 +1,41 @@
-//! The one log schema (`sensaug-log`) for Python: the schema, rows <->
-//! numpy, and the writer of a log file. Conversion only.
+//! The one log schema (`sensaug-log`) for Python: the schema, and the
+//! writer of a log file from packed records. Conversion only.
 
-use crate::scenario::config_err;
-use numpy::{IntoPyArray, PyReadonlyArray1};
+use crate::convert::config_err;
+use numpy::PyReadonlyArray1;
 use pyo3::exceptions::{PyOSError, PyValueError};
 use pyo3::prelude::*;
 use pythonize::pythonize;
 use sensaug_config::outputs::{check_outputs, write_replacing};
-use sensaug_log::{PackedRow, Row};
 use std::path::PathBuf;
-use zerocopy::IntoBytes;
-
-pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_function(wrap_pyfunction!(log_schema, m)?)?;
-    m.add_function(wrap_pyfunction!(git_commit, m)?)?;
-    m.add_function(wrap_pyfunction!(write_log, m)?)?;
-    m.add_function(wrap_pyfunction!(config_sha256, m)?)
-}
 
 #[pyfunction]
-fn log_schema(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
+pub fn log_schema(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
     Ok(pythonize(py, &sensaug_log::schema())?)
 }
 
 #[pyfunction]
-fn git_commit(py: Python<'_>, dir: PathBuf) -> Option<String> {
+pub fn git_commit(py: Python<'_>, dir: PathBuf) -> Option<String> {
     py.detach(|| sensaug_log::git_commit(&dir))
 }
 
+/// The metadata comes as JSON text, not dicts: `sensaug.logs.to_json`
+/// writes numpy values as numbers and refuses NaN, in one place (a dict
+/// taken as it is would turn NaN into null and refuse numpy integers).
 fn json(name: &str, text: &str) -> PyResult<serde_json::Value> {
     serde_json::from_str(text)
         .map_err(|e| PyValueError::new_err(format!("{name}: not valid JSON: {e}")))
 }
 
 #[pyfunction]
-fn config_sha256(config_json: &str) -> PyResult<String> {
-    Ok(sensaug_log::config_sha256(&json(
-        "config_json",
-        config_json,
-    )?))
-}
-
-/// Bytes of one packed record ([`PackedRow`]: the columns in schema order,
-/// native-endian int64 / float64, bool as one byte; `sensaug.logs.DTYPE`).
-pub const RECORD_BYTES: usize = std::mem::size_of::<PackedRow>();
-
-/// Appends `row` to `out` as one packed record (`ndarray.view(DTYPE)`).
-pub fn pack_record(row: &Row, out: &mut Vec<u8>) {
-    out.extend_from_slice(row.packed().as_bytes());
-}
-
-/// Rows as the bytes of packed records (every Rust -> numpy path of log
-/// rows returns these; `sensaug.logs.from_records` views them).
-pub fn packed_records<'py>(py: Python<'py>, rows: &[Row]) -> Bound<'py, numpy::PyArray1<u8>> {
-    let mut out = Vec::with_capacity(rows.len() * RECORD_BYTES);
-    rows.iter().for_each(|r| pack_record(r, &mut out));
-    out.into_pyarray(py)
+pub fn config_sha256(config_json: &str) -> PyResult<String> {
+    let config = json("config_json", config_json)?;
+    Ok(sensaug_log::config_sha256(&config))
 }
 
 #[pyfunction]
 #[pyo3(signature = (path, records, /, *, meta_json, end_json))]
-fn write_log(
+pub fn write_log(
     py: Python<'_>,
     path: PathBuf,
     records: PyReadonlyArray1<'_, u8>,

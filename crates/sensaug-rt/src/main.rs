@@ -12,8 +12,6 @@ use clap::Parser;
 use sensaug_bridge::TransportError;
 use sensaug_config::outputs::{create_partial, partial_path, replace};
 use sensaug_config::{ConfigError, Resolved};
-use sensaug_core::controller::Robot;
-use sensaug_core::protocol::Protocol;
 use sensaug_rt::config::{drive_link, load, Overrides};
 use sensaug_rt::control::{Rig, StartError, StopReason};
 use sensaug_rt::{feed, log, os};
@@ -107,10 +105,9 @@ fn say(stream: &mut dyn std::io::Write, line: &str) {
 /// Why a run did not reach its loop, or failed to report it.
 #[derive(Debug)]
 enum RunError {
-    /// A setting the drive link refused (exit 2).
+    /// A setting the drive link refused, or one the core refused after it
+    /// resolved (a bug: `sensaug_config::Rejected`) (exit 2).
     Config(ConfigError),
-    /// The core refused a configuration that resolved: a bug (exit 2).
-    Rejected(&'static str),
     /// The bus `rig.can` names could not be opened or filtered (exit 2).
     Bus(TransportError),
     /// The stop signals' handlers could not be installed (exit 2).
@@ -143,10 +140,6 @@ impl std::fmt::Display for RunError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             RunError::Config(e) => write!(f, "{e}"),
-            RunError::Rejected(what) => write!(
-                f,
-                "{what}: the core rejected a configuration that resolved; please report this"
-            ),
             RunError::Bus(e) => write!(f, "rig.can: {e}"),
             RunError::Signals(e) => write!(f, "signal handler: {e}"),
             RunError::Feed(e) => write!(f, "{e}"),
@@ -199,10 +192,9 @@ fn load_args(args: &Args) -> Result<Resolved, ConfigError> {
 
 fn run(resolved: &Resolved, feed_to: &[SocketAddr]) -> Result<StopReason, RunError> {
     let settings = resolved.rig;
-    let phases = resolved.phases();
-    let protocol =
-        Protocol::new(&phases, resolved.dt_s).map_err(|_| RunError::Rejected("phases"))?;
-    let robot = Robot::new(resolved.robot, protocol).map_err(|_| RunError::Rejected("robot"))?;
+    let robot = resolved
+        .controller()
+        .map_err(|e| RunError::Config(e.into()))?;
     let rig = &resolved.spec.rig;
     let mut transport = sensaug_bridge::open(&rig.can).map_err(RunError::Bus)?;
     let link = drive_link(&settings).map_err(RunError::Config)?;
@@ -388,12 +380,6 @@ fn log_metadata(resolved: &Resolved) -> serde_json::Value {
             (log::WRITE_PERIOD.as_secs_f64() * 1e3).into(),
         );
     }
-    sensaug_log::metadata(&sensaug_log::RunInfo {
-        source: sensaug_log::Source::Rig,
-        config: serde_json::to_value(&resolved.spec).unwrap_or(serde_json::Value::Null),
-        resolved: resolved.derived(),
-        git_commit: exe_dir.as_deref().and_then(sensaug_log::git_commit),
-        start_unix_s: sensaug_log::now_unix_s(),
-        loop_settings,
-    })
+    let git_commit = exe_dir.as_deref().and_then(sensaug_log::git_commit);
+    resolved.log_metadata(sensaug_log::Source::Rig, git_commit, loop_settings)
 }
