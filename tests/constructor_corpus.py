@@ -1,14 +1,22 @@
 """A corpus of bad arguments for every constructor the binding exposes.
 
 For each constructor (the three estimators, ``Plant``, the Riccati helpers
-``lqr`` / ``care`` / ``dare`` / ``agent_gains``, in the package and as
-``sensaug._core`` has them), every argument gets every bad value of its kind
+``lqr`` / ``care`` / ``dare`` / ``agent_gains``), every argument gets every
+bad value of its kind
 (wrong shapes, NaN and infinities, negative variances, indefinite and
 asymmetric matrices, values that make a step overflow, wrong types), alone
 and in pairs with another argument's bad values. Each case must raise a
 ``TypeError`` or ``ValueError`` whose message starts with the name of a bad
 argument (``"Q: ..."``, or ``"(A, B): ..."`` for a property of two), never
 be accepted silently, and never raise anything else.
+
+The package's classes and functions take any array-like and real number
+(``sensaug._args`` converts them); ``sensaug._core``'s take typed arguments
+only (float, float64 arrays; anything else is pyo3's own ``TypeError``) and
+every keyword is required. So the ``_core.*`` constructors get the typed bad
+values only (wrong shapes, NaN and infinities, values out of range), each
+named as the package names it, with the schema's defaults for the keywords
+the package fills in (``_core``'s estimators name the step ``dt_s``).
 
 ``tests/test_constructor_errors.py`` asserts it; run this file to count
 (``python tests/constructor_corpus.py``): how many cases raise an error, how
@@ -28,6 +36,7 @@ import numpy as np
 
 import sensaug
 from sensaug import _core
+from sensaug.config_types import ChannelConfig, PlantConfig, SigmaConfig, WorldConfig
 
 NAN, INF = math.nan, math.inf
 
@@ -176,11 +185,6 @@ def _extended(cls: type, m: int) -> Ctor:
     )
 
 
-def _lqr_args(fn: Callable[..., Any]) -> Callable[..., Any]:
-    """``_core.lqr`` takes its arrays by position."""
-    return lambda A, B, Q, R: fn(A, B, Q, R)
-
-
 _GOOD_LQR = dict(
     A=np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 0.0]]),
     B=np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]),
@@ -201,7 +205,7 @@ _BAD_AGENT = {
     "q_vel": scalar_bad("nonneg", required=True),
 }
 
-CONSTRUCTORS: list[Ctor] = [
+_PACKAGE: list[Ctor] = [
     _extended(sensaug.GainEstimator, 3),
     _extended(sensaug.TrajectoryEstimator, 5),
     Ctor(
@@ -235,9 +239,40 @@ CONSTRUCTORS: list[Ctor] = [
     Ctor("lqr", sensaug.lqr, _GOOD_LQR, _BAD_LQR),
     Ctor("care", sensaug.care, _GOOD_LQR, _BAD_LQR),
     Ctor("dare", sensaug.dare, {**_GOOD_LQR, "A": 0.5 * np.eye(3)}, _BAD_LQR),
-    Ctor("_core.lqr", _lqr_args(_core.lqr), _GOOD_LQR, _BAD_LQR),
     Ctor("agent_gains", sensaug.agent_gains, _AGENT, _BAD_AGENT),
-    Ctor("_core.agent_gains", _core.agent_gains, _AGENT, _BAD_AGENT),
+]
+
+
+def _typed(v: Any, good: Any) -> bool:
+    """What ``_core`` takes where ``good`` goes: a float, or a float64 array
+    (not a bool, list, str, ...)."""
+    if isinstance(good, np.ndarray):
+        return isinstance(v, np.ndarray) and v.dtype == np.float64
+    return type(v) is float
+
+
+def _core_ctor(ctor: Ctor, call: Callable[..., Any], defaults: dict[str, float]) -> Ctor:
+    """``ctor``'s compiled counterpart: every keyword given (``defaults``),
+    ``dt`` spelled ``dt_s``, only typed bad values."""
+    spelled = {"dt": "dt_s"}
+    good = {spelled.get(k, k): v for k, v in {**defaults, **ctor.good}.items()}
+    bad = {spelled.get(k, k): [(w, v) for w, v in vs if _typed(v, good[spelled.get(k, k)])] for k, vs in ctor.bad.items()}
+    return Ctor(f"_core.{ctor.name}", call, good, bad)
+
+
+_P, _S, _C, _W = PlantConfig(), SigmaConfig(), ChannelConfig(), WorldConfig()
+_ESTIMATOR = dict(damping=_P.damping, dt=_P.dt_s)
+_EXTENDED = dict(_ESTIMATOR, alpha=_S.alpha, beta=_S.beta, kappa=_S.kappa)
+_by_name = {c.name: c for c in _PACKAGE}
+CONSTRUCTORS: list[Ctor] = _PACKAGE + [
+    _core_ctor(_by_name["GainEstimator"], _core.GainEstimator, _EXTENDED),
+    _core_ctor(_by_name["TrajectoryEstimator"], _core.TrajectoryEstimator, _EXTENDED),
+    _core_ctor(
+        _by_name["GoalIntegrator"], _core.GoalIntegrator, dict(_ESTIMATOR, gate=_C.gate, window_n0=_C.window_n0, hold_max_s=_C.hold_max_s)
+    ),
+    _core_ctor(_by_name["Plant"], _core.Plant, dict(damping=_P.damping, coulomb=_P.coulomb, dt_s=_P.dt_s, x0=_W.x0, v0=_W.v0)),
+    _core_ctor(_by_name["lqr"], lambda A, B, Q, R: _core.lqr(A, B, Q, R, discrete=False), {}),
+    _core_ctor(_by_name["agent_gains"], _core.agent_gains, {}),
 ]
 
 #: Bad values of each argument also tried together with another argument's.

@@ -9,6 +9,7 @@ the conversion gives the very filter a float64 array gives.
 
 from __future__ import annotations
 
+import inspect
 import warnings
 
 import numpy as np
@@ -80,8 +81,10 @@ def test_integer_and_zero_variance_covariances_are_accepted() -> None:
 
 
 def test_defaults_are_the_documented_ones() -> None:
-    """The optional keywords default to the text signature's values."""
-    assert "damping=0.0, dt=1e-3, alpha=1.0, beta=2.0, kappa=0.0" in sensaug.GainEstimator.__text_signature__
+    """The optional keywords default to the signature's values."""
+    shown = {n: p.default for n, p in inspect.signature(sensaug.GainEstimator).parameters.items()}
+    assert shown == {**dict.fromkeys(["mass", "Q", "R", "x0", "P0"], inspect.Parameter.empty),
+                     "damping": 0.0, "dt": 1e-3, "alpha": 1.0, "beta": 2.0, "kappa": 0.0}  # fmt: skip
     a = sensaug.GainEstimator(**KW6)
     b = sensaug.GainEstimator(**KW6, damping=0.0, dt=1e-3, alpha=1.0, beta=2.0, kappa=0.0)
     for e in (a, b):
@@ -90,3 +93,23 @@ def test_defaults_are_the_documented_ones() -> None:
     np.testing.assert_array_equal(a.P, b.P)
     p = sensaug.Plant(mass=1.0)
     assert p.step(1.0) == sensaug.Plant(mass=1.0, damping=0.0, coulomb=0.0, dt_s=1e-3, x0=0.0, v0=0.0).step(1.0)
+
+
+@pytest.mark.parametrize("cls", [sensaug.GainEstimator, sensaug.TrajectoryEstimator, sensaug.GoalIntegrator, sensaug.Plant])
+def test_the_compiled_classes_take_typed_required_arguments_only(cls) -> None:
+    """``sensaug._core``'s constructors have no defaults of their own (every
+    keyword required) and take floats and float64 arrays only: a list is
+    pyo3's ``TypeError`` (the package's classes convert it)."""
+    core = cls.__mro__[[c.__module__ for c in cls.__mro__].index("sensaug._core")]
+    with pytest.raises(TypeError, match="missing"):
+        core(mass=0.0035)
+    if cls is not sensaug.Plant:
+        kw = dict(KW6, damping=0.0, dt_s=1e-3, alpha=1.0, beta=2.0, kappa=0.0)
+        if cls is sensaug.GoalIntegrator:
+            kw = dict(mass=0.0035, Q=np.eye(2), R=np.eye(2), x0=np.zeros(2), P0=np.eye(2), damping=0.0, dt_s=1e-3,
+                      gate=4.0, window_n0=80.0, hold_max_s=0.25)  # fmt: skip
+        if cls is sensaug.TrajectoryEstimator:
+            kw["R"] = np.eye(5)
+        core(**kw)
+        with pytest.raises(TypeError, match="'Q'"):
+            core(**{**kw, "Q": kw["Q"].tolist()})

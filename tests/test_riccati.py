@@ -282,13 +282,13 @@ def test_core_rejects_what_python_layer_checks() -> None:
     """The binding's own checks, bypassing lqr.py: errors still name the argument."""
     A, B, Q, R = _good3()
     with pytest.raises(ValueError, match=r"^\(A, B\): B must have as many rows as A"):
-        sensaug._core.lqr(A, np.ones((2, 1)), Q, R)
+        sensaug._core.lqr(A, np.ones((2, 1)), Q, R, discrete=False)
     with pytest.raises(ValueError, match="^Q: must be symmetric"):
         sensaug._core.lqr(A, B, Q + np.triu(np.ones((3, 3)), 1), R, discrete=True)
     with pytest.raises(ValueError, match="^R: must be positive definite"):
-        sensaug._core.lqr(A, B, Q, -R)
+        sensaug._core.lqr(A, B, Q, -R, discrete=False)
     with pytest.raises(ValueError, match="^A: contains NaN"):
-        sensaug._core.lqr(A * np.nan, B, Q, R)
+        sensaug._core.lqr(A * np.nan, B, Q, R, discrete=False)
 
 
 def test_convergence_error_is_runtime_error() -> None:

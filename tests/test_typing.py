@@ -75,11 +75,13 @@ def test_the_stub_of_the_compiled_module_matches_it():
 
 
 def test_constructor_defaults_are_the_schemas() -> None:
-    """The binding keeps no defaults of its own: an estimator's or the
-    plant's omitted keyword takes the configuration schema's default, and
-    the signature Python shows (``text_signature``, the ``.pyi``) says so."""
+    """The binding keeps no defaults of its own (``sensaug._core``'s
+    constructors require every keyword); the package's estimators and plant
+    take an omitted keyword's default from the configuration schema, and
+    their signatures (``inspect``, pyright) say so."""
     import inspect
 
+    import sensaug
     from sensaug import _core
 
     defs = json.loads(_core.config_schema())["$defs"]
@@ -89,18 +91,21 @@ def test_constructor_defaults_are_the_schemas() -> None:
 
     plant, sigma, channel, world = (defaults(s) for s in ("PlantSpec", "SigmaSpec", "ChannelSpec", "WorldSpec"))
     expected = {
-        _core.Plant: {"damping": plant["damping"], "coulomb": plant["coulomb"], "dt_s": plant["dt_s"],
-                      "x0": world["x0"], "v0": world["v0"]},
-        _core.GainEstimator: {"damping": plant["damping"], "dt": plant["dt_s"], **sigma},
-        _core.TrajectoryEstimator: {"damping": plant["damping"], "dt": plant["dt_s"], **sigma},
-        _core.GoalIntegrator: {"damping": plant["damping"], "dt": plant["dt_s"], **channel},
+        sensaug.Plant: {"damping": plant["damping"], "coulomb": plant["coulomb"], "dt_s": plant["dt_s"],
+                        "x0": world["x0"], "v0": world["v0"]},
+        sensaug.GainEstimator: {"damping": plant["damping"], "dt": plant["dt_s"], **sigma},
+        sensaug.TrajectoryEstimator: {"damping": plant["damping"], "dt": plant["dt_s"], **sigma},
+        sensaug.GoalIntegrator: {"damping": plant["damping"], "dt": plant["dt_s"], **channel},
     }  # fmt: skip
     for cls, want in expected.items():
         shown = {n: p.default for n, p in inspect.signature(cls).parameters.items() if n in want}
         assert shown == want, cls.__name__
+        core = next(c for c in cls.__mro__ if c.__module__ == "sensaug._core")
+        assert all(p.default is inspect.Parameter.empty for p in inspect.signature(core).parameters.values()), core
     # ... and an omitted keyword behaves as the schema's default given.
-    a = _core.Plant(mass=0.5)
-    b = _core.Plant(mass=0.5, damping=plant["damping"], coulomb=plant["coulomb"], dt_s=plant["dt_s"])
+    a = sensaug.Plant(mass=0.5)
+    b = _core.Plant(mass=0.5, damping=plant["damping"], coulomb=plant["coulomb"], dt_s=plant["dt_s"],
+                    x0=world["x0"], v0=world["v0"])  # fmt: skip
     for p in (a, b):
         p.step(1.0)
     assert (a.x, a.v) == (b.x, b.v)

@@ -5,8 +5,9 @@ the Python API for scripting experiments around it.
 """
 from sensaug import _core
 from sensaug._resources import package_version
-from sensaug._core import GainEstimator, GoalIntegrator, Plant, TrajectoryEstimator, UkfStepError
+from sensaug._core import UkfStepError
 from sensaug.config import ConfigError, PhaseConfig, ScenarioConfig
+from sensaug.estimators import GainEstimator, GoalIntegrator, Plant, TrajectoryEstimator
 from sensaug.experiment import Trial, run
 from sensaug.logs import Log, load_log
 from sensaug.lqr import (

@@ -35,39 +35,18 @@ class RiccatiConvergenceError(RuntimeError):
     """The solver did not converge, or its solution failed the residual or closed-loop check."""
 
 def lqr(
-    a: npt.ArrayLike,
-    b: npt.ArrayLike,
-    q: npt.ArrayLike,
-    r: npt.ArrayLike,
+    a: NDArray[np.float64],
+    b: NDArray[np.float64],
+    q: NDArray[np.float64],
+    r: NDArray[np.float64],
     /,
     *,
-    discrete: bool = False,
-) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """LQR gain and stabilising Riccati solution (K, X); K = R^-1 B'X, or (R + B'XB)^-1 B'XA if discrete.
-
-    X solves the CARE A'X + XA - X B R^-1 B' X + Q = 0, or if discrete the DARE
-    X = A'XA - A'XB (R + B'XB)^-1 B'XA + Q (`sensaug.care` / `sensaug.dare` return X).
-
-    Arguments:
-        a: (n, n), 1 <= n <= 6. b: (n, m), 1 <= m <= n. q: (n, n) PSD. r: (m, m) PD.
-
-    Raises:
-        TypeError: an argument that is not real numbers (named).
-        ValueError: bad shape or input, not stabilisable, not detectable (named, with the fix).
-        RiccatiConvergenceError: no convergence, residual > 1e-10, or not stabilising.
-
-    Returns:
-        (K (m, n), X (n, n)).
-    """
+    discrete: bool,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``(K, X)`` of ``sensaug.lqr`` (its docs); each matrix a 2-D array, named in errors."""
 
 def agent_gains(*, mass: float, damping: float, q_pos: float, q_vel: float) -> tuple[float, float]:
-    """(k_pos, k_vel) of the reduced 2-state LQR on [x - target, xdot], R = 1.
-
-    Raises:
-        TypeError: a parameter that is not a real number (named).
-        ValueError: mass <= 0, damping < 0, q_pos <= 0, q_vel < 0, non-finite, or
-            1 / mass or damping / mass overflows (named).
-    """
+    """``(k_pos, k_vel)`` of ``sensaug.agent_gains`` (its docs)."""
 # --- end riccati ---
 
 # --- errors ---
@@ -95,123 +74,25 @@ class Status:
         def stage(self) -> str: ...
 
 
-# --- plant ---
+# --- plant and estimators: the compiled halves of ``sensaug.estimators``'
+# classes (their docs); every keyword required, floats and float64 arrays. ---
 
-@final
+@disjoint_base
 class Plant:
-    """The handle ``M xdd + C xd = torque``, exact zero-order hold over ``dt_s``."""
-
-    def __new__(
-        cls, *, mass: float, damping: float = 0.0, coulomb: float = 0.0, dt_s: float = 1e-3, x0: float = 0.0, v0: float = 0.0
-    ) -> Self:
-        """Raises:
-        TypeError: a parameter that is not a real number (named).
-        ValueError: a parameter out of range, or one that makes the step
-            overflow (too small a mass for ``dt_s``, ...); the message names it.
-        """
+    def __new__(cls, *, mass: float, damping: float, coulomb: float, dt_s: float, x0: float, v0: float) -> Self: ...
     @property
     def x(self) -> float: ...
     @property
     def v(self) -> float: ...
-    def step(self, torque: float) -> tuple[float, float]:
-        """One period with ``torque`` held; returns ``(x, v)``.
+    def step(self, torque: float) -> tuple[float, float]: ...
+    def run(self, torques: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
 
-        Raises:
-            ValueError: non-finite torque, or a new state that would overflow (state unchanged).
-        """
-    def run(self, torques: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Every torque in turn; positions and velocities after each step.
-
-        Raises:
-            ValueError: ``torques[k]`` non-finite (nothing stepped), its step's state would
-                overflow (the steps before it ran), or not C-contiguous.
-        """
-
-# --- estimators ---
-
-@final
-class GainEstimator:
-    """Stage 1: the partner's gains from ``y1 = [x - tau, xdot, x - tau_h]`` (6 states, 3 measurements).
-
-    The constructors of the three estimators take any array-like of real
-    numbers; ``Q`` and ``R`` must be symmetric positive semidefinite, ``P0``
-    symmetric positive definite. Every error names the argument first and
-    says how to fix it: ``TypeError`` for what is not real numbers,
-    ``ValueError`` for a bad shape or value.
-    """
+class _ExtendedEstimator:
+    """What the two 6-state estimators share (stub only: each compiled class has its own)."""
 
     def __new__(
-        cls,
-        *,
-        mass: float,
-        Q: npt.ArrayLike,
-        R: npt.ArrayLike,
-        x0: npt.ArrayLike,
-        P0: npt.ArrayLike,
-        damping: float = 0.0,
-        dt: float = 1e-3,
-        alpha: float = 1.0,
-        beta: float = 2.0,
-        kappa: float = 0.0,
-    ) -> Self: ...
-    def update(self, y: NDArray[np.float64]) -> Status:
-        """Fuse one measurement; returns the step's :class:`Status`.
-
-        Raises:
-            UkfStepError: non-finite input or a covariance reset (see docs/ukf.md).
-        """
-    def predict(self, u: float, dtau: float = 0.0, dtau_h: float = 0.0) -> Status: ...
-    def run(
-        self,
-        y: NDArray[np.float64],
-        u: NDArray[np.float64],
-        dtau: NDArray[np.float64],
-        dtau_h: NDArray[np.float64],
-        *,
-        strict: bool = True,
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """update(y[k]) then predict(u[k], dtau[k], dtau_h[k]) for every k, in one core call.
-
-        Arguments:
-            y: (T, 3) measurements, C-contiguous. u, dtau, dtau_h: (T,) each.
-            strict: raise the first step error after the run (the filter has handled it).
-
-        Returns:
-            ``(xs, Pdiag)``, each (T, 6): the posterior after each update and its diagonal.
-
-        Raises:
-            ValueError: a shape or length that does not fit, naming the argument.
-            UkfStepError: with strict, if any step errored.
-        """
-    @property
-    def x(self) -> NDArray[np.float64]: ...
-    @property
-    def P(self) -> NDArray[np.float64]: ...
-    @property
-    def x_prior(self) -> NDArray[np.float64]: ...
-    @property
-    def P_prior(self) -> NDArray[np.float64]: ...
-    @property
-    def gains(self) -> NDArray[np.float64]: ...
-    def recoveries(self) -> dict[str, int]: ...
-
-@final
-class TrajectoryEstimator:
-    """Stage 2: the partner's target from ``y2 = [x - tau, xdot, Lhx^, Lhv^, Lhh^]`` (same keywords as GainEstimator)."""
-
-    def __new__(
-        cls,
-        *,
-        mass: float,
-        Q: npt.ArrayLike,
-        R: npt.ArrayLike,
-        x0: npt.ArrayLike,
-        P0: npt.ArrayLike,
-        damping: float = 0.0,
-        dt: float = 1e-3,
-        alpha: float = 1.0,
-        beta: float = 2.0,
-        kappa: float = 0.0,
+        cls, *, mass: float, Q: NDArray[np.float64], R: NDArray[np.float64], x0: NDArray[np.float64],
+        P0: NDArray[np.float64], damping: float, dt_s: float, alpha: float, beta: float, kappa: float,
     ) -> Self: ...
     def update(self, y: NDArray[np.float64]) -> Status: ...
     def predict(self, u: float, dtau: float = 0.0, dtau_h: float = 0.0) -> Status: ...
@@ -223,10 +104,7 @@ class TrajectoryEstimator:
         dtau_h: NDArray[np.float64],
         *,
         strict: bool = True,
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """As ``GainEstimator.run`` with ``y`` of shape (T, 5)."""
-    def partner_target(self, x: float) -> float:
-        """``tau_h^ = x - (x - tau_h)^``."""
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
     @property
     def x(self) -> NDArray[np.float64]: ...
     @property
@@ -239,37 +117,23 @@ class TrajectoryEstimator:
     def gains(self) -> NDArray[np.float64]: ...
     def recoveries(self) -> dict[str, int]: ...
 
-@final
+@disjoint_base
+class GainEstimator(_ExtendedEstimator): ...
+
+@disjoint_base
+class TrajectoryEstimator(_ExtendedEstimator):
+    def partner_target(self, x: float) -> float: ...
+
+@disjoint_base
 class GoalIntegrator:
-    """Stage 3: ``[x - tau, xdot]`` with the adaptive partner channel ``x - tau_h^``
-    (a bank of Kalman filters over the channel's variance, docs/model.md).
-
-    ``x``, ``var``: the mixture (goal integration with the partner);
-    ``x_own``, ``var_own``: member 0 (own sensing only); as of the last update.
-    """
-
     def __new__(
-        cls,
-        *,
-        mass: float,
-        Q: npt.ArrayLike,
-        R: npt.ArrayLike,
-        x0: npt.ArrayLike,
-        P0: npt.ArrayLike,
-        damping: float = 0.0,
-        dt: float = 1e-3,
-        gate: float = 4.0,
-        window_n0: float = 80.0,
-        hold_max_s: float = 0.25,
+        cls, *, mass: float, Q: NDArray[np.float64], R: NDArray[np.float64], x0: NDArray[np.float64],
+        P0: NDArray[np.float64], damping: float, dt_s: float, gate: float, window_n0: float, hold_max_s: float,
     ) -> Self: ...
-    def update(self, y: NDArray[np.float64]) -> Status:
-        """``y`` = ``[x - tau, xdot]`` or ``[x - tau, xdot, x - tau_h^]`` (NaN channel: none)."""
-    def predict(self, u: float, dtau: float = 0.0, dtau_h: float = 0.0) -> Status:
-        """``u``: all known torque (own plus estimated partner); ``dtau_h`` must be 0."""
-    def set_own_noise(self, R: npt.ArrayLike) -> None:
-        """Phase start: the own measurement's covariance (sets the grid and the score window)."""
-    def reset(self, x0: npt.ArrayLike) -> None:
-        """Phase start: every member at ``x0`` with ``P0``, scores 0."""
+    def update(self, y: NDArray[np.float64]) -> Status: ...
+    def predict(self, u: float, dtau: float) -> Status: ...
+    def set_own_noise(self, R: NDArray[np.float64]) -> None: ...
+    def reset(self, x0: NDArray[np.float64]) -> None: ...
     def run(
         self,
         y: NDArray[np.float64],
@@ -277,20 +141,7 @@ class GoalIntegrator:
         dtau: NDArray[np.float64],
         *,
         strict: bool = True,
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """update(y[k]) then predict(u[k], dtau[k]) for every k, in one core call.
-
-        Arguments:
-            y: (T, 2) own measurements, or (T, 3) with the partner channel ``x - tau_h^``.
-            u, dtau: (T,) each. strict: as ``GainEstimator.run``.
-
-        Returns:
-            ``(xs, var)``, each (T, 2), of the mixture.
-
-        Raises:
-            ValueError: a shape or length that does not fit.
-            UkfStepError: with strict, if any step errored.
-        """
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
     @property
     def x(self) -> NDArray[np.float64]: ...
     @property

@@ -1,9 +1,9 @@
 """Algebraic Riccati equations and LQR gains (eq.LQRrobot, eq.LQRhuman).
 
 numpy in, numpy out. The solvers are the allocation-free Rust core
-(``sensaug._core``): the binding converts any array-like to float64 arrays,
-naming the argument when it cannot (a str, complex or ragged entry), and the
-core checks every value itself (finite, symmetric, definite, stabilisable,
+(``sensaug._core``): any array-like is converted to a float64 array here,
+naming the argument when it cannot be (a str, complex or ragged entry,
+``sensaug._args``), and the core checks every shape and value itself (finite, symmetric, definite, stabilisable,
 detectable). Every error starts with the argument it is about (``"Q: ..."``,
 or ``"(A, B): ..."`` when two disagree) and says how to fix it.
 
@@ -28,6 +28,7 @@ import numpy as np
 import numpy.typing as npt
 
 from sensaug import _core
+from sensaug._args import real, real_array
 
 __all__ = [
     "RiccatiConvergenceError",
@@ -40,6 +41,13 @@ __all__ = [
 ]
 
 RiccatiConvergenceError = _core.RiccatiConvergenceError
+
+
+def _lqr(
+    A: npt.ArrayLike, B: npt.ArrayLike, Q: npt.ArrayLike, R: npt.ArrayLike, *, discrete: bool
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    arrays = (real_array(A, "A"), real_array(B, "B"), real_array(Q, "Q"), real_array(R, "R"))
+    return _core.lqr(*arrays, discrete=discrete)
 
 
 def care(
@@ -61,7 +69,7 @@ def care(
             stabilisable / (Q, A) not detectable.
         RiccatiConvergenceError: the solver failed its own checks.
     """
-    return _core.lqr(A, B, Q, R, discrete=False)[1]
+    return _lqr(A, B, Q, R, discrete=False)[1]
 
 
 def dare(
@@ -72,7 +80,7 @@ def dare(
     Arguments and errors as for :func:`care`; ``A - B K`` with
     ``K = (R + B'XB)^-1 B'XA`` has spectral radius < 1.
     """
-    return _core.lqr(A, B, Q, R, discrete=True)[1]
+    return _lqr(A, B, Q, R, discrete=True)[1]
 
 
 def lqr(
@@ -95,7 +103,7 @@ def lqr(
     Raises:
         As :func:`care`.
     """
-    return _core.lqr(A, B, Q, R, discrete=discrete)
+    return _lqr(A, B, Q, R, discrete=discrete)
 
 
 def agent_gains(mass: float, damping: float, q_pos: float, q_vel: float) -> tuple[float, float]:
@@ -117,7 +125,8 @@ def agent_gains(mass: float, damping: float, q_pos: float, q_vel: float) -> tupl
         ValueError: a parameter is non-finite or out of range (named).
         TypeError: a parameter is not a real number (named).
     """
-    return _core.agent_gains(mass=mass, damping=damping, q_pos=q_pos, q_vel=q_vel)
+    given = dict(mass=mass, damping=damping, q_pos=q_pos, q_vel=q_vel)
+    return _core.agent_gains(**{name: real(v, name) for name, v in given.items()})
 
 
 def robot_gain_vector(

@@ -8,7 +8,7 @@
 mod pendulum;
 
 use _core::convert::UkfStepError;
-use _core::convert::{mat_to, matrix, py_err, recoveries_dict, vec_to, vector};
+use _core::convert::{mat_to, py_err, read, recoveries_dict, vec_to, Array};
 use _core::estimators::{run_batch, Batch};
 use numpy::{PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pendulum::{Pendulum, PendulumFilter, M, N};
@@ -29,10 +29,10 @@ impl DemoUkf {
     #[pyo3(signature = (*, x0, P0, Q, R, alpha, beta, kappa, dt_s=1e-3, length_m=0.5, mass_kg=1.0, damping_nms=0.1, gravity_mps2=9.81))]
     #[allow(clippy::too_many_arguments)]
     fn new(
-        x0: &Bound<'_, PyAny>,
-        P0: &Bound<'_, PyAny>,
-        Q: &Bound<'_, PyAny>,
-        R: &Bound<'_, PyAny>,
+        x0: Array<'_>,
+        P0: Array<'_>,
+        Q: Array<'_>,
+        R: Array<'_>,
         alpha: f64,
         beta: f64,
         kappa: f64,
@@ -49,8 +49,8 @@ impl DemoUkf {
             damping_nms,
             gravity_mps2,
         };
-        let (x0, P0) = (vector::<N>(x0, "x0")?, matrix::<N, N>(P0, "P0")?);
-        let (Q, R) = (matrix::<N, N>(Q, "Q")?, matrix::<M, M>(R, "R")?);
+        let (x0, P0) = (read::<N, 1>(&x0, "x0")?, read::<N, N>(&P0, "P0")?);
+        let (Q, R) = (read::<N, N>(&Q, "Q")?, read::<M, M>(&R, "R")?);
         // The model is validated first, then the filter.
         let ukf = model
             .validate()
@@ -63,11 +63,11 @@ impl DemoUkf {
 
     /// Predict one step with torque `u` (N m); optional per-call `Q`.
     #[pyo3(signature = (u, *, Q=None))]
-    fn predict(&mut self, u: f64, Q: Option<&Bound<'_, PyAny>>) -> PyResult<String> {
+    fn predict(&mut self, u: f64, Q: Option<Array<'_>>) -> PyResult<String> {
         let (model, ukf) = (self.inner.model, &mut self.inner.ukf);
         let f = |x: &nalgebra::SVector<f64, N>| model.f(x, u);
         match Q {
-            Some(q) => ukf.predict_with_q(&matrix::<N, N>(q, "Q")?, f),
+            Some(q) => ukf.predict_with_q(&read::<N, N>(&q, "Q")?, f),
             None => ukf.predict(f),
         }
         .map(|s| s.to_string())
@@ -76,12 +76,12 @@ impl DemoUkf {
 
     /// Update with measurement `z` (shape (2,)); optional per-call `R`.
     #[pyo3(signature = (z, *, R=None))]
-    fn update(&mut self, z: &Bound<'_, PyAny>, R: Option<&Bound<'_, PyAny>>) -> PyResult<String> {
+    fn update(&mut self, z: Array<'_>, R: Option<Array<'_>>) -> PyResult<String> {
         let (model, ukf) = (self.inner.model, &mut self.inner.ukf);
-        let z = vector::<M>(z, "z")?;
+        let z = read::<M, 1>(&z, "z")?;
         let h = |x: &nalgebra::SVector<f64, N>| model.h(x);
         match R {
-            Some(r) => ukf.update_with_r(&z, &matrix::<M, M>(r, "R")?, h),
+            Some(r) => ukf.update_with_r(&z, &read::<M, M>(&r, "R")?, h),
             None => ukf.update(&z, h),
         }
         .map(|s| s.to_string())
@@ -107,8 +107,8 @@ impl DemoUkf {
     }
 
     /// Replace x and P (validated).
-    fn reset(&mut self, x: &Bound<'_, PyAny>, P: &Bound<'_, PyAny>) -> PyResult<()> {
-        let (x, P) = (vector::<N>(x, "x")?, matrix::<N, N>(P, "P")?);
+    fn reset(&mut self, x: Array<'_>, P: Array<'_>) -> PyResult<()> {
+        let (x, P) = (read::<N, 1>(&x, "x")?, read::<N, N>(&P, "P")?);
         self.inner.ukf.reset(x, P).map_err(py_err)
     }
 
@@ -136,22 +136,16 @@ impl DemoUkf {
         mat_to(py, self.inner.ukf.Q())
     }
     #[setter(Q)]
-    fn set_Q(&mut self, Q: &Bound<'_, PyAny>) -> PyResult<()> {
-        self.inner
-            .ukf
-            .set_Q(matrix::<N, N>(Q, "Q")?)
-            .map_err(py_err)
+    fn set_Q(&mut self, Q: Array<'_>) -> PyResult<()> {
+        self.inner.ukf.set_Q(read::<N, N>(&Q, "Q")?).map_err(py_err)
     }
     #[getter]
     fn R<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
         mat_to(py, self.inner.ukf.R())
     }
     #[setter(R)]
-    fn set_R(&mut self, R: &Bound<'_, PyAny>) -> PyResult<()> {
-        self.inner
-            .ukf
-            .set_R(matrix::<M, M>(R, "R")?)
-            .map_err(py_err)
+    fn set_R(&mut self, R: Array<'_>) -> PyResult<()> {
+        self.inner.ukf.set_R(read::<M, M>(&R, "R")?).map_err(py_err)
     }
     #[getter]
     fn y<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {

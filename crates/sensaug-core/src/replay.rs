@@ -169,6 +169,12 @@ pub enum ReplayError {
         /// The step that would overflow.
         step: usize,
     },
+    /// Goal-integration rows ([`GoalReplay::for_columns`]) of neither 2
+    /// entries (own view) nor 3 (and the partner channel).
+    GoalColumns {
+        /// The rows' length.
+        got: usize,
+    },
 }
 
 impl core::fmt::Display for ReplayError {
@@ -203,6 +209,10 @@ impl core::fmt::Display for ReplayError {
                 "{}[{step}]: the state would overflow at this step (too large for this model); \
                  steps 0..{step} were run, this one was not",
                 which.name()
+            ),
+            ReplayError::GoalColumns { got } => write!(
+                f,
+                "y: expected 2 entries [x - tau, xdot] or 3 [x - tau, xdot, x - tau_h^], got {got}"
             ),
         }
     }
@@ -340,6 +350,18 @@ impl<'a> GoalReplay<'a> {
         GoalReplay {
             integrator,
             with_channel,
+        }
+    }
+
+    /// For rows of `columns` entries: 2 (`[x - tau, xdot]`) or 3 (and the
+    /// partner channel `x - tau_h^`).
+    pub fn for_columns(
+        integrator: &'a mut GoalIntegrator,
+        columns: usize,
+    ) -> Result<Self, ReplayError> {
+        match columns {
+            2 | 3 => Ok(Self::new(integrator, columns == 3)),
+            got => Err(ReplayError::GoalColumns { got }),
         }
     }
 }

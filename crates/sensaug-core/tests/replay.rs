@@ -10,7 +10,7 @@ use sensaug_core::estimator::GainEstimator;
 use sensaug_core::goal::GoalIntegrator;
 use sensaug_core::plant::{Plant, PlantParams};
 use sensaug_core::replay::{
-    replay, simulate, GoalReplay, Posteriors, Recording, ReplayArg, ReplayError,
+    replay, simulate, GoalReplay, Posteriors, Recording, Replay, ReplayArg, ReplayError,
 };
 use sensaug_core::ukf::{Phase, RunReport, StepError, UkfError};
 
@@ -180,6 +180,16 @@ fn shape_errors_name_the_slice_and_nothing_runs() {
         })
     );
     assert_eq!(ReplayArg::DtauH.name(), "dtau_h");
+    for (columns, with_channel) in [(2, false), (3, true)] {
+        let r = GoalReplay::for_columns(&mut gi, columns).unwrap();
+        assert_eq!(r.measurement_len(), 2 + usize::from(with_channel));
+    }
+    let four = GoalReplay::for_columns(&mut gi, 4).map(|_| ()).unwrap_err();
+    assert_eq!(four, ReplayError::GoalColumns { got: 4 });
+    assert!(
+        four.to_string().starts_with("y: expected 2 entries"),
+        "{four}"
+    );
 }
 
 #[test]

@@ -1,10 +1,9 @@
 //! `sensaug._core.Plant`: the 1-DoF handle, steppable or run over a whole
-//! torque sequence in one core call. Conversion only.
-use crate::convert::{py_err, real, settings, slice};
-use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray1};
+//! torque sequence in one core call. Conversion only: every argument
+//! required; `sensaug.Plant` adds the schema's defaults and the docs.
+use crate::convert::{py_err, slice};
+use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
-use sensaug_config::{PlantSpec, WorldSpec};
 use sensaug_core::plant::{Plant as CorePlant, PlantParams, PlantState};
 use sensaug_core::replay::simulate;
 
@@ -14,7 +13,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Plant>()
 }
 
-#[pyclass(module = "sensaug._core")]
+#[pyclass(module = "sensaug._core", subclass)]
 pub struct Plant {
     inner: CorePlant,
 }
@@ -22,22 +21,15 @@ pub struct Plant {
 #[pymethods]
 impl Plant {
     #[new]
-    #[pyo3(signature = (*, mass, **kw))]
-    #[pyo3(text_signature = "(*, mass, damping=0.0, coulomb=0.0, dt_s=1e-3, x0=0.0, v0=0.0)")]
-    fn new(mass: &Bound<'_, PyAny>, kw: Option<&Bound<'_, PyDict>>) -> PyResult<Self> {
-        // Defaults: the schema's `[plant]` and `[world]` ones.
-        let (d, w) = (PlantSpec::default(), WorldSpec::default());
-        let mass = real(mass, "mass")?;
-        let names = ["damping", "coulomb", "dt_s", "x0", "v0"];
-        let defaults = [d.damping, d.coulomb, d.dt_s, w.x0, w.v0];
-        let [damping, coulomb, dt_s, x, v] = settings(kw, names, defaults)?;
+    #[pyo3(signature = (*, mass, damping, coulomb, dt_s, x0, v0))]
+    fn new(mass: f64, damping: f64, coulomb: f64, dt_s: f64, x0: f64, v0: f64) -> PyResult<Self> {
         let params = PlantParams {
             mass,
             damping,
             coulomb,
             dt_s,
         };
-        let inner = CorePlant::starting_at(params, PlantState { x, v }).map_err(py_err)?;
+        let inner = CorePlant::starting_at(params, PlantState { x: x0, v: v0 }).map_err(py_err)?;
         Ok(Plant { inner })
     }
 
@@ -62,20 +54,8 @@ impl Plant {
         torques: PyReadonlyArray1<'py, f64>,
     ) -> PyResult<ArrayPair<'py>> {
         let torques = slice(&torques, "torques")?;
-        let (xs, vs) = (
-            PyArray1::zeros(py, torques.len(), false),
-            PyArray1::zeros(py, torques.len(), false),
-        );
-        {
-            let (mut x, mut v) = (xs.readwrite(), vs.readwrite());
-            simulate(
-                &mut self.inner,
-                torques,
-                x.as_slice_mut()?,
-                v.as_slice_mut()?,
-            )
-            .map_err(py_err)?;
-        }
-        Ok((xs, vs))
+        let (mut xs, mut vs) = (vec![0.0; torques.len()], vec![0.0; torques.len()]);
+        simulate(&mut self.inner, torques, &mut xs, &mut vs).map_err(py_err)?;
+        Ok((xs.into_pyarray(py), vs.into_pyarray(py)))
     }
 }
