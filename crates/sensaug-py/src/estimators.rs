@@ -19,12 +19,6 @@ use sensaug_core::goal::{ChannelConfig, GoalIntegrator as CoreGoal, GoalIntegrat
 use sensaug_core::replay::{replay, GoalReplay, Posteriors, Recording, Replay};
 use sensaug_core::ukf::MerweParams;
 
-pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_class::<GainEstimator>()?;
-    m.add_class::<TrajectoryEstimator>()?;
-    m.add_class::<GoalIntegrator>()
-}
-
 /// A recording's per-tick values: `(T,)`; measurements: `(T, m)`.
 type Column<'py> = PyReadonlyArray1<'py, f64>;
 type Rows<'py> = PyReadonlyArray2<'py, f64>;

@@ -12,21 +12,18 @@ mod scenario;
 
 #[pymodule]
 mod _core {
-    use pyo3::prelude::*;
-
     #[pymodule_export]
     use crate::convert::{PyStatus, RiccatiConvergenceError, UkfStepError};
     #[pymodule_export]
+    use crate::estimators::{GainEstimator, GoalIntegrator, TrajectoryEstimator};
+    #[pymodule_export]
     use crate::log::{config_sha256, git_commit, log_schema, write_log};
+    #[pymodule_export]
+    use crate::plant::Plant;
+    #[pymodule_export]
+    use crate::riccati::{agent_gains, lqr};
     #[pymodule_export]
     use crate::scenario::{available_memory, check_output_paths, config_schema, Config};
     #[pymodule_export]
     use crate::scenario::{replay_robot, resolve_count, run_scenario};
-
-    #[pymodule_init]
-    fn init(m: &Bound<'_, PyModule>) -> PyResult<()> {
-        crate::estimators::register(m)?;
-        crate::plant::register(m)?;
-        crate::riccati::register(m)
-    }
 }

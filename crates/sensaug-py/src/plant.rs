@@ -9,10 +9,6 @@ use sensaug_core::replay::simulate;
 
 type ArrayPair<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>);
 
-pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_class::<Plant>()
-}
-
 #[pyclass(module = "sensaug._core", subclass)]
 pub struct Plant {
     inner: CorePlant,

@@ -21,7 +21,7 @@ fn dense(a: &Array<'_>, name: &str) -> PyResult<(Vec<f64>, [usize; 2])> {
 
 #[pyfunction]
 #[pyo3(signature = (a, b, q, r, /, *, discrete))]
-fn lqr<'py>(
+pub fn lqr<'py>(
     py: Python<'py>,
     a: Array<'py>,
     b: Array<'py>,
@@ -46,12 +46,7 @@ fn lqr<'py>(
 
 #[pyfunction]
 #[pyo3(signature = (*, mass, damping, q_pos, q_vel))]
-fn agent_gains(mass: f64, damping: f64, q_pos: f64, q_vel: f64) -> PyResult<(f64, f64)> {
+pub fn agent_gains(mass: f64, damping: f64, q_pos: f64, q_vel: f64) -> PyResult<(f64, f64)> {
     let gains = riccati::agent_gains(mass, damping, q_pos, q_vel).map_err(py_err)?;
     Ok(gains.into())
-}
-
-pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_function(wrap_pyfunction!(lqr, m)?)?;
-    m.add_function(wrap_pyfunction!(agent_gains, m)?)
 }
