@@ -3,8 +3,8 @@
 numpy in, numpy out. The solvers are the allocation-free Rust core
 (``sensaug._core``): any array-like is converted to a float64 array here,
 naming the argument when it cannot be (a str, complex or ragged entry,
-``sensaug._args``), and the core checks every shape and value itself (finite, symmetric, definite, stabilisable,
-detectable). Every error starts with the argument it is about (``"Q: ..."``,
+``sensaug._args``), and the core checks every shape and value itself
+(finite, symmetric, definite, stabilisable, detectable). Every error starts with the argument it is about (``"Q: ..."``,
 or ``"(A, B): ..."`` when two disagree) and says how to fix it.
 
 Errors

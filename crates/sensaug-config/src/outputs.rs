@@ -84,13 +84,21 @@ pub fn write_replacing(
     write: impl FnOnce(&mut io::BufWriter<File>) -> io::Result<()>,
 ) -> io::Result<()> {
     let mut out = io::BufWriter::new(create_partial(path)?);
-    let written = write(&mut out);
+    // Flushed here: a BufWriter dropped unflushed loses a full disk's error.
+    let written = write(&mut out).and_then(|()| io::Write::flush(&mut out));
     drop(out);
-    let written = written.and_then(|()| replace(path));
-    if written.is_err() {
+    finish_partial(path, written)
+}
+
+/// Ends an output written to `<path>.partial`: when `written` is `Ok`, the
+/// `.partial` is renamed over `path` ([`replace`]); when that or the
+/// writing failed, the `.partial` is removed. Returns the first error.
+pub fn finish_partial(path: &Path, written: io::Result<()>) -> io::Result<()> {
+    let done = written.and_then(|()| replace(path));
+    if done.is_err() {
         let _ = std::fs::remove_file(partial_path(path));
     }
-    written
+    done
 }
 
 /// A file type's test (`FileType::is_file`, `FileTypeExt::is_fifo`, ...).

@@ -15,14 +15,14 @@ use sensaug_core::replay::{replay_robot, ReplayArg, ReplayError};
 use sensaug_core::row::{ColumnSource, Row, Value, COLUMNS};
 use sensaug_core::world::Scenario;
 
-/// The controller's columns of a row (only those a replay writes), each
-/// value's bit pattern (NaN equals NaN, -0.0 differs from 0.0).
 /// A new robot of the tests' configuration following `protocol`: what a
 /// replay must start from to repeat a trial bit for bit.
 fn fresh_robot(protocol: Protocol<'_>) -> Robot<'_> {
     Robot::new(common::robot(), protocol).unwrap()
 }
 
+/// The controller's columns of a row (only those a replay writes), each
+/// value's bit pattern (NaN equals NaN, -0.0 differs from 0.0).
 fn bits(t: &Row) -> Vec<u64> {
     COLUMNS
         .iter()

@@ -10,7 +10,7 @@
 
 use clap::Parser;
 use sensaug_bridge::TransportError;
-use sensaug_config::outputs::{create_partial, partial_path, replace};
+use sensaug_config::outputs::{create_partial, finish_partial, partial_path};
 use sensaug_config::{ConfigError, Resolved};
 use sensaug_rt::config::{drive_link, load, Overrides};
 use sensaug_rt::control::{Rig, StartError, StopReason};
@@ -160,18 +160,15 @@ impl std::fmt::Display for RunError {
 }
 
 /// Writes the statistics to `<stats>.partial` (made at set-up by
-/// [`create_partial`]), then renames it to `path` (an older regular
-/// file is replaced only by a complete one; anything else is not replaced).
-/// On failure the `.partial` is removed.
+/// [`create_partial`], so a path that cannot be written stops the run before
+/// it starts), syncs it, then renames it to `path` ([`finish_partial`]: an
+/// older regular file is replaced only by a complete one; on failure the
+/// `.partial` is removed).
 fn write_stats(mut file: std::fs::File, path: &Path, json: &str) -> std::io::Result<()> {
     let written = file
         .write_all(json.as_bytes())
-        .and_then(|()| file.sync_all())
-        .and_then(|()| replace(path));
-    if written.is_err() {
-        let _ = std::fs::remove_file(partial_path(path));
-    }
-    written
+        .and_then(|()| file.sync_all());
+    finish_partial(path, written)
 }
 
 /// The file, with the command line's overrides applied, resolved once

@@ -12,9 +12,8 @@
 
 use sensaug_config::{load_str, Resolved};
 use sensaug_core::agent::PartnerLaw;
-use sensaug_core::controller::Robot;
 use sensaug_core::plant::{Plant, PlantState};
-use sensaug_core::protocol::{PhaseKind, Protocol};
+use sensaug_core::protocol::PhaseKind;
 use sensaug_core::row::Row;
 
 /// A seeded gap pattern: a gap starts at a tick with probability 1% and
@@ -74,9 +73,8 @@ fn resolved(file: &str) -> Resolved {
 }
 
 fn run(resolved: &Resolved, seed: Option<u64>) -> Outcome {
-    let phases = resolved.phases();
-    let protocol = Protocol::new(&phases, resolved.dt_s).unwrap();
-    let mut robot = Robot::new(resolved.robot, protocol).unwrap();
+    let protocol = resolved.protocol().unwrap();
+    let mut robot = resolved.controller().unwrap();
     let rig = &resolved.rig;
     let mut partner = PartnerLaw::new(
         rig.partner_gains,

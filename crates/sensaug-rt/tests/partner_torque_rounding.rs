@@ -9,9 +9,8 @@
 
 use sensaug_config::{load_str, Format};
 use sensaug_core::agent::VirtualHuman;
-use sensaug_core::controller::{applied_torque, Robot};
+use sensaug_core::controller::applied_torque;
 use sensaug_core::plant::Plant;
-use sensaug_core::protocol::Protocol;
 use sensaug_core::row::Row;
 use sensaug_rt::control::drive_torque;
 
@@ -39,9 +38,8 @@ enum Rounding {
 /// The robot's Lhh estimate (its stage-2 pseudo-measurement) after the run.
 fn estimated_lhh(rounding: Rounding, lhh: f64) -> f64 {
     let resolved = load_str(CONFIG, Format::Toml).unwrap();
-    let phases = resolved.phases();
-    let protocol = Protocol::new(&phases, resolved.dt_s).unwrap();
-    let mut robot = Robot::new(resolved.robot, protocol).unwrap();
+    let protocol = resolved.protocol().unwrap();
+    let mut robot = resolved.controller().unwrap();
     let partner = VirtualHuman::new([0.0, 0.0, lhh], 1e3).unwrap();
     let mut plant = Plant::new(resolved.rig.plant).unwrap();
     let unit = resolved.rad_per_unit;

@@ -8,8 +8,6 @@ use sensaug_bridge::protocol::TORQUE_SCALE_NM;
 use sensaug_bridge::transport::UdpBus;
 use sensaug_config::{load_str, Format};
 use sensaug_core::agent::Guard;
-use sensaug_core::controller::Robot;
-use sensaug_core::protocol::Protocol;
 use sensaug_log::Row;
 use sensaug_rt::config::drive_link;
 use sensaug_rt::control::{LoopSettings, Rig, StopReason};
@@ -51,9 +49,7 @@ fn run_loop(answer_for: u64, stop_after: Option<Duration>, spin_us: u32) -> Outc
     let port = free_port();
     let drive_stop = Arc::new(AtomicBool::new(false));
     let handle = drive(port, Arc::clone(&drive_stop), answer_for);
-    let phases = resolved.phases();
-    let protocol = Protocol::new(&phases, resolved.dt_s).unwrap();
-    let robot = Robot::new(resolved.robot, protocol).unwrap();
+    let robot = resolved.controller().unwrap();
     let settings = LoopSettings {
         spin_us,
         ..drive::loop_settings(&resolved)
