@@ -123,6 +123,22 @@ def test_an_answer_captured_before_its_command_is_matched():
     assert answer == [0, 1, 2, None, None]
 
 
+def test_a_missing_answer_at_the_end_does_not_take_a_later_commands_answer():
+    """A full run's capture: an answer missing in the run's last 256 ticks,
+    its sequence reused by the unrecorded last tick's command (on the bus, not
+    in the log), whose answer came later. That answer is not the missing
+    one's (it followed a command reusing the sequence), and taking it would
+    leave every later tick unanswered."""
+    frame = Frame(0.0, 0, False, False, False, False, b"")
+    bus = [("TorqueCommand", 5), ("Feedback", 5), ("TorqueCommand", 6), ("TorqueCommand", 7), ("Feedback", 7),
+           ("TorqueCommand", 6), ("Feedback", 6)]
+    decoded = [Decoded(frame, name, "", {"sequence": seq}, i) for i, (name, seq) in enumerate(bus)]
+    commands = [d for d in decoded if d.name == "TorqueCommand"]
+    feedback = [d for d in decoded if d.name == "Feedback"]
+    # The log's three ticks: the last command on the bus is the unrecorded tick's.
+    assert match_feedback(commands, [0, 1, 2], feedback) == [0, None, 1]
+
+
 def around(decoded, index: int, frames: int = 6) -> str:
     """The bus in capture order around frame ``index`` (name and sequence),
     for a failure message: a Feedback captured before the command it echoes

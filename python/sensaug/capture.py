@@ -290,8 +290,8 @@ def subsequence(commands: list[Decoded], seq: list[int], torque: np.ndarray, tol
 def match_feedback(commands: list[Decoded], matched: list[int], feedback: list[Decoded]) -> list[Optional[int]]:
     """For each tick's command (``commands[matched[k]]``), the index in
     ``feedback`` of the Feedback answering it: the first one echoing its
-    sequence after the previous tick's command on the bus, before the
-    command 256 ticks later reuses that sequence; None when there is none.
+    sequence after the previous tick's command on the bus, before the next
+    command on the bus reuses that sequence; None when there is none.
 
     From the previous command, not from this one: the capture is one more
     receiver of the bus and can queue the drive's answer before the command
@@ -299,12 +299,21 @@ def match_feedback(commands: list[Decoded], matched: list[int], feedback: list[D
     ``Feedback(1)`` captured before ``TorqueCommand(1)``; presumably the
     drive, woken by the command's datagram, answered while the kernel was
     still handing that datagram to the other sockets)."""
+    # The bus index of the next command with each command's sequence: the
+    # bus's own, not the log's tick k + 256, which a run's last 256 ticks
+    # lack while the bus still has the unrecorded last tick's command (an
+    # answer missing there must not take a later command's answer).
+    reused: list[Optional[int]] = [None] * len(commands)
+    seen: dict[int, int] = {}
+    for pos in range(len(commands) - 1, -1, -1):
+        seq = commands[pos].signals["sequence"]
+        reused[pos] = seen.get(seq)
+        seen[seq] = commands[pos].index
     out: list[Optional[int]] = []
     j = 0
     for k, ci in enumerate(matched):
-        cmd = commands[ci]
-        seq = cmd.signals["sequence"]
-        bound = commands[matched[k + 256]].index if k + 256 < len(matched) else None
+        seq = commands[ci].signals["sequence"]
+        bound = reused[ci]
         start = commands[matched[k - 1]].index if k > 0 else -1
         while j < len(feedback) and feedback[j].index < start:
             j += 1
