@@ -94,9 +94,10 @@ def wait_for(cond, timeout_s: float) -> bool:
 
 
 def same_value(expected, got) -> bool:
-    """The log's value and the message's (NaN is null; ints and bools exact;
-    floats exact: JSON carries their shortest round-trip digits)."""
-    if isinstance(expected, float) and math.isnan(expected):
+    """The log's value and the message's (NaN and infinities are null, as
+    JSON has neither; ints and bools exact; floats exact: JSON carries their
+    shortest round-trip digits)."""
+    if isinstance(expected, float) and not math.isfinite(expected):
         return got is None
     return expected == got
 
