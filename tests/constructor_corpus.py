@@ -243,20 +243,21 @@ _PACKAGE: list[Ctor] = [
 ]
 
 
-def _typed(v: Any, good: Any) -> bool:
+def _typed(v: Any, good: Any, matrices: bool) -> bool:
     """What ``_core`` takes where ``good`` goes: a float, or a float64 array
-    (not a bool, list, str, ...)."""
+    (not a bool, list, str, ...); with ``matrices`` (``_core.lqr``), a 2-D one."""
     if isinstance(good, np.ndarray):
-        return isinstance(v, np.ndarray) and v.dtype == np.float64
+        return isinstance(v, np.ndarray) and v.dtype == np.float64 and (v.ndim == 2 or not matrices)
     return type(v) is float
 
 
-def _core_ctor(ctor: Ctor, call: Callable[..., Any], defaults: dict[str, float]) -> Ctor:
+def _core_ctor(ctor: Ctor, call: Callable[..., Any], defaults: dict[str, float], matrices: bool = False) -> Ctor:
     """``ctor``'s compiled counterpart: every keyword given (``defaults``),
     ``dt`` spelled ``dt_s``, only typed bad values."""
     spelled = {"dt": "dt_s"}
     good = {spelled.get(k, k): v for k, v in {**defaults, **ctor.good}.items()}
-    bad = {spelled.get(k, k): [(w, v) for w, v in vs if _typed(v, good[spelled.get(k, k)])] for k, vs in ctor.bad.items()}
+    typed = {k: [(w, v) for w, v in vs if _typed(v, good[spelled.get(k, k)], matrices)] for k, vs in ctor.bad.items()}
+    bad = {spelled.get(k, k): vs for k, vs in typed.items()}
     return Ctor(f"_core.{ctor.name}", call, good, bad)
 
 
@@ -271,7 +272,7 @@ CONSTRUCTORS: list[Ctor] = _PACKAGE + [
         _by_name["GoalIntegrator"], _core.GoalIntegrator, dict(_ESTIMATOR, gate=_C.gate, window_n0=_C.window_n0, hold_max_s=_C.hold_max_s)
     ),
     _core_ctor(_by_name["Plant"], _core.Plant, dict(damping=_P.damping, coulomb=_P.coulomb, dt_s=_P.dt_s, x0=_W.x0, v0=_W.v0)),
-    _core_ctor(_by_name["lqr"], lambda A, B, Q, R: _core.lqr(A, B, Q, R, discrete=False), {}),
+    _core_ctor(_by_name["lqr"], lambda A, B, Q, R: _core.lqr(A, B, Q, R, discrete=False), {}, matrices=True),
     _core_ctor(_by_name["agent_gains"], _core.agent_gains, {}),
 ]
 

@@ -104,8 +104,8 @@ def test_bad_logs_get_named_errors(tmp_path):
     no_config = sensaug.Log(data=trial.data, meta={k: v for k, v in trial.meta.items() if k != "config"})
     with pytest.raises(ValueError, match="no 'config' recorded"):
         sensaug.replay(no_config)
-    with pytest.raises(ValueError, match="fresh: 3 values, but x_meas has 4"):
-        sensaug._core.replay_robot(sim_config().resolved(), np.zeros(4), np.zeros(4), np.ones(3, dtype=bool))
+    with pytest.raises(ValueError, match="^records: 5 bytes is not a whole number of"):
+        sensaug._core.replay_robot(sim_config().resolved(), np.zeros(5, dtype=np.uint8), applied_u=False)
 
 
 def test_the_replayed_columns_follow_the_schemas_source_tags():
@@ -119,12 +119,7 @@ def test_the_replayed_columns_follow_the_schemas_source_tags():
     cfg = sim_config()
     trial = experiment.run(cfg)
     d = trial.data
-    records, counters = _core.replay_robot(
-        cfg.resolved(),
-        np.ascontiguousarray(d["x_meas"]),
-        np.ascontiguousarray(d["xdot_meas"]),
-        np.ascontiguousarray(d["fresh"]),
-    )
+    records, counters = _core.replay_robot(cfg.resolved(), logs.to_records(d), applied_u=False)
     assert records.dtype == np.uint8
     replayed = logs.from_records(records)
     assert counters["ticks"] == len(replayed) == len(d)

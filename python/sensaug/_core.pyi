@@ -43,7 +43,8 @@ def lqr(
     *,
     discrete: bool,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """``(K, X)`` of ``sensaug.lqr`` (its docs); each matrix a 2-D array, named in errors."""
+    """``(K, X)`` of ``sensaug.lqr`` (its docs); each matrix a C-contiguous
+    2-D array (anything else is pyo3's ``TypeError``); named in errors."""
 
 def agent_gains(*, mass: float, damping: float, q_pos: float, q_vel: float) -> tuple[float, float]:
     """``(k_pos, k_vel)`` of ``sensaug.agent_gains`` (its docs)."""
@@ -190,10 +191,9 @@ class Config:
         """Parses and resolves text in ``format`` (``"toml"`` or ``"json"``)."""
     def to_dict(self) -> dict[str, Any]:
         """The file's values, every default filled in, as plain dicts and lists."""
-    def to_json(self) -> str:
-        """The file's values as compact JSON."""
-    def to_toml(self) -> str:
-        """The file's values as TOML with each field's description and unit."""
+    def to_text(self, *, format: str) -> str:
+        """The file's values as text in ``format``: ``"json"`` (compact) or
+        ``"toml"`` (with each field's description and unit as a comment)."""
     def metadata(self) -> dict[str, Any]:
         """``{"config", "resolved", "loop"}`` as a log's metadata records them."""
     def trial_memory(self, *, memory_budget: int | None) -> tuple[int, int]:
@@ -233,18 +233,14 @@ def available_memory() -> int | None:
     """Half the memory available to this process (bytes), or ``None`` where unknown."""
 
 def replay_robot(
-    config: Config,
-    x_meas: NDArray[np.float64],
-    xdot_meas: NDArray[np.float64],
-    fresh: NDArray[np.bool_],
-    /,
-    applied_u: NDArray[np.float64] | None = None,
+    config: Config, records: NDArray[np.uint8], /, *, applied_u: bool
 ) -> tuple[NDArray[np.uint8], dict[str, int]]:
-    """Re-runs the robot's controller over recorded measurements: tick ``k``
-    fuses ``(x_meas[k], xdot_meas[k])`` when ``fresh[k]``, else only
-    predicts, exactly as online; the estimators predict with ``applied_u[k]``
-    when given (a rig log's ``u``: the torque the drive applied for the
-    robot), else with the replayed command.
+    """Re-runs the robot's controller over a recorded trial's rows (packed
+    records, ``sensaug.logs.to_records``): tick ``k`` fuses the recorded
+    ``(x_meas, xdot_meas)`` when ``fresh``, else only predicts, exactly as
+    online; with ``applied_u`` the estimators predict with the recorded
+    ``u`` (a rig log's: the torque the drive applied for the robot), else
+    with the replayed command.
 
     Returns ``(records, counters)``: the rows as packed records, as
     ``run_scenario`` returns them (``sensaug.logs.from_records``; the
@@ -252,7 +248,7 @@ def replay_robot(
     ``fresh``; the rest unknown) and the robot's counters.
 
     Raises:
-        ValueError: the arrays' lengths differ or one is not C-contiguous.
+        ValueError: ``records`` is not whole packed rows or not C-contiguous.
     """
 
 # --- log (the one log schema, docs/logs.md) ---

@@ -172,12 +172,12 @@ class ScenarioConfig(_ScenarioTables):
 
     def resolved_json(self) -> str:
         """The configuration as the Rust side sees it: JSON, every default filled in."""
-        return self.resolved().to_json()
+        return self.resolved().to_text(format="json")
 
     def to_toml(self, path: str | Path | None = None) -> str:
         """The configuration as TOML with each field's description and unit as a
         comment; also written to ``path`` if given."""
-        text = self.resolved().to_toml()
+        text = self.resolved().to_text(format="toml")
         if path is not None:
             Path(path).write_text(text)
         return text

@@ -46,8 +46,15 @@ RiccatiConvergenceError = _core.RiccatiConvergenceError
 def _lqr(
     A: npt.ArrayLike, B: npt.ArrayLike, Q: npt.ArrayLike, R: npt.ArrayLike, *, discrete: bool
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    arrays = (real_array(A, "A"), real_array(B, "B"), real_array(Q, "Q"), real_array(R, "R"))
-    return _core.lqr(*arrays, discrete=discrete)
+    return _core.lqr(*(_matrix(m, name) for m, name in ((A, "A"), (B, "B"), (Q, "Q"), (R, "R"))), discrete=discrete)
+
+
+def _matrix(value: npt.ArrayLike, name: str) -> npt.NDArray[np.float64]:
+    """``value`` as the C-contiguous 2-D float64 array ``_core.lqr`` takes."""
+    m = real_array(value, name)
+    if m.ndim != 2:
+        raise ValueError(f"{name}: expected a 2-D array, got shape {m.shape}")
+    return np.ascontiguousarray(m)
 
 
 def care(

@@ -26,7 +26,7 @@ import numpy as np
 
 from sensaug import _core
 from sensaug.config import ScenarioConfig
-from sensaug.logs import COLUMNS, SOURCES, UNKNOWN_INT, Log, UnverifiedLogWarning, from_records, load_log, to_json
+from sensaug.logs import COLUMNS, SOURCES, UNKNOWN_INT, Log, UnverifiedLogWarning, from_records, load_log, to_json, to_records
 
 __all__ = ["ESTIMATE_COLUMNS", "NEEDED_COLUMNS", "replay"]
 
@@ -165,12 +165,10 @@ def replay(log: str | Path | Log, config: ScenarioConfig | None = None, *, allow
     d = log.data[:n]
     records, counters = _core.replay_robot(
         config.resolved(),
-        np.ascontiguousarray(d["x_meas"], dtype=np.float64),
-        np.ascontiguousarray(d["xdot_meas"], dtype=np.float64),
-        np.ascontiguousarray(d["fresh"], dtype=np.bool_),
+        to_records(d),
         # A rig run's estimators predicted with the robot's part of the torque
         # the drive applied (its `u`), which no replayed command changes.
-        applied_u=np.ascontiguousarray(d["u"], dtype=np.float64) if log.meta.get("source") == "rig" else None,
+        applied_u=log.meta.get("source") == "rig",
     )
     columns = from_records(records)
     beyond = np.flatnonzero(columns["phase"] == UNKNOWN_INT)

@@ -8,12 +8,12 @@
 mod pendulum;
 
 use _core::convert::UkfStepError;
-use _core::convert::{mat_to, py_err, read, recoveries_dict, vec_to, Array};
+use _core::convert::{array, py_err, read, Array};
 use _core::estimators::{run_batch, Batch};
-use numpy::{PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
+use numpy::{PyArrayDyn, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pendulum::{Pendulum, PendulumFilter, M, N};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{IntoPyDict, PyDict};
 use sensaug_core::estimator::EstimatorError;
 use sensaug_core::ukf::MerweParams;
 
@@ -113,59 +113,59 @@ impl DemoUkf {
     }
 
     fn recoveries<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        recoveries_dict(py, &self.inner.ukf.recoveries())
+        self.inner.ukf.recoveries().named().into_py_dict(py)
     }
     #[getter]
-    fn x<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        vec_to(py, self.inner.ukf.x())
+    fn x<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        array(py, self.inner.ukf.x())
     }
     #[getter]
-    fn P<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-        mat_to(py, self.inner.ukf.P())
+    fn P<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        array(py, self.inner.ukf.P())
     }
     #[getter]
-    fn x_prior<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        vec_to(py, self.inner.ukf.x_prior())
+    fn x_prior<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        array(py, self.inner.ukf.x_prior())
     }
     #[getter]
-    fn P_prior<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-        mat_to(py, self.inner.ukf.P_prior())
+    fn P_prior<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        array(py, self.inner.ukf.P_prior())
     }
     #[getter]
-    fn Q<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-        mat_to(py, self.inner.ukf.Q())
+    fn Q<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        array(py, self.inner.ukf.Q())
     }
     #[setter(Q)]
     fn set_Q(&mut self, Q: Array<'_>) -> PyResult<()> {
         self.inner.ukf.set_Q(read::<N, N>(&Q, "Q")?).map_err(py_err)
     }
     #[getter]
-    fn R<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-        mat_to(py, self.inner.ukf.R())
+    fn R<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        array(py, self.inner.ukf.R())
     }
     #[setter(R)]
     fn set_R(&mut self, R: Array<'_>) -> PyResult<()> {
         self.inner.ukf.set_R(read::<M, M>(&R, "R")?).map_err(py_err)
     }
     #[getter]
-    fn y<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        vec_to(py, self.inner.ukf.y())
+    fn y<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        array(py, self.inner.ukf.y())
     }
     #[getter]
-    fn S<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-        mat_to(py, self.inner.ukf.S())
+    fn S<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        array(py, self.inner.ukf.S())
     }
     #[getter]
-    fn K<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
-        mat_to(py, self.inner.ukf.K())
+    fn K<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        array(py, self.inner.ukf.K())
     }
     #[getter]
-    fn Wm<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        vec_to(py, self.inner.ukf.Wm())
+    fn Wm<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        array(py, self.inner.ukf.Wm())
     }
     #[getter]
-    fn Wc<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        vec_to(py, self.inner.ukf.Wc())
+    fn Wc<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        array(py, self.inner.ukf.Wc())
     }
 }
 

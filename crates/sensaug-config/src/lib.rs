@@ -228,10 +228,18 @@ pub fn parse_str(text: &str, format: Format) -> Result<ScenarioSpec, ConfigError
     }
 }
 
-/// The configuration, every default filled in, as compact JSON (what the
-/// binding hands to Python).
+/// The configuration, every default filled in, as compact JSON.
 pub fn to_json(spec: &ScenarioSpec) -> String {
     serde_json::to_string(spec).expect("a validated configuration is JSON")
+}
+
+/// The configuration, every default filled in, as text in `format`
+/// ([`to_toml`] or [`to_json`]).
+pub fn to_text(spec: &ScenarioSpec, format: Format) -> String {
+    match format {
+        Format::Toml => to_toml(spec),
+        Format::Json => to_json(spec),
+    }
 }
 
 fn path_string(p: &serde_path_to_error::Path) -> String {

@@ -1,13 +1,15 @@
 //! What runs from a resolved configuration: the core's protocol and the
 //! robot's controller built from it, a simulated trial with its log kept in
-//! memory, and the metadata a log of any run records (the configuration's
+//! memory, the controller re-run over a recorded trial, and the metadata a log of any run records (the configuration's
 //! serialisation). The binding, the replay and `sensaug-rt` build these
 //! here, not each by hand.
 
 use crate::error::ConfigError;
 use crate::Resolved;
-use sensaug_core::controller::Robot;
+use sensaug_core::controller::{Robot, RobotCounters};
 use sensaug_core::protocol::Protocol;
+use sensaug_core::replay::replay_recorded;
+use sensaug_core::row::Row;
 use sensaug_core::world::{check_log_memory, log_budget, LogTooLarge, RunSummary, Scenario};
 use sensaug_log::{push_record, RunInfo, Source, RECORD_BYTES};
 
@@ -64,6 +66,21 @@ impl Resolved {
     /// The robot's controller, as the loop runs it and the replay re-runs it.
     pub fn controller(&self) -> Result<Robot<'_>, Rejected> {
         Robot::new(self.robot, self.protocol()?).map_err(|_| Rejected("robot"))
+    }
+
+    /// The robot's controller re-run over a recorded trial's rows
+    /// ([`replay_recorded`]; with `applied`, the estimators predict with the
+    /// recorded `u`, as on a rig): the replayed rows and the counters.
+    pub fn replay(
+        &self,
+        recorded: &[Row],
+        applied: bool,
+    ) -> Result<(Vec<Row>, RobotCounters), Rejected> {
+        let mut robot = self.controller()?;
+        let mut rows = vec![Row::UNKNOWN; recorded.len()];
+        let counters = replay_recorded(&mut robot, self.dt_s, recorded, applied, &mut rows);
+        // The one set-up check, one row out per row in, holds by construction.
+        Ok((rows, counters.map_err(|_| Rejected("replay"))?))
     }
 
     /// The metadata line of a log of this configuration's run, starting now

@@ -221,6 +221,16 @@ fn check_covariances<const N: usize, const M: usize>(
     Ok(())
 }
 
+/// A predict's inputs `inputs` (named `names`) all finite, or
+/// [`UkfError::NonFiniteInput`]: the filter would reject them as a
+/// non-finite process, a step failure, where this is the caller's mistake.
+pub(crate) fn finite_inputs(inputs: &[f64], names: &'static str) -> Result<(), UkfError> {
+    match inputs.iter().all(|v| v.is_finite()) {
+        true => Ok(()),
+        false => Err(UkfError::NonFiniteInput { names }),
+    }
+}
+
 impl From<UkfError> for EstimatorError {
     fn from(e: UkfError) -> Self {
         EstimatorError::Ukf(e)
@@ -447,8 +457,10 @@ impl GainEstimator {
     }
 
     /// Per tick: propagate with the own torque `u` and both targets'
-    /// increments over the coming step.
+    /// increments over the coming step (all finite, else
+    /// [`UkfError::NonFiniteInput`]).
     pub fn predict(&mut self, u: f64, dtau: f64, dtau_h: f64) -> Result<Status, UkfError> {
+        finite_inputs(&[u, dtau, dtau_h], "u, dtau, dtau_h")?;
         // The process is built per call on purpose: inlined into the
         // predict (the extension's one codegen unit), its constant F, g and
         // q fold into the arithmetic; one kept in the struct and read from
@@ -560,6 +572,7 @@ impl TrajectoryEstimator {
     /// Per tick: as [`GainEstimator::predict`]; the partner's target is
     /// unknown, so pass `dtau_h = 0` (its motion is left to the process noise).
     pub fn predict(&mut self, u: f64, dtau: f64, dtau_h: f64) -> Result<Status, UkfError> {
+        finite_inputs(&[u, dtau, dtau_h], "u, dtau, dtau_h")?;
         self.ukf
             .predict_bilinear(&extended_transition(&self.step, u, dtau, dtau_h))
     }

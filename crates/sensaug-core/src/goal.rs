@@ -479,8 +479,10 @@ impl GoalIntegrator {
     /// Per tick, last (P1): every member `s' = F s + b`, `P' = F P F' + Q`,
     /// with the known torque `u` (own plus estimated partner) and the own
     /// target's increment `dtau` (0 when unknown) ([`error_transition`]).
-    /// A step that would overflow is an error and changes nothing.
+    /// A step that would overflow, or non-finite `u` or `dtau`
+    /// ([`UkfError::NonFiniteInput`]), is an error and changes nothing.
     pub fn predict(&mut self, u: f64, dtau: f64) -> Result<Status, UkfError> {
+        crate::estimator::finite_inputs(&[u, dtau], "u, dtau")?;
         let (F, b) = error_transition(&self.step, u, dtau);
         let (f01, f11) = (F[(0, 1)], F[(1, 1)]);
         let (q00, q01, q11) = (self.Q[(0, 0)], self.Q[(0, 1)], self.Q[(1, 1)]);

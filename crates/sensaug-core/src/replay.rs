@@ -92,14 +92,6 @@ pub enum ReplayArg {
     Vs,
     /// The robot's per-tick rows ([`replay_robot`]).
     Rows,
-    /// Recorded position measurements ([`replay_recorded`]).
-    XMeas,
-    /// Recorded velocity measurements.
-    XdotMeas,
-    /// Whether each tick's measurement was new.
-    Fresh,
-    /// The robot's torque as applied on a rig ([`replay_recorded`]).
-    AppliedU,
 }
 
 impl ReplayArg {
@@ -108,7 +100,6 @@ impl ReplayArg {
         match self {
             ReplayArg::Y => "y",
             ReplayArg::U => "u",
-            ReplayArg::AppliedU => "applied_u",
             ReplayArg::Dtau => "dtau",
             ReplayArg::DtauH => "dtau_h",
             ReplayArg::Xs => "xs",
@@ -116,9 +107,6 @@ impl ReplayArg {
             ReplayArg::Torques => "torques",
             ReplayArg::Vs => "vs",
             ReplayArg::Rows => "out",
-            ReplayArg::XMeas => "x_meas",
-            ReplayArg::XdotMeas => "xdot_meas",
-            ReplayArg::Fresh => "fresh",
         }
     }
 }
@@ -134,15 +122,6 @@ pub enum ReplayError {
         needed: usize,
         /// Given length.
         got: usize,
-    },
-    /// A recorded column's length differs from the first column's.
-    Unequal {
-        /// The offending column.
-        which: ReplayArg,
-        /// Its length.
-        got: usize,
-        /// The first column, and its length.
-        first: (ReplayArg, usize),
     },
     /// A slice was given to a filter that does not read it.
     NotRead {
@@ -185,13 +164,6 @@ impl core::fmt::Display for ReplayError {
                 f,
                 "{}: expected {needed} values (one row per tick of u), got {got}",
                 which.name()
-            ),
-            ReplayError::Unequal { which, got, first } => write!(
-                f,
-                "{}: {got} values, but {} has {}; pass one value per tick",
-                which.name(),
-                first.0.name(),
-                first.1
             ),
             ReplayError::NotRead { which } => {
                 write!(f, "{}: not read by this filter; leave it out", which.name())
@@ -455,47 +427,32 @@ pub fn replay_robot(
     Ok(robot.counters())
 }
 
-/// [`replay_robot`] over a recorded trial's measurement columns: row `k` of
-/// `out` gets `tick = k`, `t = k dt_s`, `x_meas[k]`, `xdot_meas[k]` and
-/// `fresh[k]` (the rest unknown), and the robot fuses the measurement when
-/// it was fresh, else only predicts, as online; with `applied` (a rig
-/// log's `u`: the robot's torque as the drive applied it) the estimators
-/// predict with it, as [`Robot::tick_applied`]. Lengths are checked before
-/// anything runs. Allocation-free.
+/// [`replay_robot`] over a recorded trial's rows: row `k` of `out` gets
+/// `tick = k`, `t = k dt_s` and the recorded `x_meas`, `xdot_meas` and
+/// `fresh` (the rest unknown), and the robot fuses the measurement when it
+/// was fresh, else only predicts, as online; with `applied` (a rig log,
+/// whose `u` is the robot's torque as the drive applied it) the estimators
+/// predict with the recorded `u`, as [`Robot::tick_applied`]. Lengths are
+/// checked before anything runs. Allocation-free.
 pub fn replay_recorded(
     robot: &mut Robot<'_>,
     dt_s: f64,
-    [x_meas, xdot_meas]: [&[f64]; 2],
-    fresh: &[bool],
-    applied: Option<&[f64]>,
+    recorded: &[Row],
+    applied: bool,
     out: &mut [Row],
 ) -> Result<RobotCounters, ReplayError> {
-    let first = (ReplayArg::XMeas, x_meas.len());
-    let applied_len = applied.map(|a| (ReplayArg::AppliedU, a.len()));
-    for (which, got) in [
-        (ReplayArg::XdotMeas, xdot_meas.len()),
-        (ReplayArg::Fresh, fresh.len()),
-    ]
-    .into_iter()
-    .chain(applied_len)
-    {
-        if got != first.1 {
-            return Err(ReplayError::Unequal { which, got, first });
-        }
-    }
-    check_len(ReplayArg::Rows, first.1, out.len())?;
-    for (k, o) in out.iter_mut().enumerate() {
-        let (x, v, fresh) = (x_meas[k], xdot_meas[k], fresh[k]);
+    check_len(ReplayArg::Rows, recorded.len(), out.len())?;
+    for (k, (r, o)) in recorded.iter().zip(out.iter_mut()).enumerate() {
         *o = Row {
             tick: k as i64,
             t: k as f64 * dt_s,
-            x_meas: x,
-            xdot_meas: v,
-            fresh,
+            x_meas: r.x_meas,
+            xdot_meas: r.xdot_meas,
+            fresh: r.fresh,
             ..Row::UNKNOWN
         };
-        let u = applied.map(|a| a[k]);
-        robot.tick_applied(k as u64, fresh.then_some((x, v)), u, o);
+        let measured = r.fresh.then_some((r.x_meas, r.xdot_meas));
+        robot.tick_applied(k as u64, measured, applied.then_some(r.u), o);
     }
     Ok(robot.counters())
 }

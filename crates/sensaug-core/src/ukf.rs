@@ -129,6 +129,13 @@ pub enum UkfError {
     },
     /// Step: the measurement `z` contains NaN or +-inf. State unchanged.
     NonFiniteMeasurement,
+    /// Step: an input of an estimator's predict (the torque, a target's
+    /// increment) is NaN or +-inf: a caller's mistake, so nothing ran and
+    /// nothing is counted. State unchanged.
+    NonFiniteInput {
+        /// The predict's inputs, as the Python API names them.
+        names: &'static str,
+    },
     /// Step: the process function returned NaN or +-inf. State unchanged.
     NonFiniteProcess,
     /// Step: the measurement function returned NaN or +-inf. State unchanged.
@@ -235,6 +242,9 @@ impl core::fmt::Display for UkfError {
             UkfError::NonFiniteMeasurement => {
                 f.write_str("z: must be finite; update rejected, state unchanged")
             }
+            UkfError::NonFiniteInput { names } => {
+                write!(f, "{names}: must be finite; predict not run")
+            }
             UkfError::NonFiniteProcess => {
                 f.write_str("process model returned NaN/inf; predict rejected, state unchanged")
             }
@@ -302,6 +312,30 @@ pub struct Recoveries {
     pub predicts: u64,
     /// Completed `update` calls (measurement applied).
     pub updates: u64,
+}
+
+impl Recoveries {
+    /// The counters' names: their fields', in declaration order.
+    pub const NAMES: [&'static str; 5] = [
+        "resymmetrised",
+        "covariance_resets",
+        "rejected",
+        "predicts",
+        "updates",
+    ];
+
+    /// Each counter by name ([`Recoveries::NAMES`]).
+    pub fn named(&self) -> impl Iterator<Item = (&'static str, u64)> {
+        let r = self;
+        let values = [
+            r.resymmetrised,
+            r.covariance_resets,
+            r.rejected,
+            r.predicts,
+            r.updates,
+        ];
+        Self::NAMES.into_iter().zip(values)
+    }
 }
 
 /// The first failing step of a [`Ukf::run`].

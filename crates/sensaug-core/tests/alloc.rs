@@ -10,7 +10,7 @@ mod common;
 use alloc_counter::allocations;
 
 use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector2, Vector3};
-use sensaug_core::estimator::{GainEstimator, TrajectoryEstimator};
+use sensaug_core::estimator::GainEstimator;
 use sensaug_core::goal::GoalIntegrator;
 use sensaug_core::plant::{Plant, PlantParams};
 use sensaug_core::riccati::{care, dare};
@@ -61,10 +61,7 @@ fn riccati_solves_do_not_allocate() {
 
 #[test]
 fn estimator_steps_do_not_allocate() {
-    let model = common::model();
-    let mut g = GainEstimator::new(model, &common::extended::<3>()).unwrap();
-    let mut t = TrajectoryEstimator::new(model, &common::extended::<5>()).unwrap();
-    let mut gi = GoalIntegrator::new(model, &common::robot().stage3).unwrap();
+    let (mut g, mut t, mut gi) = common::estimators();
     let n = allocations(|| {
         for k in 0..10_000 {
             let s = (k as f64 * 1e-3).sin();

@@ -11,8 +11,9 @@ use sensaug_core::estimator::{EstimatorError, GainEstimator, HandleModel, Trajec
 use sensaug_core::goal::{ChannelConfig, GoalIntegrator, GoalIntegratorConfig};
 use sensaug_core::plant::{Plant, PlantError, PlantParams, PlantState};
 use sensaug_core::protocol::Protocol;
-use sensaug_core::ukf::Arg;
+use sensaug_core::ukf::{Arg, UkfError};
 use sensaug_core::world::{check_log_memory, log_budget, log_bytes};
+use sensaug_core::{CoreError, ErrorKind};
 
 fn plant(mass: f64, damping: f64, coulomb: f64, dt_s: f64) -> Result<Plant, PlantError> {
     Plant::new(PlantParams {
@@ -195,4 +196,33 @@ fn a_log_over_its_budget_names_the_fields_that_make_it_large() {
         Ok(39_096_000_000)
     );
     assert_eq!(log_budget(24_000_000_000), 12_000_000_000);
+}
+
+#[test]
+fn a_predict_with_a_non_finite_input_names_the_inputs_and_changes_nothing() {
+    let (mut g, mut t, mut gi) = common::estimators();
+    let names = "u, dtau, dtau_h";
+    for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+        for inputs in [[bad, 0.0, 0.0], [0.0, bad, 0.0], [0.0, 0.0, bad]] {
+            let [u, dtau, dtau_h] = inputs;
+            let before = (*g.filter().x(), *g.filter().P(), g.filter().recoveries());
+            let e = g.predict(u, dtau, dtau_h).unwrap_err();
+            assert_eq!(e, UkfError::NonFiniteInput { names });
+            assert_eq!(
+                before,
+                (*g.filter().x(), *g.filter().P(), g.filter().recoveries())
+            );
+            let e = t.predict(u, dtau, dtau_h).unwrap_err();
+            assert_eq!(
+                e.to_string(),
+                "u, dtau, dtau_h: must be finite; predict not run"
+            );
+        }
+        let before = gi.estimate(true);
+        let e = gi.predict(bad, 0.0).unwrap_err();
+        assert_eq!(e, UkfError::NonFiniteInput { names: "u, dtau" });
+        assert_eq!(gi.predict(0.0, bad).unwrap_err(), e);
+        assert_eq!(before, gi.estimate(true));
+        assert_eq!(e.kind(), ErrorKind::Argument);
+    }
 }

@@ -3,13 +3,12 @@
 //! array-likes and numbers into these typed arguments), core values and
 //! errors -> Python (an error's message is the core's own `Display`).
 use nalgebra::SMatrix;
-use numpy::ndarray::Array2;
-use numpy::ToPyArray;
-use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray, PyReadonlyArrayDyn};
+use numpy::PyReadonlyArrayDyn;
+use numpy::{PyArray1, PyArrayDyn, PyArrayMethods, PyReadonlyArray, PyReadonlyArray1};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
-use pyo3::types::{IntoPyDict, PyDict, PyTuple};
+use pyo3::types::PyTuple;
 use pyo3::{create_exception, prelude::*};
-use sensaug_core::ukf::{Recoveries, Status};
+use sensaug_core::ukf::Status;
 
 create_exception!(_core, UkfStepError, PyRuntimeError);
 create_exception!(_core, RiccatiConvergenceError, PyRuntimeError);
@@ -17,21 +16,28 @@ create_exception!(_core, RiccatiConvergenceError, PyRuntimeError);
 /// A float64 array argument; its shape is checked where it is read.
 pub type Array<'py> = PyReadonlyArrayDyn<'py, f64>;
 
-/// A shape as Python prints it: `(3,)`, `(2, 3)`.
-pub fn shape(py: Python<'_>, s: &[usize]) -> PyResult<String> {
-    Ok(PyTuple::new(py, s)?.repr()?.to_string())
+/// The numpy shape of an `R x C` core matrix: `(R,)` for a vector (`C = 1`).
+fn dims<const R: usize, const C: usize>() -> Vec<usize> {
+    if C == 1 {
+        vec![R]
+    } else {
+        vec![R, C]
+    }
 }
 
-/// `a` as an `R x C` matrix, or with `C = 1` as a vector of shape `(R,)`;
-/// `name` is the argument.
+/// `a` as an `R x C` core matrix, of shape [`dims`]; `name` is the argument.
 pub fn read<const R: usize, const C: usize>(
     a: &Array<'_>,
     name: &str,
 ) -> PyResult<SMatrix<f64, R, C>> {
-    let (v, want) = (a.as_array(), if C == 1 { vec![R] } else { vec![R, C] });
+    let (v, want) = (a.as_array(), dims::<R, C>());
     if v.shape() != want {
-        let (want, got) = (shape(a.py(), &want)?, shape(a.py(), v.shape())?);
-        let msg = format!("{name}: expected shape {want}, got {got}");
+        let shape = |s: &[usize]| PyTuple::new(a.py(), s).and_then(|t| t.repr());
+        let msg = format!(
+            "{name}: expected shape {}, got {}",
+            shape(&want)?,
+            shape(v.shape())?
+        );
         return Err(PyValueError::new_err(msg));
     }
     Ok(SMatrix::from_row_iterator(v.iter().copied()))
@@ -46,18 +52,13 @@ pub fn slice<'a, T: numpy::Element, D: numpy::ndarray::Dimension>(
     a.as_slice().map_err(|_| PyValueError::new_err(msg()))
 }
 
-pub fn mat_to<'py, const R: usize, const C: usize>(
+/// A core matrix as a numpy array of shape [`dims`].
+pub fn array<'py, const R: usize, const C: usize>(
     py: Python<'py>,
     m: &SMatrix<f64, R, C>,
-) -> Bound<'py, PyArray2<f64>> {
-    Array2::from_shape_fn((R, C), |(i, j)| m[(i, j)]).into_pyarray(py)
-}
-
-pub fn vec_to<'py, const D: usize>(
-    py: Python<'py>,
-    v: &SMatrix<f64, D, 1>,
-) -> Bound<'py, PyArray1<f64>> {
-    v.as_slice().to_pyarray(py)
+) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+    // nalgebra stores column-major: the transpose's storage is `m` row-major.
+    PyArray1::from_slice(py, m.transpose().as_slice()).reshape(dims::<R, C>())
 }
 
 /// How a UKF step went (the core's `ukf::Status`).
@@ -87,16 +88,10 @@ pub fn status(s: Status) -> PyStatus {
     }
 }
 
-pub fn recoveries_dict<'py>(py: Python<'py>, r: &Recoveries) -> PyResult<Bound<'py, PyDict>> {
-    let (rs, cr, rj) = (r.resymmetrised, r.covariance_resets, r.rejected);
-    [
-        ("resymmetrised", rs),
-        ("covariance_resets", cr),
-        ("rejected", rj),
-    ]
-    .into_iter()
-    .chain([("predicts", r.predicts), ("updates", r.updates)])
-    .into_py_dict(py)
+/// Log rows from the bytes of packed records (`sensaug_log::PackedRow`).
+pub fn rows(records: &PyReadonlyArray1<'_, u8>) -> PyResult<Vec<sensaug_log::Row>> {
+    sensaug_log::rows_from_records(slice(records, "records")?)
+        .map_err(|e| PyValueError::new_err(e.to_string()))
 }
 
 /// The one error mapping: a core error as the Python exception of its kind

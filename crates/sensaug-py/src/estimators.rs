@@ -5,13 +5,13 @@
 //! schema's defaults, the conversion of array-likes and the docs.
 #![allow(non_snake_case)]
 
-use crate::convert::{mat_to, py_err, read, recoveries_dict, slice, status, vec_to};
+use crate::convert::{array, py_err, read, slice, status};
 use crate::convert::{Array, PyStatus};
 use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
 use numpy::{PyUntypedArrayMethods, ToPyArray};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{IntoPyDict, PyDict};
 use pyo3::IntoPyObjectExt;
 use sensaug_core::estimator::{ExtendedFilterConfig, HandleModel};
 use sensaug_core::estimator::{GainEstimator as CoreGain, TrajectoryEstimator as CoreTrajectory};
@@ -25,15 +25,6 @@ type Rows<'py> = PyReadonlyArray2<'py, f64>;
 
 /// `(xs (T, n), Pdiag (T, n))` of a run.
 pub type Batch<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>);
-
-fn finite(values: &[f64], names: &str) -> PyResult<()> {
-    match values.iter().all(|v| v.is_finite()) {
-        true => Ok(()),
-        false => Err(PyValueError::new_err(format!(
-            "{names}: must be finite; predict not run"
-        ))),
-    }
-}
 
 /// A whole recording through [`replay`]; with `strict`, the first step
 /// error raised after the run.
@@ -115,7 +106,6 @@ macro_rules! extended_estimator {
 
             #[pyo3(signature = (u, dtau = 0.0, dtau_h = 0.0))]
             fn predict(&mut self, u: f64, dtau: f64, dtau_h: f64) -> PyResult<PyStatus> {
-                finite(&[u, dtau, dtau_h], "u, dtau, dtau_h")?;
                 self.inner.predict(u, dtau, dtau_h).map(status).map_err(py_err)
             }
 
@@ -126,16 +116,16 @@ macro_rules! extended_estimator {
             }
 
             fn recoveries<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-                recoveries_dict(py, &self.inner.filter().recoveries())
+                self.inner.filter().recoveries().named().into_py_dict(py)
             }
 
             $($extra)*
         }
             gains = |s, py| s.filter().x().as_slice()[3..].to_pyarray(py);
-            x = |s, py| vec_to(py, s.filter().x());
-            P = |s, py| mat_to(py, s.filter().P());
-            x_prior = |s, py| vec_to(py, s.filter().x_prior());
-            P_prior = |s, py| mat_to(py, s.filter().P_prior());
+            x = |s, py| array(py, s.filter().x())?;
+            P = |s, py| array(py, s.filter().P())?;
+            x_prior = |s, py| array(py, s.filter().x_prior())?;
+            P_prior = |s, py| array(py, s.filter().P_prior())?;
         );
     };
 }
@@ -174,7 +164,6 @@ methods!(GoalIntegrator {
     }
 
     fn predict(&mut self, u: f64, dtau: f64) -> PyResult<PyStatus> {
-        finite(&[u, dtau], "u, dtau")?;
         self.inner.predict(u, dtau).map(status).map_err(py_err)
     }
 
@@ -193,9 +182,9 @@ methods!(GoalIntegrator {
         run_batch(py, &mut r, &y, &u, [Some(&dtau), None], strict)
     }
 }
-    x = |s, py| vec_to(py, &s.estimate(true));
+    x = |s, py| array(py, &s.estimate(true))?;
     var = |s, py| s.variance(true).to_pyarray(py);
-    x_own = |s, py| vec_to(py, &s.estimate(false));
+    x_own = |s, py| array(py, &s.estimate(false))?;
     var_own = |s, py| s.variance(false).to_pyarray(py);
     weights = |s, py| s.weights().to_pyarray(py);
     members = |s, py| s.members().to_pyarray(py);

@@ -13,17 +13,13 @@ mod scenario;
 #[pymodule]
 mod _core {
     #[pymodule_export]
-    use crate::convert::{PyStatus, RiccatiConvergenceError, UkfStepError};
-    #[pymodule_export]
-    use crate::estimators::{GainEstimator, GoalIntegrator, TrajectoryEstimator};
-    #[pymodule_export]
-    use crate::log::{config_sha256, git_commit, log_schema, write_log};
-    #[pymodule_export]
-    use crate::plant::Plant;
-    #[pymodule_export]
-    use crate::riccati::{agent_gains, lqr};
-    #[pymodule_export]
-    use crate::scenario::{available_memory, check_output_paths, config_schema, Config};
-    #[pymodule_export]
-    use crate::scenario::{replay_robot, resolve_count, run_scenario};
+    use crate::{
+        convert::{PyStatus, RiccatiConvergenceError, UkfStepError},
+        estimators::{GainEstimator, GoalIntegrator, TrajectoryEstimator},
+        log::{config_sha256, git_commit, log_schema, write_log},
+        plant::Plant,
+        riccati::{agent_gains, lqr},
+        scenario::{available_memory, check_output_paths, config_schema, Config},
+        scenario::{replay_robot, resolve_count, run_scenario},
+    };
 }

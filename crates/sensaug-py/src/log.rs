@@ -44,8 +44,7 @@ pub fn write_log(
 ) -> PyResult<()> {
     let meta = json("meta_json", meta_json)?;
     let end = end_json.map_or(Ok(serde_json::Value::Null), |t| json("end_json", t))?;
-    let rows = sensaug_log::rows_from_records(crate::convert::slice(&records, "records")?)
-        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    let rows = crate::convert::rows(&records)?;
     check_outputs(&[("path", &path)]).map_err(config_err)?;
     let write = |out: &mut _| sensaug_log::write_log(out, &meta, &rows, &end);
     py.detach(|| write_replacing(&path, write))

@@ -1,32 +1,30 @@
 //! Riccati / LQR: conversion only (`sensaug_core::riccati::lqr_dense` checks
-//! the shapes and dispatches to the fixed-size solvers).
-use crate::convert::{py_err, shape, Array};
-use numpy::{PyArray1, PyArray2, PyArrayMethods, PyUntypedArrayMethods};
-use pyo3::exceptions::PyValueError;
+//! the shapes and dispatches to the fixed-size solvers; `sensaug.lqr` makes
+//! each argument a C-contiguous 2-D float64 array).
+use crate::convert::{py_err, slice};
+use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use sensaug_core::riccati::{self, DenseMatrix};
 
+type Matrix<'py> = PyReadonlyArray2<'py, f64>;
 type Pair<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>);
 
-/// `a`'s entries row-major and its shape, if it is 2-D; `name` is the argument.
-fn dense(a: &Array<'_>, name: &str) -> PyResult<(Vec<f64>, [usize; 2])> {
-    match *a.shape() {
-        [r, c] => Ok((a.as_array().iter().copied().collect(), [r, c])),
-        ref s => Err(PyValueError::new_err(format!(
-            "{name}: expected a 2-D array, got shape {}",
-            shape(a.py(), s)?
-        ))),
-    }
+fn dense<'a>(a: &'a Matrix<'_>, name: &str) -> PyResult<DenseMatrix<'a>> {
+    let shape = [a.shape()[0], a.shape()[1]];
+    Ok(DenseMatrix {
+        data: slice(a, name)?,
+        shape,
+    })
 }
 
 #[pyfunction]
 #[pyo3(signature = (a, b, q, r, /, *, discrete))]
 pub fn lqr<'py>(
     py: Python<'py>,
-    a: Array<'py>,
-    b: Array<'py>,
-    q: Array<'py>,
-    r: Array<'py>,
+    a: Matrix<'py>,
+    b: Matrix<'py>,
+    q: Matrix<'py>,
+    r: Matrix<'py>,
     discrete: bool,
 ) -> PyResult<Pair<'py>> {
     let [a, b, q, r] = [
@@ -35,10 +33,6 @@ pub fn lqr<'py>(
         dense(&q, "Q")?,
         dense(&r, "R")?,
     ];
-    let [a, b, q, r] = [&a, &b, &q, &r].map(|(data, shape)| DenseMatrix {
-        data,
-        shape: *shape,
-    });
     let s = riccati::lqr_dense(a, b, q, r, discrete).map_err(py_err)?;
     let array = |data: &[f64], shape: [usize; 2]| PyArray1::from_slice(py, data).reshape(shape);
     Ok((array(s.k(), [s.m, s.n])?, array(s.x(), [s.n, s.n])?))

@@ -4,14 +4,12 @@
 //! schema (`sensaug-config`) reads, checks, resolves and runs the whole
 //! trial in one call. Conversion only; the docs are in `_core.pyi`.
 
-use crate::convert::{config_err, py_err, slice, trial_err};
+use crate::convert::{config_err, rows, trial_err};
 use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1};
 use pyo3::prelude::*;
 use pyo3::types::{IntoPyDict, PyDict, PyTuple};
 use pythonize::{pythonize, Depythonizer};
 use sensaug_config::Resolved;
-use sensaug_core::replay::replay_recorded;
-use sensaug_log::Row;
 use std::path::PathBuf;
 
 /// Log rows as the bytes of packed records (`sensaug_log::push_record`).
@@ -60,12 +58,10 @@ impl Config {
         Ok(pythonize(py, &self.resolved.spec)?)
     }
 
-    fn to_json(&self) -> String {
-        sensaug_config::to_json(&self.resolved.spec)
-    }
-
-    fn to_toml(&self) -> String {
-        sensaug_config::to_toml(&self.resolved.spec)
+    #[pyo3(signature = (*, format))]
+    fn to_text(&self, format: &str) -> PyResult<String> {
+        let format = format.parse().map_err(config_err)?;
+        Ok(sensaug_config::to_text(&self.resolved.spec, format))
     }
 
     fn metadata<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
@@ -131,31 +127,23 @@ pub fn run_scenario<'py>(
     ))
 }
 
+/// The robot's controller re-run over a recorded trial's rows
+/// (`Resolved::replay`): `(records, counters)`.
 #[pyfunction]
-#[pyo3(signature = (config, x_meas, xdot_meas, fresh, /, applied_u=None))]
+#[pyo3(signature = (config, records, /, *, applied_u))]
 pub fn replay_robot<'py>(
     py: Python<'py>,
     config: &Config,
-    x_meas: PyReadonlyArray1<'py, f64>,
-    xdot_meas: PyReadonlyArray1<'py, f64>,
-    fresh: PyReadonlyArray1<'py, bool>,
-    applied_u: Option<PyReadonlyArray1<'py, f64>>,
+    records: PyReadonlyArray1<'py, u8>,
+    applied_u: bool,
 ) -> PyResult<(Records<'py>, Bound<'py, PyDict>)> {
-    let resolved = &config.resolved;
-    let (x, v) = (slice(&x_meas, "x_meas")?, slice(&xdot_meas, "xdot_meas")?);
-    let fresh = slice(&fresh, "fresh")?;
-    let applied = applied_u
-        .as_ref()
-        .map(|a| slice(a, "applied_u"))
-        .transpose()?;
-    let mut robot = resolved.controller().map_err(|e| config_err(e.into()))?;
-    let mut rows = vec![Row::UNKNOWN; x.len()];
-    let counters = py
-        .detach(|| replay_recorded(&mut robot, resolved.dt_s, [x, v], fresh, applied, &mut rows))
-        .map_err(py_err)?;
-    let d = [("ticks", rows.len() as u64)]
-        .into_iter()
-        .chain(counters.named())
-        .into_py_dict(py)?;
-    Ok((sensaug_log::records_from_rows(&rows).into_pyarray(py), d))
+    let recorded = rows(&records)?;
+    let replayed = py.detach(|| config.resolved.replay(&recorded, applied_u));
+    let (out, counters) = replayed.map_err(|e| config_err(e.into()))?;
+    let ticks = [("ticks", out.len() as u64)].into_iter();
+    let counters = ticks.chain(counters.named()).into_py_dict(py)?;
+    Ok((
+        sensaug_log::records_from_rows(&out).into_pyarray(py),
+        counters,
+    ))
 }

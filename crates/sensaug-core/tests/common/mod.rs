@@ -4,7 +4,8 @@
 use nalgebra::{SMatrix, SVector, Vector2};
 use sensaug_core::controller::RobotConfig;
 use sensaug_core::estimator::{ExtendedFilterConfig, HandleModel};
-use sensaug_core::goal::{ChannelConfig, GoalIntegratorConfig};
+use sensaug_core::estimator::{GainEstimator, TrajectoryEstimator};
+use sensaug_core::goal::{ChannelConfig, GoalIntegrator, GoalIntegratorConfig};
 use sensaug_core::plant::{PlantParams, PlantState};
 use sensaug_core::protocol::{Phase, PhaseKind};
 use sensaug_core::target::{Shape, Target};
@@ -63,6 +64,16 @@ pub fn model() -> HandleModel {
         damping: 0.0,
         dt_s: DT,
     }
+}
+
+/// The three estimators on [`model`]: stage 1 and 2 with [`extended`],
+/// stage 3 as [`robot`] configures it.
+pub fn estimators() -> (GainEstimator, TrajectoryEstimator, GoalIntegrator) {
+    (
+        GainEstimator::new(model(), &extended::<3>()).unwrap(),
+        TrajectoryEstimator::new(model(), &extended::<5>()).unwrap(),
+        GoalIntegrator::new(model(), &robot().stage3).unwrap(),
+    )
 }
 
 pub fn robot() -> RobotConfig {
