@@ -61,6 +61,22 @@ pub fn array<'py, const R: usize, const C: usize>(
     PyArray1::from_slice(py, m.transpose().as_slice()).reshape(dims::<R, C>())
 }
 
+/// `#[pymethods]` of `$name`: `$methods`, then one-line getters, each
+/// `name = |inner, py| value` over the class's core value `inner`.
+macro_rules! methods {
+    ($name:ident { $($methods:tt)* } $($get:ident = |$s:ident, $py:ident| $e:expr;)*) => {
+        #[pymethods]
+        impl $name {
+            $($methods)*
+            $(#[getter] fn $get(&self, $py: Python<'_>) -> PyResult<Py<PyAny>> {
+                let $s = &self.inner;
+                pyo3::IntoPyObjectExt::into_py_any($e, $py)
+            })*
+        }
+    };
+}
+pub(crate) use methods;
+
 /// How a UKF step went (the core's `ukf::Status`).
 #[pyclass(name = "Status", module = "sensaug._core", frozen, eq)]
 #[derive(Clone, Debug, PartialEq)]

@@ -5,14 +5,13 @@
 //! schema's defaults, the conversion of array-likes and the docs.
 #![allow(non_snake_case)]
 
-use crate::convert::{array, py_err, read, slice, status};
+use crate::convert::{array, methods, py_err, read, slice, status};
 use crate::convert::{Array, PyStatus};
 use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
 use numpy::{PyUntypedArrayMethods, ToPyArray};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::{IntoPyDict, PyDict};
-use pyo3::IntoPyObjectExt;
 use sensaug_core::estimator::{ExtendedFilterConfig, HandleModel};
 use sensaug_core::estimator::{GainEstimator as CoreGain, TrajectoryEstimator as CoreTrajectory};
 use sensaug_core::goal::{ChannelConfig, GoalIntegrator as CoreGoal, GoalIntegratorConfig};
@@ -60,21 +59,6 @@ pub fn run_batch<'py>(
     }
     let array = |v: Vec<f64>| PyArray1::from_vec(py, v).reshape([T, n]);
     Ok((array(x)?, array(var)?))
-}
-
-/// `#[pymethods]` of `$name`: `$methods`, then one-line getters, each
-/// `name = |inner, py| value` over the class's core value `inner`.
-macro_rules! methods {
-    ($name:ident { $($methods:tt)* } $($get:ident = |$s:ident, $py:ident| $e:expr;)*) => {
-        #[pymethods]
-        impl $name {
-            $($methods)*
-            $(#[getter] fn $get(&self, $py: Python<'_>) -> PyResult<Py<PyAny>> {
-                let $s = &self.inner;
-                ($e).into_py_any($py)
-            })*
-        }
-    };
 }
 
 /// One class over a core estimator of the 6-state extended model with `$m`

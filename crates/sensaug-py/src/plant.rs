@@ -1,7 +1,7 @@
 //! `sensaug._core.Plant`: the 1-DoF handle, steppable or run over a whole
 //! torque sequence in one core call. Conversion only: every argument
 //! required; `sensaug.Plant` adds the schema's defaults and the docs.
-use crate::convert::{py_err, slice};
+use crate::convert::{methods, py_err, slice};
 use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1};
 use pyo3::prelude::*;
 use sensaug_core::plant::{Plant as CorePlant, PlantParams, PlantState};
@@ -14,8 +14,7 @@ pub struct Plant {
     inner: CorePlant,
 }
 
-#[pymethods]
-impl Plant {
+methods!(Plant {
     #[new]
     #[pyo3(signature = (*, mass, damping, coulomb, dt_s, x0, v0))]
     fn new(mass: f64, damping: f64, coulomb: f64, dt_s: f64, x0: f64, v0: f64) -> PyResult<Self> {
@@ -27,16 +26,6 @@ impl Plant {
         };
         let inner = CorePlant::starting_at(params, PlantState { x: x0, v: v0 }).map_err(py_err)?;
         Ok(Plant { inner })
-    }
-
-    #[getter]
-    fn x(&self) -> f64 {
-        self.inner.state().x
-    }
-
-    #[getter]
-    fn v(&self) -> f64 {
-        self.inner.state().v
     }
 
     fn step(&mut self, torque: f64) -> PyResult<(f64, f64)> {
@@ -55,3 +44,6 @@ impl Plant {
         Ok((xs.into_pyarray(py), vs.into_pyarray(py)))
     }
 }
+    x = |s, _py| s.state().x;
+    v = |s, _py| s.state().v;
+);
