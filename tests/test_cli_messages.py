@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
+from test_rig import stall_tolerant
 
 from sensaug import cli, experiment, presets
 
@@ -109,8 +110,7 @@ def test_ctrl_c_on_the_rig_reports_an_interruption_and_only_completed_phases(tmp
     """Ctrl-C as a terminal sends it: SIGINT to the whole process group
     (the command, the virtual drive, sensaug-rt), once the log shows the
     second phase has begun."""
-    cfg = presets.hi5_rig(phase_s=3.0)
-    cfg.rig.feedback_timeout_ms, cfg.rig.watchdog_ms = 300.0, 200  # this shared machine stalls now and then
+    cfg = stall_tolerant(presets.hi5_rig(phase_s=3.0))  # the subject is the interruption
     cfg.to_toml(tmp_path / "rig.toml")
     out = tmp_path / "out"
     proc = subprocess.Popen(
@@ -144,8 +144,7 @@ def test_the_rig_with_a_person_prints_no_truth(tmp_path: Path) -> None:
     cfg.robot.gain_window_s = 1.0
     cfg.rig.virtual_human = False
     cfg.rig.realtime.fifo_priority = 20  # as the rig tests: this shared machine must not starve the drive
-    cfg.rig.feedback_timeout_ms, cfg.rig.watchdog_ms, cfg.rig.max_stale_feedback_ticks = 300.0, 200, 1000
-    cfg.to_toml(tmp_path / "person.toml")
+    stall_tolerant(cfg).to_toml(tmp_path / "person.toml")
     proc = subprocess.run(
         [sys.executable, "-m", "sensaug", "rig", str(tmp_path / "person.toml"), "--out", str(tmp_path / "out"),
          "--no-capture", "--quiet"], capture_output=True, text=True, timeout=120,

@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from test_rig import stall_tolerant
 
 from sensaug import presets
 
@@ -38,9 +39,7 @@ def _env() -> dict[str, str]:
 @pytest.fixture(scope="module")
 def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     cwd = tmp_path_factory.mktemp("docs_examples")
-    cfg = presets.hi5_rig(phase_s=2.0)
-    cfg.rig.feedback_timeout_ms, cfg.rig.watchdog_ms = 300.0, 200  # this shared machine stalls now and then
-    cfg.to_toml(cwd / "short.toml")
+    stall_tolerant(presets.hi5_rig(phase_s=2.0)).to_toml(cwd / "short.toml")
     # The examples need a rig log, not a perfect run: a run this shared
     # machine stalls into a safety stop (exit 1) still writes one. A run that
     # never started (the drive too slow to boot under load) is tried again.

@@ -9,6 +9,7 @@ import threading
 
 import numpy as np
 import pytest
+from test_rig import stall_tolerant
 
 from sensaug import presets, rig
 from sensaug.feed import FeedReader, parse
@@ -17,8 +18,7 @@ pytestmark = pytest.mark.timeout(120)
 
 
 def test_a_subscriber_gets_every_row_of_the_log_and_the_end_status(tmp_path):
-    cfg = presets.hi5_rig(phase_s=0.7)
-    cfg.rig.feedback_timeout_ms, cfg.rig.watchdog_ms = 300.0, 200  # a loaded 2-core VM; the subject is the feed
+    cfg = stall_tolerant(presets.hi5_rig(phase_s=0.7))  # the subject is the feed
     batches = []
     with FeedReader(0) as reader:
 

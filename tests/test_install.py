@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from test_rig import RIG_TEST_FIFO_PRIORITY
+from test_rig import RIG_TEST_FIFO_PRIORITY, stall_tolerant
 
 from sensaug import _resources, presets
 
@@ -242,8 +242,7 @@ def test_short_demo_completes(installed: Installed) -> None:
     ``python -m sensaug_bridge.virtual_hi5`` of the venv, the binary of the
     sensaug-rt wheel. 2 s phases; the rig's stall limits at the schema's
     bounds (this shared machine stalls for tens of ms now and then)."""
-    cfg = presets.hi5_rig(phase_s=2.0)
-    cfg.rig.feedback_timeout_ms, cfg.rig.watchdog_ms = 300.0, 200
+    cfg = stall_tolerant(presets.hi5_rig(phase_s=2.0))
     cfg.rig.realtime.fifo_priority = RIG_TEST_FIFO_PRIORITY  # loop and drive (tests/test_rig.py)
     cfg.to_toml(installed.cwd / "short.toml")
     out = installed.run(installed.bin("sensaug"), "demo", "--config", "short.toml", "--out", "demo", timeout=120)

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_rig import stall_tolerant
 
 from sensaug import logs, presets, topics
 from sensaug.export import RUN_TOPIC
@@ -76,12 +77,10 @@ def test_the_layout_file_is_the_generated_one():
 
 
 def short_rig():
-    """A 3 s virtual-rig run (three 1 s phases) with the widest feedback
-    timeout and watchdog (300 ms, 200 ms): on this loaded 2-core VM the loop
-    or the Python drive stalls now and then; the subject is the live view."""
-    cfg = presets.hi5_rig(phase_s=1.0)
-    cfg.rig.feedback_timeout_ms, cfg.rig.watchdog_ms = 300.0, 200
-    return cfg
+    """A 3 s virtual-rig run (three 1 s phases), stall-tolerant
+    (test_rig.stall_tolerant): on this loaded 2-core VM the loop or the
+    Python drive stalls now and then; the subject is the live view."""
+    return stall_tolerant(presets.hi5_rig(phase_s=1.0))
 
 
 def wait_for(cond, timeout_s: float) -> bool:
