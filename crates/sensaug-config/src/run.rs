@@ -1,8 +1,8 @@
 //! What runs from a resolved configuration: the core's protocol and the
 //! robot's controller built from it, a simulated trial with its log kept in
-//! memory, the controller re-run over a recorded trial, and the metadata a log of any run records (the configuration's
-//! serialisation). The binding, the replay and `sensaug-rt` build these
-//! here, not each by hand.
+//! memory, the controller re-run over a recorded trial, and the metadata a
+//! log of any run records (the configuration's serialisation). The binding,
+//! the replay and `sensaug-rt` build these here, not each by hand.
 
 use crate::error::ConfigError;
 use crate::Resolved;
