@@ -338,7 +338,7 @@ def _stale_commands(pr: Processes, count: int = 5) -> None:
 
 
 def test_malformed_frames_are_dropped_and_counted_on_both_sides(procs):
-    pr = procs(short_config())
+    pr = procs(stall_tolerant(short_config()))  # the subject is the frames, not the stall limits
     pr.start_controller()
     time.sleep(1.0)
     _garbage(pr.port)
@@ -362,7 +362,7 @@ def test_a_second_command_source_faults_the_drive(procs):
     controller's): the drive latches FAULT(SEQUENCE), and the controller stops
     on whichever it sees first: the drive's fault (exit 1) or the foreign
     command itself (exit 4, tests/test_rig_faults.py)."""
-    pr = procs(short_config(gain_s=10.0))
+    pr = procs(stall_tolerant(short_config(gain_s=10.0)))
     pr.start_controller()
     time.sleep(1.0)
     _stale_commands(pr, count=1)
@@ -378,7 +378,7 @@ def test_a_second_command_source_faults_the_drive(procs):
 
 
 def test_sigterm_brakes_disables_and_flushes_the_log(procs):
-    pr = procs(short_config(gain_s=10.0))
+    pr = procs(stall_tolerant(short_config(gain_s=10.0)))
     pr.start_controller()
     time.sleep(2.0)
     pr.controller.send_signal(signal.SIGTERM)
