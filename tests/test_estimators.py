@@ -222,9 +222,15 @@ def test_run_arguments_and_step_errors_name_the_field(recorded):
         gi.run(np.zeros((10, 3)), np.zeros(10), np.zeros(9))
     with pytest.raises(ValueError, match="^y: must be C-contiguous"):
         gi.run(np.zeros((10, 6))[:, ::2], np.zeros(10), np.zeros(10))
+    # A Fortran-ordered y (as pandas' to_numpy() often returns) is contiguous
+    # too, but its data read row-major would be its transpose's: refused.
+    with pytest.raises(ValueError, match="^y: must be C-contiguous"):
+        gi.run(np.asfortranarray(y[:10, :3]), np.zeros(10), np.zeros(10))
     kw6 = dict(mass=M, dt=DT, Q=1e-2 * np.eye(6), R=1e-7 * np.eye(3), x0=np.zeros(6), P0=np.eye(6))
     with pytest.raises(ValueError, match=r"^y: expected shape \(T, 3\)"):
         sensaug.GainEstimator(**kw6).run(y[:10, :2].copy(), u[:10], dtau[:10], dtau_h[:10])
+    with pytest.raises(ValueError, match="^y: must be C-contiguous"):
+        sensaug.GainEstimator(**kw6).run(np.asfortranarray(y[:10]), u[:10], dtau[:10], dtau_h[:10])
     with pytest.raises(ValueError, match=r"^y: expected 27 values \(one row per tick of u\), got 30"):
         sensaug.GainEstimator(**kw6).run(y[:10], u[:9], dtau[:10], dtau_h[:10])
     bad = y[:200].copy()

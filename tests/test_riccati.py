@@ -289,6 +289,21 @@ def test_core_rejects_what_python_layer_checks() -> None:
         sensaug._core.lqr(A, B, Q, -R, discrete=False)
     with pytest.raises(ValueError, match="^A: contains NaN"):
         sensaug._core.lqr(A * np.nan, B, Q, R, discrete=False)
+    # Fortran order is contiguous too; read row-major it would be A's transpose.
+    with pytest.raises(ValueError, match="^A: must be C-contiguous"):
+        sensaug._core.lqr(np.asfortranarray(A), B, Q, R, discrete=False)
+
+
+def test_any_memory_order_gives_the_same_gains() -> None:
+    """``sensaug.lqr`` takes Fortran-ordered and strided arrays as the
+    matrices they are (its copy is C-ordered): the same K and X as C order."""
+    A, B, Q, R = _good3()
+    assert not np.allclose(A, A.T), "the check needs an asymmetric A"
+    want = sensaug.lqr(A, B, Q, R)
+    for layout in (np.asfortranarray, lambda m: np.repeat(m, 2, axis=1)[:, ::2]):
+        got = sensaug.lqr(layout(A), layout(B), layout(Q), layout(R))
+        for w, g in zip(want, got):
+            np.testing.assert_array_equal(g, w)
 
 
 def test_convergence_error_is_runtime_error() -> None:

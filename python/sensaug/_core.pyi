@@ -43,8 +43,9 @@ def lqr(
     *,
     discrete: bool,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """``(K, X)`` of ``sensaug.lqr`` (its docs); each matrix a C-contiguous
-    2-D array (anything else is pyo3's ``TypeError``); named in errors."""
+    """``(K, X)`` of ``sensaug.lqr`` (its docs); each matrix a 2-D float64
+    array (another ndim or dtype: pyo3's ``TypeError``), C-contiguous (else a
+    ``ValueError`` naming it)."""
 
 def agent_gains(*, mass: float, damping: float, q_pos: float, q_vel: float) -> tuple[float, float]:
     """``(k_pos, k_vel)`` of ``sensaug.agent_gains`` (its docs)."""

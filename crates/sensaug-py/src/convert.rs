@@ -4,6 +4,7 @@
 //! errors -> Python (an error's message is the core's own `Display`).
 use nalgebra::SMatrix;
 use numpy::PyReadonlyArrayDyn;
+use numpy::PyUntypedArrayMethods;
 use numpy::{PyArray1, PyArrayDyn, PyArrayMethods, PyReadonlyArray, PyReadonlyArray1};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::types::PyTuple;
@@ -43,13 +44,17 @@ pub fn read<const R: usize, const C: usize>(
     Ok(SMatrix::from_row_iterator(v.iter().copied()))
 }
 
-/// A C-contiguous array's data, row-major.
+/// A C-contiguous array's data, row-major. Any other layout is an error:
+/// numpy's `as_slice` also takes a Fortran-ordered array (as pandas'
+/// `to_numpy()` often returns), whose data read row-major would be its
+/// transpose's.
 pub fn slice<'a, T: numpy::Element, D: numpy::ndarray::Dimension>(
     a: &'a PyReadonlyArray<'_, T, D>,
     name: &str,
 ) -> PyResult<&'a [T]> {
     let msg = || format!("{name}: must be C-contiguous (use np.ascontiguousarray)");
-    a.as_slice().map_err(|_| PyValueError::new_err(msg()))
+    let data = a.as_slice().ok().filter(|_| a.is_c_contiguous());
+    data.ok_or_else(|| PyValueError::new_err(msg()))
 }
 
 /// A core matrix as a numpy array of shape [`dims`].
