@@ -44,10 +44,52 @@ def experiment_config(drive: str):
     return cfg
 
 
+#: The partner gain estimate's goal: within 0.02 of Lhh = 2, and
+#: Lhx^, Lhv^ within 0.02 of 0 (the virtual human's gains).
+GAIN_GOAL = 0.02
+
+#: Consecutive gain-phase ticks without fresh feedback that can explain a
+#: missed goal: in the full run on ae2fba3 the echo-mode run lost 29 (the
+#: Python drive descheduled on the loaded VM) just as the partner gain
+#: converged, and its Lhh^ ended 1.979; the Hi5 and standard runs lost 33
+#: and 28 at other times of the phase and ended 1.999. Gaps of 10-30 ticks
+#: are common here (all three runs of an idle rerun had one).
+GAIN_PHASE_GAP_TICKS = 10
+
+
+def gains_within_goal(run: rig.RigRun) -> bool:
+    est, true = run.stats["partner_gains_estimate"], run.stats["partner_gains_true"]
+    return all(abs(e - t) < GAIN_GOAL for e, t in zip(est, true))
+
+
+def longest_gain_phase_gap(run: rig.RigRun) -> int:
+    """The most consecutive gain-phase ticks without fresh feedback."""
+    stale = ~run.log["fresh"][run.log["phase"] == 0]
+    longest = current = 0
+    for s in stale:
+        current = current + 1 if s else 0
+        longest = max(longest, current)
+    return longest
+
+
+def run_profile(drive: str, out) -> rig.RigRun:
+    """One run of ``drive``, and once more (printed) when it missed the gain
+    goal after losing GAIN_PHASE_GAP_TICKS consecutive feedbacks in the gain
+    phase: the machine's stall, not the profile. A miss without such a gap,
+    or a second miss, fails the outcome test."""
+    run = rig.run_virtual_rig(experiment_config(drive), out=out / drive)
+    gap = longest_gain_phase_gap(run)
+    if not gains_within_goal(run) and gap >= GAIN_PHASE_GAP_TICKS:
+        est = run.stats["partner_gains_estimate"]
+        print(f"\n{drive}: gains {est} missed the goal after {gap} consecutive lost feedbacks; run again")
+        run = rig.run_virtual_rig(experiment_config(drive), out=out / f"{drive}-again")
+    return run
+
+
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     out = tmp_path_factory.mktemp("rig_profiles")
-    return {d: rig.run_virtual_rig(experiment_config(d), out=out / d) for d in ("hi5", *CIA402_RUNS)}
+    return {d: run_profile(d, out) for d in ("hi5", *CIA402_RUNS)}
 
 
 @pytest.mark.parametrize("drive", CIA402_RUNS)
@@ -118,10 +160,9 @@ def test_cia402_gives_the_hi5_outcomes(runs, drive):
     hi5, cia = runs["hi5"], runs["cia402"]
     for run in (hi5, cia):
         assert run.stats["stop_reason"] == "completed", run.stderr
-    true = np.array(cia.stats["partner_gains_true"])
     est = {d: np.array(r.stats["partner_gains_estimate"]) for d, r in runs.items()}
-    for d, e in est.items():
-        assert abs(e[2] - true[2]) < 0.02 and abs(e[0]) < 0.02 and abs(e[1]) < 0.02, (d, e)
+    for d, r in runs.items():
+        assert gains_within_goal(r), (d, est[d], f"longest gain-phase gap {longest_gain_phase_gap(r)} ticks")
     np.testing.assert_allclose(est["cia402"], est["hi5"], atol=0.02)
     rmse = {d: r.partner_target_rmse() for d, r in runs.items()}
     integ = {d: r.integration_rmse() for d, r in runs.items()}
