@@ -287,7 +287,7 @@ impl<'a> Robot<'a> {
             (kind == PhaseKind::Integration).then(|| self.identifier.trajectory().partner_torque());
         self.identifier.predict(kind, applied, dtau, dtau_h);
         if let Some(u_h_hat) = u_h_hat {
-            let r = self.stage3.predict(applied + u_h_hat, 0.0);
+            let r = self.stage3.predict_finite(applied + u_h_hat, 0.0);
             self.stage3_tally.note(r);
         }
     }

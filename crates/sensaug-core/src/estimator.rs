@@ -461,6 +461,21 @@ impl GainEstimator {
     /// [`UkfError::NonFiniteInput`]).
     pub fn predict(&mut self, u: f64, dtau: f64, dtau_h: f64) -> Result<Status, UkfError> {
         finite_inputs(&[u, dtau, dtau_h], "u, dtau, dtau_h")?;
+        self.predict_finite(u, dtau, dtau_h)
+    }
+
+    /// [`GainEstimator::predict`] without the argument check, for the
+    /// robot's tick (its inputs are finite by construction: a guarded
+    /// command, the protocol's increments) and the batch replays (which
+    /// report a bad input as that step's error): the filter still refuses a
+    /// non-finite input ([`UkfError::NonFiniteProcess`]), after the same
+    /// finiteness test the check would repeat.
+    pub(crate) fn predict_finite(
+        &mut self,
+        u: f64,
+        dtau: f64,
+        dtau_h: f64,
+    ) -> Result<Status, UkfError> {
         // The process is built per call on purpose: inlined into the
         // predict (the extension's one codegen unit), its constant F, g and
         // q fold into the arithmetic; one kept in the struct and read from
@@ -573,6 +588,17 @@ impl TrajectoryEstimator {
     /// unknown, so pass `dtau_h = 0` (its motion is left to the process noise).
     pub fn predict(&mut self, u: f64, dtau: f64, dtau_h: f64) -> Result<Status, UkfError> {
         finite_inputs(&[u, dtau, dtau_h], "u, dtau, dtau_h")?;
+        self.predict_finite(u, dtau, dtau_h)
+    }
+
+    /// [`TrajectoryEstimator::predict`] without the argument check (see
+    /// [`GainEstimator::predict_finite`]).
+    pub(crate) fn predict_finite(
+        &mut self,
+        u: f64,
+        dtau: f64,
+        dtau_h: f64,
+    ) -> Result<Status, UkfError> {
         self.ukf
             .predict_bilinear(&extended_transition(&self.step, u, dtau, dtau_h))
     }

@@ -483,6 +483,14 @@ impl GoalIntegrator {
     /// ([`UkfError::NonFiniteInput`]), is an error and changes nothing.
     pub fn predict(&mut self, u: f64, dtau: f64) -> Result<Status, UkfError> {
         crate::estimator::finite_inputs(&[u, dtau], "u, dtau")?;
+        self.predict_finite(u, dtau)
+    }
+
+    /// [`GoalIntegrator::predict`] without the argument check, for the
+    /// robot's tick and the replays (see
+    /// [`crate::estimator::GainEstimator::predict_finite`]); a non-finite
+    /// input still overflows into an error that changes nothing.
+    pub(crate) fn predict_finite(&mut self, u: f64, dtau: f64) -> Result<Status, UkfError> {
         let (F, b) = error_transition(&self.step, u, dtau);
         let (f01, f11) = (F[(0, 1)], F[(1, 1)]);
         let (q00, q01, q11) = (self.Q[(0, 0)], self.Q[(0, 1)], self.Q[(1, 1)]);

@@ -418,8 +418,10 @@ impl Identifier {
     pub fn predict(&mut self, kind: PhaseKind, u: f64, dtau_own: f64, dtau_partner: f64) {
         self.view.dtau = dtau_own;
         let r = match (&mut self.delayed, kind) {
-            (Delayed::Paper, PhaseKind::Gains) => self.stage1.predict(u, dtau_own, dtau_partner),
-            (Delayed::Paper, _) => self.stage2.predict(u, dtau_own, 0.0),
+            (Delayed::Paper, PhaseKind::Gains) => {
+                self.stage1.predict_finite(u, dtau_own, dtau_partner)
+            }
+            (Delayed::Paper, _) => self.stage2.predict_finite(u, dtau_own, 0.0),
             (
                 Delayed::On {
                     delays: (dv, dp),

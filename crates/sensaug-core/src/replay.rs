@@ -295,7 +295,7 @@ macro_rules! replay_extended {
                 self.update(&row::<$m>(y))
             }
             fn predict_input(&mut self, i: Input) -> Result<Status, UkfError> {
-                self.predict(i.u, i.dtau, i.dtau_h)
+                self.predict_finite(i.u, i.dtau, i.dtau_h)
             }
             fn posterior(&self, x: &mut [f64], var: &mut [f64]) {
                 write_posterior(self.filter().x(), self.filter().P(), x, var)
@@ -355,7 +355,7 @@ impl Replay for GoalReplay<'_> {
             .update(&Vector2::new(own[0], own[1]), channel)
     }
     fn predict_input(&mut self, i: Input) -> Result<Status, UkfError> {
-        self.integrator.predict(i.u, i.dtau)
+        self.integrator.predict_finite(i.u, i.dtau)
     }
     fn posterior(&self, x: &mut [f64], var: &mut [f64]) {
         let e = self.integrator.estimate(true);
