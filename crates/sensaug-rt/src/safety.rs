@@ -23,7 +23,8 @@ pub enum Implausible {
         /// `rig.max_feedback_velocity_rad_s`.
         limit_rad_s: f64,
     },
-    /// `|x - x_prev| > allowed` (rad).
+    /// `|x - x_prev| > allowed` (rad) ([`max_step_rad`] over
+    /// [`Previous::ticks_sampled_apart`]).
     Step {
         /// The position step from the previous feedback.
         step_rad: f64,
@@ -65,7 +66,7 @@ impl fmt::Display for Implausible {
             } => write!(
                 f,
                 "position step {step_rad:.4} rad > {allowed_rad:.4} rad allowed \
-                 (rig.max_feedback_velocity_rad_s x time since the last feedback \
+                 (rig.max_feedback_velocity_rad_s x time between the two feedbacks \
                  + rig.feedback_step_margin_rad)"
             ),
             Implausible::Inconsistent {
@@ -311,11 +312,11 @@ impl fmt::Display for StopReason {
     }
 }
 
-/// The largest position step between two feedbacks `ticks_apart` ticks of
-/// `dt_s` apart: `v_max * (max(ticks_apart, 1) + 1) * dt + margin` (one
-/// tick added for the receive jitter of either feedback).
-pub fn max_step_rad(v_max_rad_s: f64, ticks_apart: u64, dt_s: f64, margin_rad: f64) -> f64 {
-    v_max_rad_s * (ticks_apart.max(1) + 1) as f64 * dt_s + margin_rad
+/// The largest position step between two feedbacks sampled `ticks` ticks
+/// of `dt_s` apart: `v_max * (max(ticks, 1) + 1) * dt + margin` (one tick
+/// added for the receive jitter of either feedback).
+pub fn max_step_rad(v_max_rad_s: f64, ticks: u64, dt_s: f64, margin_rad: f64) -> f64 {
+    v_max_rad_s * (ticks.max(1) + 1) as f64 * dt_s + margin_rad
 }
 
 /// One feedback: position (rad) and velocity (rad/s).
@@ -343,6 +344,19 @@ pub struct Previous {
     /// steps between two feedbacks are then anything from 1 to `steps` + 1
     /// ([`DriveLink::steps_exact`](sensaug_bridge::drive_link::DriveLink::steps_exact)).
     pub steps_exact: bool,
+}
+
+impl Previous {
+    /// The ticks between the two feedbacks' samples, at most: the ticks
+    /// between their receptions, or the drive steps between their commands
+    /// when more (one more when `steps` is inexact). The steps are more when
+    /// the previous feedback itself came late: a drive that stalled after
+    /// answering one command sends that answer with the next answer,
+    /// one tick apart, though the two answers are many commands apart.
+    pub fn ticks_sampled_apart(&self) -> u64 {
+        let steps = u64::from(self.steps) + u64::from(!self.steps_exact);
+        self.ticks_apart.max(steps)
+    }
 }
 
 /// What physics allows a feedback (`[rig]` and `[plant]`, docs/safety.md).
@@ -391,7 +405,7 @@ impl FeedbackLimits {
         let step_rad = (now.x_rad - p.reading.x_rad).abs();
         let allowed_rad = max_step_rad(
             self.max_velocity_rad_s,
-            p.ticks_apart,
+            p.ticks_sampled_apart(),
             self.dt_s,
             self.step_margin_rad,
         );
@@ -1014,6 +1028,35 @@ mod tests {
         );
         // 40 ticks apart allow 0.338 rad (at 7.5 rad/s over 40 steps: consistent).
         assert_eq!(check(0.3, 7.5, prev(0.0, 7.5, 40, 40)), Ok(()));
+    }
+
+    #[test]
+    fn a_late_answer_then_the_next_one_tick_later_are_bounded_by_their_steps() {
+        let check = |x, v, p| LIMITS.check(at(x, v), p);
+        // A CI run: the drive stopped after answering one command and sent
+        // that answer on resuming, then the answer to the 25 commands queued
+        // meanwhile one tick later; 1.06 rad/s over those 25 steps moved
+        // 26.5 mrad, more than one tick allows (26 mrad).
+        let moved = 1.06 * 0.025;
+        assert_eq!(check(moved, 1.06, prev(0.0, 1.06, 1, 25)), Ok(()));
+        // The same step one drive step apart is the jump the check is for.
+        assert!(matches!(
+            check(moved, 1.06, prev(0.0, 1.06, 1, 1)),
+            Err(Implausible::Step { .. })
+        ));
+        // 25 steps bound the step as 25 ticks do: 8 rad/s x 26 ms + 10 mrad.
+        let limit = 8.0 * 0.026 + 0.01;
+        let beyond = |p: Option<Previous>| match check(limit + 1e-4, 0.0, p) {
+            Err(Implausible::Step { allowed_rad, .. }) => (allowed_rad - limit).abs() < 1e-12,
+            _ => false,
+        };
+        assert!(beyond(prev(0.0, 0.0, 1, 25)) && beyond(prev(0.0, 0.0, 25, 1)));
+        // Standard CiA 402: one step more than counted.
+        let inexact = Previous {
+            steps_exact: false,
+            ..prev(0.0, 0.0, 1, 24).unwrap()
+        };
+        assert_eq!(inexact.ticks_sampled_apart(), 25);
     }
 
     /// One exact zero-order-hold step of the plant under a constant torque.

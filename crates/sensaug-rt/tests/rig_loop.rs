@@ -24,7 +24,7 @@ use alloc_counter::allocations;
 #[path = "common/drive.rs"]
 mod drive;
 
-use drive::{drive, free_port};
+use drive::{drive, drive_stalling, free_port, Stall};
 
 #[path = "common/trial.rs"]
 mod trial;
@@ -44,11 +44,19 @@ struct Outcome {
     rows: Vec<Row>,
 }
 
-fn run_loop(answer_for: u64, stop_after: Option<Duration>, spin_us: u32) -> Outcome {
+/// A drive thread on a loopback port, stopped by the flag.
+type StartDrive = fn(u16, Arc<AtomicBool>) -> std::thread::JoinHandle<()>;
+
+/// The drive of most tests: it answers every command.
+fn answering(port: u16, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<()> {
+    drive(port, stop, u64::MAX)
+}
+
+fn run_loop(start_drive: StartDrive, stop_after: Option<Duration>, spin_us: u32) -> Outcome {
     let resolved = load_str(CONFIG, Format::Toml).unwrap();
     let port = free_port();
     let drive_stop = Arc::new(AtomicBool::new(false));
-    let handle = drive(port, Arc::clone(&drive_stop), answer_for);
+    let handle = start_drive(port, Arc::clone(&drive_stop));
     let robot = resolved.controller().unwrap();
     let settings = LoopSettings {
         spin_us,
@@ -110,7 +118,7 @@ fn assert_completed_and_recorded(o: &Outcome) {
 
 #[test]
 fn a_whole_trial_completes_without_allocating_and_logs_every_tick() {
-    let o = run_loop(u64::MAX, None, 0);
+    let o = run_loop(answering, None, 0);
     assert_completed_and_recorded(&o);
     // Without a spin the sleep's target is the deadline: one latency.
     assert!(o
@@ -158,7 +166,7 @@ fn assert_the_model_sees_the_torque_applied(o: &Outcome) {
 
 #[test]
 fn the_stop_flag_brakes_without_allocating_and_stops() {
-    let o = run_loop(u64::MAX, Some(Duration::from_millis(700)), 0);
+    let o = run_loop(answering, Some(Duration::from_millis(700)), 0);
     assert_eq!(o.reason, StopReason::Signal(libc::SIGTERM));
     assert_eq!(o.allocations, 0, "the loop allocated");
     assert!(o.ticks < 3500);
@@ -167,7 +175,7 @@ fn the_stop_flag_brakes_without_allocating_and_stops() {
 
 #[test]
 fn a_silent_drive_trips_the_feedback_timeout() {
-    let o = run_loop(300, None, 0);
+    let o = run_loop(|p, s| drive(p, s, 300), None, 0);
     assert_eq!(o.reason, StopReason::FeedbackTimeout);
     // 300 answered commands, then the 50 ms timeout (+ the tick that
     // notices) before stopping.
@@ -177,7 +185,7 @@ fn a_silent_drive_trips_the_feedback_timeout() {
 
 #[test]
 fn with_a_spin_every_tick_records_both_latencies_without_allocating() {
-    let o = run_loop(u64::MAX, None, 100);
+    let o = run_loop(answering, None, 100);
     assert_completed_and_recorded(&o);
     for r in &o.rows {
         assert!(r.wake_latency_us >= 0.0, "tick {}", r.tick);
@@ -187,4 +195,35 @@ fn with_a_spin_every_tick_records_both_latencies_without_allocating() {
             r.tick
         );
     }
+}
+
+#[test]
+fn a_late_answer_sent_with_the_next_is_not_taken_for_a_jump() {
+    // When the handle moves faster than 1.1 rad/s (at most once per 100
+    // commands) the drive stalls 25 ms after stepping its plant, then sends
+    // that answer and, about a tick later, the answer to the 25 commands
+    // queued meanwhile (a CI run's virtual drive, stopped by the test
+    // between the two): two feedbacks received about a tick apart, 25
+    // drive steps apart.
+    let stalling = |port, stop| {
+        let stall = Stall {
+            above_rad_s: 1.1,
+            every: 100,
+            duration: Duration::from_millis(25),
+        };
+        drive_stalling(port, stop, stall)
+    };
+    let o = run_loop(stalling, None, 0);
+    assert_eq!(o.reason, StopReason::Completed);
+    assert_eq!(o.allocations, 0, "the loop allocated");
+    // The case happened: a feedback moved more than one tick allows
+    // (8 rad/s x 2 ms + 10 mrad) from the one before it.
+    let rad_per_unit = load_str(CONFIG, Format::Toml).unwrap().rad_per_unit;
+    let largest_step_rad = o
+        .rows
+        .windows(2)
+        .map(|w| (w[1].x_meas - w[0].x_meas).abs() * rad_per_unit)
+        .fold(0.0, f64::max);
+    eprintln!("largest step between two ticks' feedback: {largest_step_rad:.4} rad");
+    assert!(largest_step_rad > 0.026, "{largest_step_rad}");
 }

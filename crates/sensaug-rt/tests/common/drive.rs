@@ -56,12 +56,42 @@ pub fn drive_waiting(
     answer_for: u64,
     wait: DriveWait,
 ) -> JoinHandle<()> {
+    serve(port, stop, answer_for, wait, None)
+}
+
+/// A drive that stalls after stepping its plant for a command, when the
+/// handle moves fast.
+#[derive(Clone, Copy, Debug)]
+pub struct Stall {
+    /// At a speed above this (rad/s).
+    pub above_rad_s: f64,
+    /// At most once per this many commands answered.
+    pub every: u64,
+    /// For this long, before sending that command's answer.
+    pub duration: Duration,
+}
+
+/// [`drive`] stalling as `stall` says: after the stall it sends the held
+/// answer, then steps its plant for each command queued meanwhile and
+/// answers only the last (as the virtual Hi5 drive does after a stall).
+pub fn drive_stalling(port: u16, stop: Arc<AtomicBool>, stall: Stall) -> JoinHandle<()> {
+    serve(port, stop, u64::MAX, DriveWait::Sleeping, Some(stall))
+}
+
+fn serve(
+    port: u16,
+    stop: Arc<AtomicBool>,
+    answer_for: u64,
+    wait: DriveWait,
+    stall: Option<Stall>,
+) -> JoinHandle<()> {
     std::thread::spawn(move || {
         let node = NodeId::new(1).unwrap();
         let mut bus = UdpBus::open(port).unwrap();
         let mut plant = Plant::new(PlantParams::HI5).unwrap();
         let mut state = DriveState::Disabled;
         let mut answered = 0u64;
+        let mut stalled_at = 0u64;
         let mut last_beat = Instant::now() - Duration::from_secs(1);
         while !stop.load(Ordering::Relaxed) {
             if last_beat.elapsed() > Duration::from_millis(20) {
@@ -100,17 +130,41 @@ pub fn drive_waiting(
                     torque_nm,
                     sequence,
                 }) if state == DriveState::Enabled && answered < answer_for => {
-                    let s = plant.step(torque_nm).unwrap();
-                    let fb = Message::Feedback {
-                        position_rad: s.x,
-                        velocity_rad_s: s.v,
-                        sequence,
-                        state,
-                        torque_limited: false,
-                        fault_active: false,
-                    };
-                    bus.send(&encode(node, &fb).unwrap()).unwrap();
+                    let feedback =
+                        |s: sensaug_core::plant::PlantState, sequence| Message::Feedback {
+                            position_rad: s.x,
+                            velocity_rad_s: s.v,
+                            sequence,
+                            state,
+                            torque_limited: false,
+                            fault_active: false,
+                        };
+                    let now = plant.step(torque_nm).unwrap();
+                    let fb = feedback(now, sequence);
                     answered += 1;
+                    let stalls =
+                        |s: &Stall| now.v.abs() > s.above_rad_s && answered >= stalled_at + s.every;
+                    if let Some(stall) = stall.filter(stalls) {
+                        stalled_at = answered;
+                        std::thread::sleep(stall.duration);
+                        bus.send(&encode(node, &fb).unwrap()).unwrap();
+                        let mut last = None;
+                        while let Ok(Some(f)) = bus.recv_ready() {
+                            if let Ok(Message::TorqueCommand {
+                                torque_nm,
+                                sequence,
+                            }) = decode(node, &f)
+                            {
+                                last = Some(feedback(plant.step(torque_nm).unwrap(), sequence));
+                                answered += 1;
+                            }
+                        }
+                        if let Some(fb) = last {
+                            bus.send(&encode(node, &fb).unwrap()).unwrap();
+                        }
+                    } else {
+                        bus.send(&encode(node, &fb).unwrap()).unwrap();
+                    }
                 }
                 _ => {}
             }
