@@ -265,6 +265,14 @@ pub enum Absorbed {
         /// taken, from the two sequence numbers (Hi5) or SYNC counters
         /// (CiA 402); 0 for the first after the enable.
         steps: u32,
+        /// The most drive steps there can be between the two: `steps`
+        /// where the feedback says which command it answers (sequence
+        /// numbers, the SYNC counter echo); more in CiA 402's standard
+        /// mode, where an answer is placed on a SYNC by its arrival time
+        /// and a late answer looks like a later SYNC's
+        /// ([`StepWatch::answer_taken`]).
+        /// Any count from 1 to this one is then possible.
+        most_steps: u32,
     },
     /// A feedback not taken: a copy of the newest, an older one arriving
     /// after it (a replay, a late frame), or one answering no command sent.
@@ -363,14 +371,6 @@ pub trait DriveLink {
     fn absorb_received(&mut self, frame: &Frame, received: Option<SystemTime>) -> Absorbed {
         let _ = received;
         self.absorb(frame)
-    }
-
-    /// Whether [`Absorbed::Feedback`]'s `steps` is exact (sequence numbers
-    /// or the SYNC counter echo); false in CiA 402's standard mode, where a
-    /// late answer is placed on a later SYNC, so the steps between two
-    /// feedbacks may be fewer, or one more. Default: exact.
-    fn steps_exact(&self) -> bool {
-        true
     }
 
     /// After the frames of a drain: a feedback the link held back until
@@ -576,6 +576,7 @@ impl FeedbackOrder {
                     position_rad,
                     velocity_rad_s,
                     steps,
+                    most_steps: steps,
                 }
             }
             Order::Copy | Order::Stale => Absorbed::StaleFeedback,
@@ -880,6 +881,8 @@ pub struct StepWatch {
     in_step: bool,
     /// Answers taken but not fresh.
     out_of_step: u64,
+    /// The most SYNCs the last answer taken may be late by.
+    late_at_most: u32,
 }
 
 impl StepWatch {
@@ -892,6 +895,7 @@ impl StepWatch {
             answered_on_time: false,
             in_step: false,
             out_of_step: 0,
+            late_at_most: 0,
         }
     }
 
@@ -909,14 +913,32 @@ impl StepWatch {
         self.window_received = self.window_received.max(received);
     }
 
-    /// The answer to the last SYNC (sent at `sync_at`) was taken.
-    pub fn answer_taken(&mut self, sync_at: Option<SystemTime>) {
+    /// The answer to the last SYNC (sent at `sync_at`) was taken, placed
+    /// `steps` SYNCs after the answer taken before it. Returns the most
+    /// drive steps between the two answers' samples: `steps` plus the most
+    /// SYNCs the earlier answer may have been late by, at least one (an
+    /// answer one SYNC behind can look in step: docs/safety.md). An answer
+    /// in step is not late; one out of step answers a later SYNC than the
+    /// answer before it did (a drive answers in order, each SYNC once), so
+    /// it may be late by at most the returned count less one.
+    pub fn answer_taken(&mut self, sync_at: Option<SystemTime>, steps: u32) -> u32 {
         self.answered_on_time = match (self.window_received, sync_at) {
             (Some(r), Some(s)) => r.duration_since(s).is_ok_and(|d| d <= self.answer_window),
             _ => true,
         };
         self.in_step = self.previous_in_step && self.answered_on_time;
         self.out_of_step += u64::from(!self.in_step);
+        // 0 steps: the first answer after the enable (unknown, as `steps`).
+        let most_steps = match steps {
+            0 => 0,
+            _ => steps.saturating_add(self.late_at_most.max(1)),
+        };
+        self.late_at_most = if self.in_step {
+            0
+        } else {
+            most_steps.saturating_sub(1)
+        };
+        most_steps
     }
 
     /// A TPDO received before the last SYNC went out was read after it:
@@ -1139,10 +1161,6 @@ impl DriveLink for Cia402Link {
         }
     }
 
-    fn steps_exact(&self) -> bool {
-        !self.standard()
-    }
-
     /// Standard mode: the last SYNC's answer, taken now unless a second
     /// TPDO of a kind came after that SYNC (then neither is: the answer is
     /// ambiguous, maybe a late answer to the SYNC before). Taken but not
@@ -1154,9 +1172,16 @@ impl DriveLink for Cia402Link {
         if self.window_duplicated || counter != self.master.sync_counter() {
             return None;
         }
-        let absorbed = self.order.absorb(counter, x, v);
-        if let Absorbed::Feedback { .. } = absorbed {
-            self.step_watch.answer_taken(self.master.last_sync_at());
+        let mut absorbed = self.order.absorb(counter, x, v);
+        if let Absorbed::Feedback {
+            steps,
+            ref mut most_steps,
+            ..
+        } = absorbed
+        {
+            *most_steps = self
+                .step_watch
+                .answer_taken(self.master.last_sync_at(), steps);
         }
         Some(absorbed)
     }
@@ -1303,6 +1328,7 @@ mod tests {
             position_rad,
             velocity_rad_s,
             steps,
+            most_steps: steps,
         }
     }
 
@@ -1433,7 +1459,7 @@ mod tests {
         let answer = |w: &mut StepWatch, k: u64, duplicated: bool, us: Option<u64>| {
             w.sync_sent(duplicated);
             w.tpdo_received(us.map(|us| sync(k) + Duration::from_micros(us)));
-            w.answer_taken(us.map(|_| sync(k)));
+            w.answer_taken(us.map(|_| sync(k)), 1);
             w.in_step()
         };
         let mut w = StepWatch::new(Duration::from_micros(500));
@@ -1463,11 +1489,42 @@ mod tests {
         w.sync_sent(false);
         w.late_tpdo();
         w.tpdo_received(Some(sync(9) + Duration::from_micros(50)));
-        w.answer_taken(Some(sync(9)));
+        w.answer_taken(Some(sync(9)), 1);
         assert!(!w.in_step(), "after a late TPDO");
         // Without receive times only the unanswered SYNCs count.
         assert!(answer(&mut w, 10, false, None));
         assert_eq!(w.out_of_step(), 5);
+    }
+
+    #[test]
+    fn a_standard_answer_out_of_step_widens_the_steps_after_it_until_one_is_in_step() {
+        // SYNC `k` sent, answered (on time), placed `steps` SYNCs after the
+        // answer taken before: the most drive steps between the two.
+        let answer = |w: &mut StepWatch, steps: u64| {
+            for _ in 1..steps {
+                w.sync_sent(false); // unanswered
+            }
+            w.sync_sent(false);
+            w.answer_taken(None, steps as u32)
+        };
+        let mut w = StepWatch::new(Duration::from_micros(500));
+        w.enabled();
+        // In step: the previous answer may still be one SYNC behind.
+        assert_eq!(answer(&mut w, 1), 2);
+        // A drive that stalled after sampling SYNC 2 sends that answer
+        // after SYNC 4: placed on 4, 3 SYNCs after the last, out of step
+        // (SYNCs 2 and 3 went unanswered): 4 steps at most (the one before
+        // may have been 1 behind), so it may be 3 late (it is 2).
+        assert_eq!(answer(&mut w, 3), 4);
+        assert!(!w.in_step());
+        // Then SYNC 4's answer, placed on 5, 2 steps after SYNC 2's: 1
+        // counted, 4 at most. Two on-time answers: in step (it is one
+        // behind: what the floor of one is for), the widening ends.
+        assert_eq!(answer(&mut w, 1), 4);
+        assert!(w.in_step());
+        assert_eq!(answer(&mut w, 1), 2);
+        // The first answer after the enable: unknown, as its steps.
+        assert_eq!(answer(&mut w, 0), 0);
     }
 
     #[test]

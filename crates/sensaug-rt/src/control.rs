@@ -388,6 +388,7 @@ impl<'a> Rig<'a> {
             },
             0,
             0,
+            0,
         );
         rig.drive.sample = first;
         Ok(rig)
@@ -420,12 +421,13 @@ impl<'a> Rig<'a> {
                 position_rad,
                 velocity_rad_s,
                 steps,
+                most_steps,
             } => {
                 let reading = Reading {
                     x_rad: position_rad,
                     v_rad_s: velocity_rad_s,
                 };
-                self.take_feedback(reading, steps, tick);
+                self.take_feedback(reading, steps, most_steps, tick);
             }
             Absorbed::StaleFeedback => self.can.feedback_discarded += 1,
             Absorbed::ConflictingFeedback { sequence } => {
@@ -439,14 +441,14 @@ impl<'a> Rig<'a> {
 
     /// A feedback the link took in tick `tick`: checked against physics
     /// and against the one before it (`steps` drive steps earlier, 0:
-    /// unknown; [`FeedbackLimits::check`]), then kept as the previous one.
-    fn take_feedback(&mut self, reading: Reading, steps: u32, tick: u64) {
-        let steps_exact = self.link.steps_exact();
+    /// unknown, and at most `most_steps`; [`FeedbackLimits::check`]), then
+    /// kept as the previous one.
+    fn take_feedback(&mut self, reading: Reading, steps: u32, most_steps: u32, tick: u64) {
         let prev = self.drive.last_feedback.map(|(reading, at)| Previous {
             reading,
             ticks_apart: tick.saturating_sub(at),
             steps,
-            steps_exact,
+            most_steps,
         });
         if let Err(why) = self.feedback_limits.check(reading, prev) {
             self.implausible_feedback(why);

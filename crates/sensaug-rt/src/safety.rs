@@ -338,24 +338,24 @@ pub struct Previous {
     /// Drive steps (commands answered) between the two, from their
     /// sequence numbers; 0 when unknown (then `ticks_apart`, at least 1).
     pub steps: u32,
-    /// `steps` is exact (sequence numbers, the SYNC counter echo); false
-    /// for CiA 402's standard mode, where a TPDO is placed on a SYNC by its
-    /// arrival time and a late answer looks like a later SYNC's: the drive
-    /// steps between two feedbacks are then anything from 1 to `steps` + 1
-    /// ([`DriveLink::steps_exact`](sensaug_bridge::drive_link::DriveLink::steps_exact)).
-    pub steps_exact: bool,
+    /// The most drive steps there can be between the two: `steps` when
+    /// the feedbacks say which command they answer; more for CiA 402's
+    /// standard mode, where a TPDO is placed on a SYNC by its arrival time
+    /// and a late answer looks like a later SYNC's: any count from 1 to
+    /// this one is then possible
+    /// ([`Absorbed::Feedback`](sensaug_bridge::drive_link::Absorbed::Feedback)).
+    pub most_steps: u32,
 }
 
 impl Previous {
     /// The ticks between the two feedbacks' samples, at most: the ticks
-    /// between their receptions, or the drive steps between their commands
-    /// when more (one more when `steps` is inexact). The steps are more when
+    /// between their receptions, or the most drive steps between their
+    /// commands when more. The steps are more when
     /// the previous feedback itself came late: a drive that stalled after
     /// answering one command sends that answer with the next answer,
     /// one tick apart, though the two answers are many commands apart.
     pub fn ticks_sampled_apart(&self) -> u64 {
-        let steps = u64::from(self.steps) + u64::from(!self.steps_exact);
-        self.ticks_apart.max(steps)
+        self.ticks_apart.max(u64::from(self.most_steps))
     }
 }
 
@@ -434,14 +434,14 @@ impl FeedbackLimits {
                 })
         };
         let exact = consistent_over(steps);
-        if exact.is_ok() || p.steps_exact {
+        if exact.is_ok() || p.most_steps <= p.steps {
             return exact;
         }
         // Standard CiA 402: the new feedback answers some SYNC after the
         // previous one's (a late answer is placed on a later SYNC), and the
-        // previous one may itself have been one SYNC late: 1 to steps + 1
-        // drive steps. `steps` is bounded by the feedback timeout.
-        if (1..=steps + 1).any(|s| consistent_over(s).is_ok()) {
+        // previous one may itself have been late: 1 to most_steps drive
+        // steps, a count bounded by the feedback timeout.
+        if (1..=u64::from(p.most_steps)).any(|s| consistent_over(s).is_ok()) {
             return Ok(());
         }
         exact
@@ -957,7 +957,7 @@ mod tests {
             reading: Reading { x_rad, v_rad_s },
             ticks_apart,
             steps,
-            steps_exact: true,
+            most_steps: steps,
         })
     }
 
@@ -967,9 +967,10 @@ mod tests {
 
     #[test]
     fn standard_cia402_steps_may_be_off_but_a_misreported_velocity_is_still_refused() {
+        // After an answer in step: one step more than counted at most.
         let inexact = |p: Option<Previous>| {
             p.map(|p| Previous {
-                steps_exact: false,
+                most_steps: p.steps + 1,
                 ..p
             })
         };
@@ -1051,12 +1052,46 @@ mod tests {
             _ => false,
         };
         assert!(beyond(prev(0.0, 0.0, 1, 25)) && beyond(prev(0.0, 0.0, 25, 1)));
-        // Standard CiA 402: one step more than counted.
+        // Standard CiA 402: as many as the most steps.
         let inexact = Previous {
-            steps_exact: false,
+            most_steps: 25,
             ..prev(0.0, 0.0, 1, 24).unwrap()
         };
         assert_eq!(inexact.ticks_sampled_apart(), 25);
+    }
+
+    #[test]
+    fn after_a_late_standard_answer_the_steps_it_may_be_late_by_are_allowed() {
+        // A full run's numbers (standard CiA 402, a fault-free drive under
+        // load): 1.0359 rad/s reported, 3.6282 rad/s from the position's
+        // change, as over 1 SYNC counted here: about 3.5 drive steps of
+        // motion, the previous answer having come late. One step more (the
+        // rule before) refuses it; the most steps after an answer out of
+        // step allow it.
+        let (now, v) = (at(3.6282e-3, 1.0359), 1.0359);
+        let with_most = |most_steps| {
+            LIMITS.check(
+                now,
+                Some(Previous {
+                    most_steps,
+                    ..prev(0.0, v, 1, 1).unwrap()
+                }),
+            )
+        };
+        assert!(matches!(
+            with_most(2),
+            Err(Implausible::Inconsistent { .. })
+        ));
+        assert_eq!(with_most(4), Ok(()));
+        // The same 4 steps still refuse a velocity of the wrong sign (over
+        // 10 the plant's acceleration bound, 857 rad/s^2, would allow it).
+        let backwards = Previous {
+            most_steps: 4,
+            ..prev(0.0, -v, 1, 1).unwrap()
+        };
+        assert!(LIMITS
+            .check(at(3.6282e-3, -1.0359), Some(backwards))
+            .is_err());
     }
 
     /// One exact zero-order-hold step of the plant under a constant torque.
