@@ -440,7 +440,9 @@ impl FeedbackLimits {
         // Standard CiA 402: the new feedback answers some SYNC after the
         // previous one's (a late answer is placed on a later SYNC), and the
         // previous one may itself have been late: 1 to most_steps drive
-        // steps, a count bounded by the feedback timeout.
+        // steps. An answer out of step is no fresh feedback, so the count
+        // is bounded by the feedback timeout's ticks plus
+        // rig.max_stale_feedback_ticks.
         if (1..=u64::from(p.most_steps)).any(|s| consistent_over(s).is_ok()) {
             return Ok(());
         }
