@@ -52,16 +52,16 @@ fn answering(port: u16, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<()> {
     drive(port, stop, u64::MAX)
 }
 
-fn run_loop(start_drive: StartDrive, stop_after: Option<Duration>, spin_us: u32) -> Outcome {
+/// The loop's settings for the test, from those of [`drive::loop_settings`].
+type Adjust = fn(LoopSettings) -> LoopSettings;
+
+fn run_loop(start_drive: StartDrive, stop_after: Option<Duration>, adjust: Adjust) -> Outcome {
     let resolved = load_str(CONFIG, Format::Toml).unwrap();
     let port = free_port();
     let drive_stop = Arc::new(AtomicBool::new(false));
     let handle = start_drive(port, Arc::clone(&drive_stop));
     let robot = resolved.controller().unwrap();
-    let settings = LoopSettings {
-        spin_us,
-        ..drive::loop_settings(&resolved)
-    };
+    let settings = adjust(drive::loop_settings(&resolved));
     let transport = Box::new(UdpBus::open(port).unwrap());
     let mut rig = Rig::start(settings, drive_link(&settings).unwrap(), transport, robot).unwrap();
     let dir = std::env::temp_dir().join(format!("sensaug-rt-test-{port}"));
@@ -118,7 +118,7 @@ fn assert_completed_and_recorded(o: &Outcome) {
 
 #[test]
 fn a_whole_trial_completes_without_allocating_and_logs_every_tick() {
-    let o = run_loop(answering, None, 0);
+    let o = run_loop(answering, None, |s| s);
     assert_completed_and_recorded(&o);
     // Without a spin the sleep's target is the deadline: one latency.
     assert!(o
@@ -166,7 +166,7 @@ fn assert_the_model_sees_the_torque_applied(o: &Outcome) {
 
 #[test]
 fn the_stop_flag_brakes_without_allocating_and_stops() {
-    let o = run_loop(answering, Some(Duration::from_millis(700)), 0);
+    let o = run_loop(answering, Some(Duration::from_millis(700)), |s| s);
     assert_eq!(o.reason, StopReason::Signal(libc::SIGTERM));
     assert_eq!(o.allocations, 0, "the loop allocated");
     assert!(o.ticks < 3500);
@@ -175,7 +175,7 @@ fn the_stop_flag_brakes_without_allocating_and_stops() {
 
 #[test]
 fn a_silent_drive_trips_the_feedback_timeout() {
-    let o = run_loop(|p, s| drive(p, s, 300), None, 0);
+    let o = run_loop(|p, s| drive(p, s, 300), None, |s| s);
     assert_eq!(o.reason, StopReason::FeedbackTimeout);
     // 300 answered commands, then the 50 ms timeout (+ the tick that
     // notices) before stopping.
@@ -185,7 +185,7 @@ fn a_silent_drive_trips_the_feedback_timeout() {
 
 #[test]
 fn with_a_spin_every_tick_records_both_latencies_without_allocating() {
-    let o = run_loop(answering, None, 100);
+    let o = run_loop(answering, None, |s| LoopSettings { spin_us: 100, ..s });
     assert_completed_and_recorded(&o);
     for r in &o.rows {
         assert!(r.wake_latency_us >= 0.0, "tick {}", r.tick);
@@ -213,7 +213,14 @@ fn a_late_answer_sent_with_the_next_is_not_taken_for_a_jump() {
         };
         drive_stalling(port, stop, stall)
     };
-    let o = run_loop(stalling, None, 0);
+    // A 200 ms feedback timeout: the stall's 25 ms on a loaded machine
+    // stay far from it (the timeout is not this test's subject).
+    let patient = |s| LoopSettings {
+        feedback_timeout_ms: 200.0,
+        feedback_timeout_ticks: 200,
+        ..s
+    };
+    let o = run_loop(stalling, None, patient);
     assert_eq!(o.reason, StopReason::Completed);
     assert_eq!(o.allocations, 0, "the loop allocated");
     // The case happened: a feedback moved more than one tick allows
