@@ -78,6 +78,7 @@ pub fn drive_stalling(port: u16, stop: Arc<AtomicBool>, stall: Stall) -> JoinHan
     serve(port, stop, u64::MAX, DriveWait::Sleeping, Some(stall))
 }
 
+/// The drive's thread: [`drive_waiting`], stalling as `stall` says.
 fn serve(
     port: u16,
     stop: Arc<AtomicBool>,
