@@ -215,9 +215,9 @@ fn a_late_answer_sent_with_the_next_is_not_taken_for_a_jump() {
     };
     // A 200 ms feedback timeout: the stall's 25 ms on a loaded machine
     // stay far from it (the timeout is not this test's subject).
-    let patient = |s| LoopSettings {
+    let patient = |s: LoopSettings| LoopSettings {
         feedback_timeout_ms: 200.0,
-        feedback_timeout_ticks: 200,
+        feedback_timeout_ticks: (0.2 / s.dt_s).ceil() as u64,
         ..s
     };
     let o = run_loop(stalling, None, patient);
