@@ -230,6 +230,12 @@ pub fn period_ns(dt_s: f64) -> u64 {
     (dt_s * 1e9).round() as u64
 }
 
+/// The ticks of `dt_s` a feedback timeout of `timeout_ms` spans, rounded
+/// up: the timeout never trips before its time.
+pub fn feedback_timeout_ticks(timeout_ms: f64, dt_s: f64) -> u64 {
+    (timeout_ms * 1e-3 / dt_s).ceil() as u64
+}
+
 impl RigSettings {
     /// The settings of a configuration whose fields and cross-field rules
     /// are checked (the schema bounds `node_id` and `watchdog_ms`).
@@ -255,7 +261,7 @@ impl RigSettings {
             drive_heartbeat_timeout_ms: rig.cia402.heartbeat_timeout_ms,
             cia402_freshness: rig.cia402.freshness,
             feedback_timeout_ms: rig.feedback_timeout_ms,
-            feedback_timeout_ticks: (rig.feedback_timeout_ms * 1e-3 / dt_s).ceil() as u64,
+            feedback_timeout_ticks: feedback_timeout_ticks(rig.feedback_timeout_ms, dt_s),
             stop: StopSettings {
                 time_limit_s: rig.stop_time_limit_s,
                 damping_nm_s_per_rad: mass / rig.stop_time_constant_s,

@@ -6,6 +6,7 @@
 
 use sensaug_bridge::protocol::TORQUE_SCALE_NM;
 use sensaug_bridge::transport::UdpBus;
+use sensaug_config::rig::feedback_timeout_ticks;
 use sensaug_config::{load_str, Format};
 use sensaug_core::agent::Guard;
 use sensaug_log::Row;
@@ -217,7 +218,7 @@ fn a_late_answer_sent_with_the_next_is_not_taken_for_a_jump() {
     // stay far from it (the timeout is not this test's subject).
     let patient = |s: LoopSettings| LoopSettings {
         feedback_timeout_ms: 200.0,
-        feedback_timeout_ticks: (0.2 / s.dt_s).ceil() as u64,
+        feedback_timeout_ticks: feedback_timeout_ticks(200.0, s.dt_s),
         ..s
     };
     let o = run_loop(stalling, None, patient);

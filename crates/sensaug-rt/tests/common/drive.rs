@@ -5,6 +5,7 @@
 use sensaug_bridge::protocol::{decode, encode, DriveState, FaultFlags, Message, NodeId};
 use sensaug_bridge::transport::UdpBus;
 use sensaug_bridge::Transport;
+use sensaug_config::rig::feedback_timeout_ticks;
 use sensaug_config::Resolved;
 use sensaug_core::plant::{Plant, PlantParams};
 use sensaug_rt::control::{LoopSettings, StopSettings};
@@ -141,14 +142,19 @@ fn serve(
                             fault_active: false,
                         };
                     let now = plant.step(torque_nm).unwrap();
-                    let fb = feedback(now, sequence);
                     answered += 1;
                     let stalls =
                         |s: &Stall| now.v.abs() > s.above_rad_s && answered >= stalled_at + s.every;
-                    if let Some(stall) = stall.filter(stalls) {
+                    let stalled = stall.filter(stalls);
+                    if let Some(stall) = stalled {
                         stalled_at = answered;
                         std::thread::sleep(stall.duration);
-                        bus.send(&encode(node, &fb).unwrap()).unwrap();
+                    }
+                    bus.send(&encode(node, &feedback(now, sequence)).unwrap())
+                        .unwrap();
+                    if stalled.is_some() {
+                        // The commands queued meanwhile: each steps the
+                        // plant, the last one is answered.
                         let mut last = None;
                         while let Ok(Some(f)) = bus.recv_ready() {
                             if let Ok(Message::TorqueCommand {
@@ -163,8 +169,6 @@ fn serve(
                         if let Some(fb) = last {
                             bus.send(&encode(node, &fb).unwrap()).unwrap();
                         }
-                    } else {
-                        bus.send(&encode(node, &fb).unwrap()).unwrap();
                     }
                 }
                 _ => {}
@@ -192,7 +196,7 @@ pub fn loop_settings(resolved: &Resolved) -> LoopSettings {
         quiet_period_ms: 50 * sensaug_rt::control::QUIET_WATCHDOG_PERIODS,
         drive_heartbeat_timeout_ms: 100,
         feedback_timeout_ms: 50.0,
-        feedback_timeout_ticks: (50e-3 / dt_s).ceil() as u64,
+        feedback_timeout_ticks: feedback_timeout_ticks(50.0, dt_s),
         stop: StopSettings {
             time_limit_s: 0.05,
             damping_nm_s_per_rad: PlantParams::HI5.mass / 0.004,
