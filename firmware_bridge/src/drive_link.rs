@@ -269,9 +269,8 @@ pub enum Absorbed {
         /// where the feedback says which command it answers (sequence
         /// numbers, the SYNC counter echo); more in CiA 402's standard
         /// mode, where an answer is placed on a SYNC by its arrival time
-        /// and a late answer looks like a later SYNC's
-        /// ([`StepWatch::answer_taken`]).
-        /// Any count from 1 to this one is then possible.
+        /// and a late answer looks like a later SYNC's: any count from 1 to
+        /// this one is then possible ([`StepWatch::answer_taken`]).
         most_steps: u32,
     },
     /// A feedback not taken: a copy of the newest, an older one arriving

@@ -379,7 +379,8 @@ impl<'a> Rig<'a> {
         rig.torque_step_nm = rig.link.torque_step_nm();
         rig.times.enable_ns = instant_ns(times.enable);
         rig.times.first_command_ns = instant_ns(times.first_command);
-        // The enable's feedback: the first one, seen by tick 0.
+        // The enable's feedback: the first one, seen by tick 0 (no steps
+        // counted: there is none before it).
         let first = rig.link.sample(0);
         rig.take_feedback(
             Reading {

@@ -350,10 +350,10 @@ pub struct Previous {
 impl Previous {
     /// The ticks between the two feedbacks' samples, at most: the ticks
     /// between their receptions, or the most drive steps between their
-    /// commands when more. The steps are more when
-    /// the previous feedback itself came late: a drive that stalled after
-    /// answering one command sends that answer with the next answer,
-    /// one tick apart, though the two answers are many commands apart.
+    /// commands when more. The steps are more when the previous feedback
+    /// itself came late: a drive that stalled after answering one command
+    /// sends that answer with the next answer, one tick apart, though the
+    /// two answers are many commands apart.
     pub fn ticks_sampled_apart(&self) -> u64 {
         self.ticks_apart.max(u64::from(self.most_steps))
     }
